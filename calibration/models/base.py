@@ -1,0 +1,254 @@
+"""The one surface every camera model has (DESIGN §4), in the style of basalt-headers.
+
+Shapes: points (N, 3) float64 in the camera frame (x right, y down, z forward); pixels (N, 2)
+float64 (u, v) with (0, 0) the centre of the top-left pixel; rays (N, 3) unit vectors; masks (N,).
+Entries whose mask is False are finite but meaningless: never NaN, inf or a sentinel value.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar, Self, TypeVar
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from calibration.errors import ModelError
+
+__all__ = ["MODELS", "CameraModel", "Mask", "create", "register", "smallest_positive_root"]
+
+F64 = NDArray[np.float64]
+Mask = NDArray[np.bool_]
+
+# Relative slack on the field-angle limit so a ray unprojected exactly at the limit projects back.
+_THETA_SLACK = 1e-12
+# Pixels on the image border survive a round trip's round-off.
+_EDGE_SLACK = 1e-9
+
+
+class CameraModel(ABC):
+    """A calibrated central camera: ``project`` and ``unproject`` with validity masks.
+
+    Subclasses declare ``name``, ``param_names`` (required, in file order) and
+    ``optional_params`` (name -> default), and implement ``_project``/``_unproject`` for their
+    own domain; this base adds the checks every model shares: finite output, the field-angle
+    limit (``max_theta``, which includes an optional lens ``fov_deg``) and the image bounds.
+    """
+
+    name: ClassVar[str]
+    param_names: ClassVar[tuple[str, ...]]
+    optional_params: ClassVar[Mapping[str, float]] = {}
+
+    def __init__(self, width: int, height: int, fov_deg: float | None = None, **params: float) -> None:
+        if isinstance(width, bool) or int(width) != width or int(width) <= 0:
+            raise ModelError(f"{self.name}: width must be a positive integer, got {width!r}")
+        if isinstance(height, bool) or int(height) != height or int(height) <= 0:
+            raise ModelError(f"{self.name}: height must be a positive integer, got {height!r}")
+        self.width = int(width)
+        self.height = int(height)
+        unknown = sorted(set(params) - set(self.all_param_names()))
+        if unknown:
+            raise ModelError(f"{self.name}: unknown parameter(s) {', '.join(unknown)}")
+        missing = [n for n in self.param_names if n not in params]
+        if missing:
+            raise ModelError(f"{self.name}: missing parameter(s) {', '.join(missing)}")
+        values: dict[str, float] = {}
+        for n in self.all_param_names():
+            raw = params.get(n, self.optional_params.get(n))
+            try:
+                value = float(raw)  # type: ignore[arg-type]
+            except (TypeError, ValueError) as err:
+                raise ModelError(f"{self.name}: parameter {n} must be a number, got {raw!r}") from err
+            if not math.isfinite(value):
+                raise ModelError(f"{self.name}: parameter {n} must be finite, got {value}")
+            values[n] = value
+        self._values = values
+        if fov_deg is not None:
+            fov = float(fov_deg)
+            if not (0.0 < fov <= 360.0):
+                raise ModelError(f"{self.name}: fov_deg must be in (0, 360], got {fov_deg!r}")
+            self.fov_deg: float | None = fov
+        else:
+            self.fov_deg = None
+        self._setup()
+        model_limit = float(self._model_max_theta())
+        lens_limit = math.radians(self.fov_deg) / 2.0 if self.fov_deg is not None else math.pi
+        self.max_theta = min(model_limit, lens_limit, math.pi)
+
+    # ----- what subclasses provide -------------------------------------------------------------
+    @abstractmethod
+    def _setup(self) -> None:
+        """Read ``self._values`` into attributes, validate them (raise ModelError), precompute."""
+
+    @abstractmethod
+    def _model_max_theta(self) -> float:
+        """Largest angle off the optical axis (radians) where the model is valid and invertible."""
+
+    @abstractmethod
+    def _project(self, points: F64) -> tuple[F64, Mask]:
+        """Project (N, 3) points; mask False outside the model's own domain."""
+
+    @abstractmethod
+    def _unproject(self, pixels: F64) -> tuple[F64, Mask]:
+        """Unproject (N, 2) pixels to (N, 3) rays (any length); mask False where impossible."""
+
+    # ----- the shared surface ------------------------------------------------------------------
+    @classmethod
+    def all_param_names(cls) -> tuple[str, ...]:
+        """Required then optional parameter names: the order of :attr:`params`."""
+        return tuple(cls.param_names) + tuple(cls.optional_params)
+
+    @property
+    def params(self) -> F64:
+        """Parameter vector (P,) in :meth:`all_param_names` order."""
+        return np.array([self._values[n] for n in self.all_param_names()], dtype=np.float64)
+
+    @property
+    def param_dict(self) -> dict[str, float]:
+        return dict(self._values)
+
+    def with_params(self, vector: ArrayLike) -> Self:
+        """Same model type, size and lens limit with a new parameter vector (P,)."""
+        v = np.asarray(vector, dtype=np.float64).reshape(-1)
+        names = self.all_param_names()
+        if v.shape[0] != len(names):
+            raise ModelError(f"{self.name}: expected {len(names)} parameters, got {v.shape[0]}")
+        return type(self)(self.width, self.height, self.fov_deg, **dict(zip(names, v, strict=True)))
+
+    def replace(self, **changes: Any) -> Self:
+        """Copy with some of width, height, fov_deg or parameters changed."""
+        width = changes.pop("width", self.width)
+        height = changes.pop("height", self.height)
+        fov = changes.pop("fov_deg", self.fov_deg)
+        return type(self)(width, height, fov, **{**self._values, **changes})
+
+    def project(self, points: ArrayLike, *, in_image: bool = True) -> tuple[F64, Mask]:
+        """Points (N, 3) -> pixels (N, 2), valid (N,).
+
+        Invalid: zero-length point, beyond ``max_theta`` off axis, outside the model's domain,
+        or (with ``in_image``) outside the image ``[-0.5, W-0.5] x [-0.5, H-0.5]``.
+        """
+        pts = _as_array(points, 3, "points")
+        norm = np.linalg.norm(pts, axis=1)
+        ok = norm > 0.0
+        cos_theta = np.divide(pts[:, 2], norm, out=np.ones_like(norm), where=ok)
+        ok &= np.arccos(np.clip(cos_theta, -1.0, 1.0)) <= self.max_theta * (1.0 + _THETA_SLACK)
+        with np.errstate(all="ignore"):
+            pix, valid = self._project(pts)
+        valid = valid & ok & np.isfinite(pix).all(axis=1)
+        if in_image:
+            valid &= self.in_image(pix)
+        return np.where(np.isfinite(pix), pix, 0.0), valid
+
+    def unproject(self, pixels: ArrayLike, *, in_image: bool = True) -> tuple[F64, Mask]:
+        """Pixels (N, 2) -> unit rays (N, 3), valid (N,).
+
+        Invalid: outside the image (with ``in_image``), outside the lens circle/model domain,
+        a ray beyond ``max_theta``, or an iterative inversion that did not converge.
+        """
+        pix = _as_array(pixels, 2, "pixels")
+        with np.errstate(all="ignore"):
+            rays, valid = self._unproject(pix)
+            norm = np.linalg.norm(rays, axis=1)
+            rays = rays / norm[:, None]
+        valid = valid & np.isfinite(rays).all(axis=1) & (norm > 0.0)
+        rays = np.where(valid[:, None], rays, np.array([0.0, 0.0, 1.0]))
+        theta = np.arccos(np.clip(rays[:, 2], -1.0, 1.0))
+        valid &= theta <= self.max_theta * (1.0 + _THETA_SLACK)
+        if in_image:
+            valid &= self.in_image(pix)
+        return rays, valid
+
+    def in_image(self, pixels: ArrayLike) -> Mask:
+        """(N, 2) -> (N,) whether each pixel lies inside the image area."""
+        pix = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+        u, v = pix[:, 0], pix[:, 1]
+        lo, w, h = -0.5 - _EDGE_SLACK, self.width - 0.5 + _EDGE_SLACK, self.height - 0.5 + _EDGE_SLACK
+        return (u >= lo) & (u <= w) & (v >= lo) & (v <= h)
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{"model", "width", "height", "params": {...}}`` (+ ``fov_deg`` when set): rig.yaml."""
+        d: dict[str, Any] = {
+            "model": self.name,
+            "width": self.width,
+            "height": self.height,
+            "params": {n: float(v) for n, v in self._values.items()},
+        }
+        if self.fov_deg is not None:
+            d["fov_deg"] = self.fov_deg
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> CameraModel:
+        """Inverse of :meth:`to_dict`. On the base class the ``model`` key picks the type."""
+        if not isinstance(d, Mapping):
+            raise ModelError("camera entry must be a mapping")
+        name = d.get("model", getattr(cls, "name", None))
+        target = MODELS.get(str(name)) if cls is CameraModel else cls
+        if target is None:
+            raise ModelError(f"unknown camera model {name!r}; known: {', '.join(sorted(MODELS))}")
+        if cls is not CameraModel and name != cls.name:
+            raise ModelError(f"expected model {cls.name!r}, got {name!r}")
+        for key in ("width", "height", "params"):
+            if key not in d:
+                raise ModelError(f"{target.name}: missing field '{key}'")
+        params = d["params"]
+        if not isinstance(params, Mapping):
+            raise ModelError(f"{target.name}: field 'params' must be a mapping")
+        return target(d["width"], d["height"], d.get("fov_deg"), **dict(params))
+
+    def __repr__(self) -> str:
+        vals = ", ".join(f"{k}={v:.6g}" for k, v in self._values.items())
+        return f"{type(self).__name__}({self.width}x{self.height}, {vals})"
+
+    def __eq__(self, other: object) -> bool:
+        return (
+            type(other) is type(self)
+            and isinstance(other, CameraModel)
+            and (self.width, self.height, self.fov_deg) == (other.width, other.height, other.fov_deg)
+            and self._values == other._values
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+MODELS: dict[str, type[CameraModel]] = {}
+_M = TypeVar("_M", bound=type[CameraModel])
+
+
+def register(cls: _M) -> _M:
+    """Class decorator adding a model to :data:`MODELS` under its ``name``."""
+    MODELS[cls.name] = cls
+    return cls
+
+
+def create(name: str, width: int, height: int, **params: Any) -> CameraModel:
+    """Build a model by name: ``create("kannala_brandt", 1280, 960, fx=..., ..., fov_deg=190)``."""
+    try:
+        cls = MODELS[name]
+    except KeyError:
+        raise ModelError(f"unknown camera model {name!r}; known: {', '.join(sorted(MODELS))}") from None
+    fov = params.pop("fov_deg", None)
+    return cls(width, height, fov, **params)
+
+
+def smallest_positive_root(coeffs_ascending: Sequence[float]) -> float:
+    """Smallest real root > 0 of ``c0 + c1 s + c2 s^2 + ...``; ``inf`` if there is none."""
+    c = np.trim_zeros(np.asarray(coeffs_ascending, dtype=np.float64), "b")
+    if c.size <= 1:
+        return math.inf
+    roots = np.roots(c[::-1])
+    real = roots[(np.abs(roots.imag) <= 1e-9 * np.maximum(1.0, np.abs(roots.real)))].real
+    pos = real[real > 0]
+    return float(pos.min()) if pos.size else math.inf
+
+
+def _as_array(x: ArrayLike, cols: int, what: str) -> F64:
+    a = np.asarray(x, dtype=np.float64)
+    if a.ndim == 1 and a.shape[0] == cols:
+        a = a[None, :]
+    if a.ndim != 2 or a.shape[1] != cols:
+        raise ModelError(f"{what} must have shape (N, {cols}), got {np.shape(x)}")
+    return a

@@ -1,0 +1,87 @@
+"""A calibrated rig: named camera models and their poses in the rig frame (DESIGN §3, §7)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from calibration.errors import ModelError
+from calibration.models import CameraModel
+
+__all__ = ["Rig"]
+
+F64 = NDArray[np.float64]
+
+
+@dataclass
+class Rig:
+    """``cameras[name]`` is a model; ``T_rig_cam[name]`` (4, 4) maps camera points into the rig."""
+
+    cameras: dict[str, CameraModel]
+    T_rig_cam: dict[str, F64] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if set(self.cameras) != set(self.T_rig_cam):
+            raise ModelError(f"rig cameras {sorted(self.cameras)} and poses {sorted(self.T_rig_cam)} differ")
+        for name, T in self.T_rig_cam.items():
+            T = np.asarray(T, dtype=np.float64)
+            if T.shape != (4, 4) or not np.isfinite(T).all():
+                raise ModelError(f"T_rig_cam of camera '{name}' must be a finite 4x4 matrix")
+            R = T[:3, :3]
+            if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+                raise ModelError(f"T_rig_cam of camera '{name}' is not a rigid transform")
+            if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]):
+                raise ModelError(f"T_rig_cam of camera '{name}' must end with row [0, 0, 0, 1]")
+            self.T_rig_cam[name] = T
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.cameras)
+
+    def center(self, name: str) -> F64:
+        """Optical centre of camera ``name`` in the rig frame (3,)."""
+        return self.T_rig_cam[name][:3, 3].copy()
+
+    def axis(self, name: str) -> F64:
+        """Optical axis (unit z of the camera) in the rig frame (3,)."""
+        return self.T_rig_cam[name][:3, 2].copy()
+
+    def baseline(self, a: str = "left", b: str = "right") -> float:
+        """Distance between the optical centres of two cameras (metres)."""
+        return float(np.linalg.norm(self.center(b) - self.center(a)))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The rig.yaml document (DESIGN §7)."""
+        cams: dict[str, Any] = {}
+        for name, model in self.cameras.items():
+            entry = model.to_dict()
+            entry["T_rig_cam"] = [[float(x) for x in row] for row in self.T_rig_cam[name]]
+            cams[name] = entry
+        return {"cameras": cams}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> Rig:
+        """Inverse of :meth:`to_dict`; raises ModelError naming the camera and field."""
+        cams = d.get("cameras") if isinstance(d, Mapping) else None
+        if not isinstance(cams, Mapping) or not cams:
+            raise ModelError("field 'cameras' must be a non-empty mapping")
+        cameras: dict[str, CameraModel] = {}
+        poses: dict[str, F64] = {}
+        for name, entry in cams.items():
+            if not isinstance(entry, Mapping):
+                raise ModelError(f"cameras.{name} must be a mapping")
+            try:
+                cameras[str(name)] = CameraModel.from_dict(entry)
+            except ModelError as err:
+                raise ModelError(f"cameras.{name}: {err}") from err
+            if "T_rig_cam" not in entry:
+                raise ModelError(f"cameras.{name}: missing field 'T_rig_cam'")
+            try:
+                poses[str(name)] = np.asarray(entry["T_rig_cam"], dtype=np.float64)
+            except (TypeError, ValueError) as err:
+                raise ModelError(f"cameras.{name}.T_rig_cam must be a 4x4 matrix of numbers") from err
+        return cls(cameras, poses)

@@ -1,0 +1,67 @@
+"""Exception tree of the ``rig`` package: everything it raises on bad input or faulty hardware
+derives from :class:`RigError`."""
+
+from __future__ import annotations
+
+__all__ = [
+    "CameraFormatError",
+    "CameraUnavailable",
+    "CaptureTimeout",
+    "ConfigError",
+    "DiskFullError",
+    "EvaluationError",
+    "LutError",
+    "PipelineError",
+    "RecordingError",
+    "RigError",
+    "SimulationError",
+    "UsbError",
+]
+
+
+class RigError(Exception):
+    """Base of every error raised by ``rig``."""
+
+
+class ConfigError(RigError, ValueError):
+    """A configuration value (VPC, stereo, camera, preset) is invalid."""
+
+
+class CameraUnavailable(RigError):
+    """A camera cannot be opened or has stopped delivering frames."""
+
+
+class CameraFormatError(CameraUnavailable):
+    """The camera refused the requested format, size or frame rate."""
+
+
+class CaptureTimeout(RigError):
+    """No frame (or pair) arrived within the allowed time."""
+
+
+class RecordingError(RigError):
+    """A recording directory is malformed, incomplete or cannot be written."""
+
+
+class DiskFullError(RecordingError):
+    """The file system ran out of space while recording; what was written stays readable."""
+
+
+class UsbError(RigError):
+    """USB enumeration failed (no libusb backend, missing permissions)."""
+
+
+class LutError(RigError):
+    """A lookup table cannot be built (e.g. the VPC sees nothing of a lens)."""
+
+
+class PipelineError(RigError):
+    """The depth pipeline was given inputs it cannot process."""
+
+
+class SimulationError(RigError):
+    """The virtual environment was asked for something it cannot render."""
+
+
+class EvaluationError(RigError):
+    """``rig evaluate`` could not complete a step."""

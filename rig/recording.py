@@ -1,0 +1,317 @@
+"""Recording directories (DESIGN §7): written by ``rig record`` and the renderer, read by the
+file cameras and ``rig process``.
+
+Layout::
+
+    recording.json   {"version": 1, "cameras": ["left", "right"], ...}
+    frames.csv       seq,left_ts_ns,right_ts_ns,left_file,right_file   (append-only)
+    left/NNNNNN.jpg  frames as the camera delivered them (MJPEG byte-exact; .png when rendered)
+    right/NNNNNN.jpg
+    calibration.yaml (optional) and ground_truth/ (renderer only)
+
+Crash safety: both frame files of a pair are written and flushed before its row is appended to
+``frames.csv`` in one write and flushed, so a ``kill -9`` loses at most the pair in flight and
+every indexed row points at complete files.
+"""
+
+from __future__ import annotations
+
+import csv
+import errno
+import io
+import json
+import logging
+import os
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from rig.errors import DiskFullError, RecordingError
+
+__all__ = [
+    "FRAMES_HEADER",
+    "RECORDING_VERSION",
+    "PairRecord",
+    "Recording",
+    "RecordingWriter",
+]
+
+log = logging.getLogger(__name__)
+
+RECORDING_VERSION = 1
+FRAMES_HEADER = ("seq", "left_ts_ns", "right_ts_ns", "left_file", "right_file")
+_NO_SPACE = {errno.ENOSPC, errno.EDQUOT}
+
+
+@dataclass(frozen=True)
+class PairRecord:
+    """One row of ``frames.csv``: a synchronised pair, file paths relative to the recording."""
+
+    seq: int
+    left_ts_ns: int
+    right_ts_ns: int
+    left_file: str
+    right_file: str
+
+    def file(self, camera: str) -> str:
+        if camera == "left":
+            return self.left_file
+        if camera == "right":
+            return self.right_file
+        raise RecordingError(f"unknown camera {camera!r} (expected 'left' or 'right')")
+
+    def ts_ns(self, camera: str) -> int:
+        if camera == "left":
+            return self.left_ts_ns
+        if camera == "right":
+            return self.right_ts_ns
+        raise RecordingError(f"unknown camera {camera!r} (expected 'left' or 'right')")
+
+
+class Recording:
+    """A recording directory opened for reading; validates ``recording.json`` and ``frames.csv``.
+
+    A final ``frames.csv`` line cut short by a crash (no newline, unparsable) is skipped with a
+    warning; any other malformed line is an error naming the file and line.
+    """
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise RecordingError(f"{self.root}: not a recording directory (does not exist)")
+        self.meta = self._read_meta()
+        cams = self.meta.get("cameras")
+        if not isinstance(cams, list) or not all(isinstance(c, str) for c in cams):
+            raise RecordingError(f"{self.root / 'recording.json'}: field 'cameras' must be a list of names")
+        self.cameras: list[str] = cams
+        self.truncated_tail = False
+        self.pairs: list[PairRecord] = self._read_index()
+
+    # ----- reading -----------------------------------------------------------------------------
+    def _read_meta(self) -> dict[str, Any]:
+        path = self.root / "recording.json"
+        try:
+            meta = json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise RecordingError(f"{path}: missing (not a recording directory)") from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+            raise RecordingError(f"{path}: unreadable JSON ({err})") from err
+        if not isinstance(meta, dict):
+            raise RecordingError(f"{path}: must hold a JSON object")
+        version = meta.get("version")
+        if version != RECORDING_VERSION:
+            raise RecordingError(
+                f"{path}: field 'version' is {version!r}; this build reads version {RECORDING_VERSION}"
+            )
+        return meta
+
+    def _read_index(self) -> list[PairRecord]:
+        path = self.root / "frames.csv"
+        try:
+            text = path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise RecordingError(f"{path}: missing") from None
+        except (OSError, UnicodeDecodeError) as err:
+            raise RecordingError(f"{path}: unreadable ({err})") from err
+        lines = text.split("\n")
+        complete_tail = text.endswith("\n")
+        if complete_tail:
+            lines = lines[:-1]
+        if not lines or tuple(lines[0].strip().split(",")) != FRAMES_HEADER:
+            raise RecordingError(f"{path}: line 1: header must be {','.join(FRAMES_HEADER)}")
+        pairs: list[PairRecord] = []
+        seen: set[int] = set()
+        for lineno, line in enumerate(lines[1:], start=2):
+            last = lineno == len(lines)
+            if not line.strip():
+                continue
+            try:
+                pair = self._parse_row(line)
+            except RecordingError as err:
+                if last and not complete_tail:
+                    log.warning("%s: skipping line %d cut short by a crash", path, lineno)
+                    self.truncated_tail = True
+                    break
+                raise RecordingError(f"{path}: line {lineno}: {err}") from None
+            if pair.seq in seen:
+                raise RecordingError(f"{path}: line {lineno}: duplicate seq {pair.seq}")
+            seen.add(pair.seq)
+            pairs.append(pair)
+        return pairs
+
+    @staticmethod
+    def _parse_row(line: str) -> PairRecord:
+        fields = next(csv.reader([line]))
+        if len(fields) != len(FRAMES_HEADER):
+            raise RecordingError(f"expected {len(FRAMES_HEADER)} fields, got {len(fields)}")
+        try:
+            seq, lts, rts = (int(f) for f in fields[:3])
+        except ValueError:
+            raise RecordingError("seq, left_ts_ns and right_ts_ns must be integers") from None
+        if seq < 0:
+            raise RecordingError(f"seq must be >= 0, got {seq}")
+        if not fields[3] or not fields[4]:
+            raise RecordingError("left_file and right_file must not be empty")
+        return PairRecord(seq, lts, rts, fields[3], fields[4])
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def __iter__(self) -> Iterator[PairRecord]:
+        return iter(self.pairs)
+
+    def path(self, relative: str) -> Path:
+        """Absolute path of a file named in the index; refuses paths leaving the recording."""
+        root = self.root.resolve()
+        p = (root / relative).resolve()
+        if not p.is_relative_to(root):
+            raise RecordingError(f"{self.root / 'frames.csv'}: file {relative!r} lies outside the recording")
+        return p
+
+    def read_bytes(self, pair: PairRecord, camera: str) -> bytes:
+        """The frame file exactly as stored (MJPEG bytes for camera recordings)."""
+        p = self.path(pair.file(camera))
+        try:
+            return p.read_bytes()
+        except OSError as err:
+            raise RecordingError(
+                f"{p}: {camera} frame of seq {pair.seq} unreadable ({err.strerror})"
+            ) from err
+
+    def read_image(self, pair: PairRecord, camera: str, flags: int = cv2.IMREAD_UNCHANGED) -> NDArray[Any]:
+        """Decoded frame; RecordingError naming the file and seq if it is missing or corrupt."""
+        data = self.read_bytes(pair, camera)
+        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags) if data else None
+        if img is None:
+            raise RecordingError(
+                f"{self.path(pair.file(camera))}: {camera} frame of seq {pair.seq} is not a readable image"
+            )
+        return img
+
+    @property
+    def calibration_path(self) -> Path | None:
+        """``calibration.yaml`` when the recording carries one (renderer output)."""
+        p = self.root / "calibration.yaml"
+        return p if p.is_file() else None
+
+    @property
+    def ground_truth_dir(self) -> Path:
+        return self.root / "ground_truth"
+
+
+class RecordingWriter:
+    """Writes a recording pair by pair; see the module docstring for the crash-safety order.
+
+    ``fsync=True`` also forces data to the device (survives power loss, costs latency);
+    flushing alone already survives a killed process.
+    """
+
+    def __init__(
+        self,
+        root: str | Path,
+        *,
+        meta: Mapping[str, Any] | None = None,
+        cameras: Sequence[str] = ("left", "right"),
+        fsync: bool = False,
+    ) -> None:
+        self.root = Path(root)
+        self.cameras = list(cameras)
+        self.fsync = fsync
+        self.count = 0
+        index = self.root / "frames.csv"
+        if index.exists():
+            raise RecordingError(f"{self.root}: already holds a recording (frames.csv exists)")
+        try:
+            for cam in self.cameras:
+                (self.root / cam).mkdir(parents=True, exist_ok=True)
+            doc = {"version": RECORDING_VERSION, "cameras": self.cameras, **(meta or {})}
+            doc["version"], doc["cameras"] = RECORDING_VERSION, self.cameras
+            _atomic_write(self.root / "recording.json", json.dumps(doc, indent=2).encode() + b"\n")
+            self._index: io.BufferedWriter | None = open(index, "ab")  # noqa: SIM115
+            self._index.write((",".join(FRAMES_HEADER) + "\n").encode())
+            self._index.flush()
+        except OSError as err:
+            raise self._translate(err, self.root) from err
+
+    def __enter__(self) -> RecordingWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def write_pair(
+        self,
+        seq: int,
+        left_ts_ns: int,
+        right_ts_ns: int,
+        left: bytes,
+        right: bytes,
+        ext: str = ".jpg",
+    ) -> PairRecord:
+        """Store two encoded frames byte-exact, then index them. Returns the indexed row."""
+        if self._index is None:
+            raise RecordingError(f"{self.root}: recording already closed")
+        rel = {cam: f"{cam}/{seq:06d}{ext}" for cam in ("left", "right")}
+        written: list[Path] = []
+        try:
+            for cam, data in (("left", left), ("right", right)):
+                p = self.root / rel[cam]
+                with open(p, "wb") as f:
+                    written.append(p)
+                    f.write(data)
+                    f.flush()
+                    if self.fsync:
+                        os.fsync(f.fileno())
+            row = f"{seq},{int(left_ts_ns)},{int(right_ts_ns)},{rel['left']},{rel['right']}\n"
+            self._index.write(row.encode())
+            self._index.flush()
+            if self.fsync:
+                os.fsync(self._index.fileno())
+        except OSError as err:
+            # An unindexed partial pair is removed so the directory holds only complete pairs.
+            for p in written:
+                p.unlink(missing_ok=True)
+            raise self._translate(err, self.root) from err
+        self.count += 1
+        return PairRecord(seq, int(left_ts_ns), int(right_ts_ns), rel["left"], rel["right"])
+
+    def write_images(
+        self, seq: int, left_ts_ns: int, right_ts_ns: int, left: NDArray[Any], right: NDArray[Any]
+    ) -> PairRecord:
+        """Store two decoded images losslessly as PNG (rendered frames)."""
+        enc = []
+        for img in (left, right):
+            ok, buf = cv2.imencode(".png", img)
+            if not ok:
+                raise RecordingError(f"{self.root}: could not encode frame {seq} as PNG")
+            enc.append(buf.tobytes())
+        return self.write_pair(seq, left_ts_ns, right_ts_ns, enc[0], enc[1], ext=".png")
+
+    def close(self) -> None:
+        if self._index is not None:
+            try:
+                self._index.close()
+            except OSError as err:
+                raise self._translate(err, self.root) from err
+            finally:
+                self._index = None
+
+    @staticmethod
+    def _translate(err: OSError, root: Path) -> RecordingError:
+        if err.errno in _NO_SPACE:
+            return DiskFullError(f"{root}: disk full; recording stopped, everything indexed so far is intact")
+        return RecordingError(f"{root}: cannot write recording ({err.strerror or err})")
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
