@@ -4,6 +4,7 @@ Imports only numpy, scipy and cv2: nothing here knows about streaming cameras or
 """
 
 from calibration.errors import CalibrationError, CalibrationFailed, CalibrationFileError, ModelError
+from calibration.formats import detect_format, load_camera, load_rig, save_rig
 from calibration.models import MODELS, CameraModel, create
 from calibration.rig import Rig
 
@@ -16,4 +17,8 @@ __all__ = [
     "ModelError",
     "Rig",
     "create",
+    "detect_format",
+    "load_camera",
+    "load_rig",
+    "save_rig",
 ]

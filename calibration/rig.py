@@ -7,9 +7,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from calibration.errors import ModelError
+from calibration.geometry import invert_transform
 from calibration.models import CameraModel
 
 __all__ = ["Rig"]
@@ -62,6 +63,51 @@ class Rig:
             entry["T_rig_cam"] = [[float(x) for x in row] for row in self.T_rig_cam[name]]
             cams[name] = entry
         return {"cameras": cams}
+
+    @classmethod
+    def from_relative_pose(
+        cls,
+        left_model: CameraModel,
+        right_model: CameraModel,
+        T_right_left: ArrayLike,
+        names: tuple[str, str] = ("left", "right"),
+    ) -> Rig:
+        """A two-camera rig from the pose of the right camera relative to the left
+        (``p_right = T_right_left · p_left``, (4, 4)), in the canonical rig frame (DESIGN §3):
+        origin at the midpoint of the optical centres, x along the baseline (left -> right),
+        z = the mean of the two optical axes made orthogonal to x, y = z × x.
+
+        Raises ModelError if the pose is not rigid, the centres coincide or the mean axis is
+        parallel to the baseline (no forward direction to define).
+        """
+        if names[0] == names[1]:
+            raise ModelError(f"the two cameras need different names, got {names[0]!r} twice")
+        T = np.asarray(T_right_left, dtype=np.float64)
+        if T.shape != (4, 4) or not np.isfinite(T).all():
+            raise ModelError("T_right_left must be a finite 4x4 matrix")
+        R, t = T[:3, :3], T[:3, 3]
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
+            raise ModelError("T_right_left is not a rigid transform")
+        # Everything below is expressed in the left camera's frame.
+        center_right = -R.T @ t
+        baseline = float(np.linalg.norm(center_right))
+        if baseline <= 1e-12:
+            raise ModelError("the two optical centres coincide: no baseline to define the rig frame")
+        x = center_right / baseline
+        mean_axis = np.array([0.0, 0.0, 1.0]) + R.T[:, 2]
+        z = mean_axis - (mean_axis @ x) * x
+        z_norm = float(np.linalg.norm(z))
+        if z_norm <= 1e-9:
+            raise ModelError("the mean optical axis is parallel to the baseline: no forward direction")
+        z /= z_norm
+        y = np.cross(z, x)
+        T_left_rig = np.eye(4)
+        T_left_rig[:3, :3] = np.column_stack([x, y, z])
+        T_left_rig[:3, 3] = center_right / 2.0
+        T_rig_left = invert_transform(T_left_rig)
+        T_rig_right = T_rig_left @ invert_transform(T)
+        left, right = names
+        return cls({left: left_model, right: right_model}, {left: T_rig_left, right: T_rig_right})
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> Rig:

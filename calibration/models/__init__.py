@@ -4,16 +4,24 @@
 """
 
 from calibration.models.base import MODELS, CameraModel, create, register
+from calibration.models.double_sphere import DoubleSphereModel
 from calibration.models.equidistant import EquidistantModel
+from calibration.models.eucm import EucmModel
 from calibration.models.kannala_brandt import KannalaBrandtModel
+from calibration.models.mei import MeiModel
 from calibration.models.pinhole import PinholeModel
+from calibration.models.scaramuzza import ScaramuzzaModel
 
 __all__ = [
     "MODELS",
     "CameraModel",
+    "DoubleSphereModel",
     "EquidistantModel",
+    "EucmModel",
     "KannalaBrandtModel",
+    "MeiModel",
     "PinholeModel",
+    "ScaramuzzaModel",
     "create",
     "register",
 ]

@@ -3,6 +3,12 @@
 Shapes: points (N, 3) float64 in the camera frame (x right, y down, z forward); pixels (N, 2)
 float64 (u, v) with (0, 0) the centre of the top-left pixel; rays (N, 3) unit vectors; masks (N,).
 Entries whose mask is False are finite but meaningless: never NaN, inf or a sentinel value.
+
+Parameters are numbers, or lists of numbers for the names a model lists in ``list_params``
+(e.g. Scaramuzza's polynomials). The flat parameter vector :attr:`CameraModel.params` holds every
+scalar as one entry and every list as its entries in order (:attr:`CameraModel.param_layout`
+names each entry, e.g. ``"poly[2]"``); ``derived_params`` (lists the model recomputes from the
+others, e.g. Scaramuzza's fitted ``invpol``) are not in the vector.
 """
 
 from __future__ import annotations
@@ -39,9 +45,14 @@ class CameraModel(ABC):
 
     name: ClassVar[str]
     param_names: ClassVar[tuple[str, ...]]
-    optional_params: ClassVar[Mapping[str, float]] = {}
+    optional_params: ClassVar[Mapping[str, float | tuple[float, ...]]] = {}
+    # Names whose value is a list of numbers (stored as tuples, written to files as lists).
+    list_params: ClassVar[tuple[str, ...]] = ()
+    # List parameters the model derives from the others when absent (empty); kept out of the
+    # flat vector and recomputed when other parameters change (with_params, replace).
+    derived_params: ClassVar[tuple[str, ...]] = ()
 
-    def __init__(self, width: int, height: int, fov_deg: float | None = None, **params: float) -> None:
+    def __init__(self, width: int, height: int, fov_deg: float | None = None, **params: Any) -> None:
         if isinstance(width, bool) or int(width) != width or int(width) <= 0:
             raise ModelError(f"{self.name}: width must be a positive integer, got {width!r}")
         if isinstance(height, bool) or int(height) != height or int(height) <= 0:
@@ -55,8 +66,12 @@ class CameraModel(ABC):
         if missing:
             raise ModelError(f"{self.name}: missing parameter(s) {', '.join(missing)}")
         values: dict[str, float] = {}
+        lists: dict[str, tuple[float, ...]] = {}
         for n in self.all_param_names():
             raw = params.get(n, self.optional_params.get(n))
+            if n in self.list_params:
+                lists[n] = self._number_list(n, raw)
+                continue
             try:
                 value = float(raw)  # type: ignore[arg-type]
             except (TypeError, ValueError) as err:
@@ -65,6 +80,7 @@ class CameraModel(ABC):
                 raise ModelError(f"{self.name}: parameter {n} must be finite, got {value}")
             values[n] = value
         self._values = values
+        self._lists = lists
         if fov_deg is not None:
             fov = float(fov_deg)
             if not (0.0 < fov <= 360.0):
@@ -80,7 +96,8 @@ class CameraModel(ABC):
     # ----- what subclasses provide -------------------------------------------------------------
     @abstractmethod
     def _setup(self) -> None:
-        """Read ``self._values`` into attributes, validate them (raise ModelError), precompute."""
+        """Read ``self._values`` (and ``self._lists``) into attributes, validate them (raise
+        ModelError), precompute; fill in empty ``derived_params`` entries of ``self._lists``."""
 
     @abstractmethod
     def _model_max_theta(self) -> float:
@@ -101,28 +118,75 @@ class CameraModel(ABC):
         return tuple(cls.param_names) + tuple(cls.optional_params)
 
     @property
-    def params(self) -> F64:
-        """Parameter vector (P,) in :meth:`all_param_names` order."""
-        return np.array([self._values[n] for n in self.all_param_names()], dtype=np.float64)
+    def param_layout(self) -> tuple[str, ...]:
+        """Name of each entry of :attr:`params` (P,): scalars by name, list entries as ``name[i]``."""
+        out: list[str] = []
+        for n in self.all_param_names():
+            if n in self.derived_params:
+                continue
+            if n in self.list_params:
+                out.extend(f"{n}[{i}]" for i in range(len(self._lists[n])))
+            else:
+                out.append(n)
+        return tuple(out)
 
     @property
-    def param_dict(self) -> dict[str, float]:
-        return dict(self._values)
+    def params(self) -> F64:
+        """Flat parameter vector (P,): :meth:`all_param_names` order, lists expanded in place,
+        ``derived_params`` left out (see :attr:`param_layout`)."""
+        out: list[float] = []
+        for n in self.all_param_names():
+            if n in self.derived_params:
+                continue
+            if n in self.list_params:
+                out.extend(self._lists[n])
+            else:
+                out.append(self._values[n])
+        return np.array(out, dtype=np.float64)
+
+    @property
+    def param_dict(self) -> dict[str, Any]:
+        """Name -> value: floats, and tuples of floats for ``list_params``."""
+        return {**self._values, **self._lists}
 
     def with_params(self, vector: ArrayLike) -> Self:
-        """Same model type, size and lens limit with a new parameter vector (P,)."""
+        """Same model type, size, lens limit and list lengths with a new flat vector (P,).
+
+        Derived parameters are recomputed, unless the vector equals :attr:`params` (then the
+        copy keeps them, so ``m.with_params(m.params) == m``).
+        """
         v = np.asarray(vector, dtype=np.float64).reshape(-1)
-        names = self.all_param_names()
-        if v.shape[0] != len(names):
-            raise ModelError(f"{self.name}: expected {len(names)} parameters, got {v.shape[0]}")
-        return type(self)(self.width, self.height, self.fov_deg, **dict(zip(names, v, strict=True)))
+        layout = self.param_layout
+        if v.shape[0] != len(layout):
+            raise ModelError(f"{self.name}: expected {len(layout)} parameters, got {v.shape[0]}")
+        if np.array_equal(v, self.params):
+            return type(self)(self.width, self.height, self.fov_deg, **self.param_dict)
+        kwargs: dict[str, float | tuple[float, ...]] = {}
+        i = 0
+        for n in self.all_param_names():
+            if n in self.derived_params:
+                continue
+            if n in self.list_params:
+                k = len(self._lists[n])
+                kwargs[n] = tuple(float(x) for x in v[i : i + k])
+                i += k
+            else:
+                kwargs[n] = float(v[i])
+                i += 1
+        return type(self)(self.width, self.height, self.fov_deg, **kwargs)
 
     def replace(self, **changes: Any) -> Self:
-        """Copy with some of width, height, fov_deg or parameters changed."""
+        """Copy with some of width, height, fov_deg or parameters changed (derived parameters
+        not named in ``changes`` are recomputed when anything changes)."""
         width = changes.pop("width", self.width)
         height = changes.pop("height", self.height)
         fov = changes.pop("fov_deg", self.fov_deg)
-        return type(self)(width, height, fov, **{**self._values, **changes})
+        values = self.param_dict
+        if changes or (width, height, fov) != (self.width, self.height, self.fov_deg):
+            for n in self.derived_params:
+                if n not in changes:
+                    del values[n]
+        return type(self)(width, height, fov, **{**values, **changes})
 
     def project(self, points: ArrayLike, *, in_image: bool = True) -> tuple[F64, Mask]:
         """Points (N, 3) -> pixels (N, 2), valid (N,).
@@ -174,7 +238,10 @@ class CameraModel(ABC):
             "model": self.name,
             "width": self.width,
             "height": self.height,
-            "params": {n: float(v) for n, v in self._values.items()},
+            "params": {
+                n: ([float(x) for x in self._lists[n]] if n in self._lists else float(self._values[n]))
+                for n in self.all_param_names()
+            },
         }
         if self.fov_deg is not None:
             d["fov_deg"] = self.fov_deg
@@ -200,8 +267,9 @@ class CameraModel(ABC):
         return target(d["width"], d["height"], d.get("fov_deg"), **dict(params))
 
     def __repr__(self) -> str:
-        vals = ", ".join(f"{k}={v:.6g}" for k, v in self._values.items())
-        return f"{type(self).__name__}({self.width}x{self.height}, {vals})"
+        vals = [f"{k}={v:.6g}" for k, v in self._values.items()]
+        vals += [f"{k}=[{', '.join(f'{x:.6g}' for x in v)}]" for k, v in self._lists.items()]
+        return f"{type(self).__name__}({self.width}x{self.height}, {', '.join(vals)})"
 
     def __eq__(self, other: object) -> bool:
         return (
@@ -209,7 +277,26 @@ class CameraModel(ABC):
             and isinstance(other, CameraModel)
             and (self.width, self.height, self.fov_deg) == (other.width, other.height, other.fov_deg)
             and self._values == other._values
+            and self._lists == other._lists
         )
+
+    def _number_list(self, n: str, raw: object) -> tuple[float, ...]:
+        """A list parameter as a tuple of finite floats (None -> empty); ModelError otherwise."""
+        if raw is None:
+            return ()
+        bad_array = isinstance(raw, np.ndarray) and raw.ndim != 1
+        if bad_array or isinstance(raw, str | bytes | Mapping) or not isinstance(raw, Sequence | np.ndarray):
+            raise ModelError(f"{self.name}: parameter {n} must be a list of numbers, got {raw!r}")
+        out: list[float] = []
+        for i, x in enumerate(raw):
+            try:
+                value = float(x)
+            except (TypeError, ValueError) as err:
+                raise ModelError(f"{self.name}: parameter {n}[{i}] must be a number, got {x!r}") from err
+            if not math.isfinite(value):
+                raise ModelError(f"{self.name}: parameter {n}[{i}] must be finite, got {value}")
+            out.append(value)
+        return tuple(out)
 
     __hash__ = None  # type: ignore[assignment]
 

@@ -4,13 +4,16 @@ image, behaviour outside the domain, serialisation, and references where they ex
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from calibration.errors import ModelError
-from calibration.models import MODELS, CameraModel, create
+from calibration.models import MODELS, CameraModel, ScaramuzzaModel, create
+from calibration.models.radtan import RadTan
 from tests.calibration.model_cases import ModelCase, model_cases
 
 CASES = model_cases()
@@ -112,7 +115,12 @@ def test_serialisation_round_trip(case: ModelCase) -> None:
     assert again == m
     assert type(m).from_dict(d) == m
     assert m.with_params(m.params) == m
-    assert len(m.params) == len(type(m).all_param_names())
+    assert len(m.params) == len(m.param_layout)
+    if not type(m).list_params:
+        assert len(m.params) == len(type(m).all_param_names())
+    # The rig.yaml block is plain YAML/JSON data (lists, not tuples or numpy) and survives a dump.
+    text = yaml.safe_dump(d)
+    assert CameraModel.from_dict(yaml.safe_load(text)) == m
 
 
 def test_shapes_and_single_point(case: ModelCase) -> None:
@@ -186,3 +194,151 @@ def test_bad_parameters_raise_model_error(name: str, params: dict[str, object]) 
         create(name, 640, 480, **params)
     with pytest.raises(ModelError):
         create("pinhole", 0, 480, fx=1, fy=1, cx=0, cy=0)
+
+
+# ----- list-valued parameters (Scaramuzza's poly/invpol) -------------------------------------------
+SCARA_POLY = [260.0, 0.0, -1.3e-3, 1.9e-7, -1.9e-9]
+SCARA: dict[str, Any] = dict(poly=SCARA_POLY, cx=322.4, cy=237.1, c=0.9996, d=0.0011, e=-0.0007)
+
+
+def test_list_parameters_flat_vector_layout() -> None:
+    m = ScaramuzzaModel(640, 480, None, **SCARA)
+    assert m.param_layout == (
+        "poly[0]",
+        "poly[1]",
+        "poly[2]",
+        "poly[3]",
+        "poly[4]",
+        "cx",
+        "cy",
+        "c",
+        "d",
+        "e",
+    )
+    assert np.array_equal(m.params, [*SCARA_POLY, 322.4, 237.1, 0.9996, 0.0011, -0.0007])
+    d = m.to_dict()
+    assert d["params"]["poly"] == SCARA["poly"] and isinstance(d["params"]["invpol"], list)
+    assert m.param_dict["poly"] == tuple(SCARA_POLY)
+    assert m.invpol_error_px is not None and m.invpol_error_px <= 0.01
+    # A changed vector refits the derived invpol; the new model is self-consistent.
+    v = m.params.copy()
+    v[2] *= 1.05
+    m2 = m.with_params(v)
+    assert m2.poly[2] == pytest.approx(SCARA_POLY[2] * 1.05) and m2.invpol != m.invpol
+    px = pixel_grid(m2, step=9)
+    rays, ok = m2.unproject(px)
+    back, ok2 = m2.project(rays[ok])
+    assert ok2.all() and np.abs(back - px[ok]).max() <= 1e-6
+    # replace() refits invpol when anything changes, keeps it for a plain copy or when given.
+    assert m.replace() == m
+    assert m.replace(cx=330.0).invpol != m.invpol
+    assert m.replace(cx=330.0, invpol=list(m.invpol)).invpol == m.invpol
+    with pytest.raises(ModelError, match="expected 10 parameters"):
+        m.with_params(v[:-1])
+
+
+@pytest.mark.parametrize(
+    "name, params, match",
+    [
+        ("scaramuzza", SCARA | {"poly": "260 0 -1e-3"}, "poly must be a list"),
+        ("scaramuzza", SCARA | {"poly": [260.0, "x"]}, r"poly\[1\] must be a number"),
+        ("scaramuzza", SCARA | {"poly": [260.0, float("nan")]}, r"poly\[1\] must be finite"),
+        ("scaramuzza", SCARA | {"poly": []}, "at least one coefficient"),
+        ("scaramuzza", SCARA | {"poly": [-260.0, 0.0, 1.3e-3]}, "a0"),
+        ("scaramuzza", SCARA | {"c": 0.001, "d": 1.0, "e": 1.0}, "determinant"),
+        ("scaramuzza", SCARA | {"invpol": [1.0, float("inf")]}, r"invpol\[1\] must be finite"),
+        ("scaramuzza", SCARA | {"cx": [1.0]}, "cx must be a number"),
+        ("mei", dict(xi=-0.1, k1=0, k2=0, p1=0, p2=0, fx=300, fy=300, cx=320, cy=240), "xi"),
+        ("mei", dict(xi=0.9, k1=0, k2=0, p1=0, p2=0, fx=0, fy=300, cx=320, cy=240), "fx and fy"),
+        ("double_sphere", dict(fx=300, fy=300, cx=320, cy=240, xi=-1.0, alpha=0.6), "xi"),
+        ("double_sphere", dict(fx=300, fy=300, cx=320, cy=240, xi=0.1, alpha=1.2), "alpha"),
+        ("eucm", dict(fx=300, fy=300, cx=320, cy=240, alpha=0.6, beta=0.0), "beta"),
+        ("eucm", dict(fx=300, fy=300, cx=320, cy=240, alpha=-0.1, beta=1.0), "alpha"),
+    ],
+)
+def test_bad_omnidirectional_parameters_raise_model_error(
+    name: str, params: dict[str, object], match: str
+) -> None:
+    with pytest.raises(ModelError, match=match):
+        create(name, 640, 480, **params)
+
+
+# ----- iterative inversions converge to a tolerance, and say so when they cannot ------------------------
+def test_mei_unprojection_beyond_the_invertible_radtan_region_is_invalid() -> None:
+    """k1 = -0.45: the radial map m(1 + k1 m²) peaks at m = 1/√(3·0.45), distorted radius
+    2/3·that; distorted points beyond the peak have no undistorted preimage."""
+    m = create("mei", 1000, 1000, xi=0.9, k1=-0.45, k2=0, p1=0, p2=0, fx=400, fy=400, cx=500, cy=500)
+    r_peak = 1 / math.sqrt(3 * 0.45)
+    rd_peak = r_peak * (1 - 0.45 * r_peak**2)
+    radii = np.array([0.5, 0.99, 1.01, 1.5, 3.0]) * rd_peak
+    px = np.column_stack([500 + 400 * radii, np.full(radii.size, 500.0)])
+    rays, ok = m.unproject(px, in_image=False)
+    assert ok.tolist() == [True, True, False, False, False]
+    assert np.isfinite(rays).all()
+    back, ok2 = m.project(rays[ok], in_image=False)
+    assert ok2.all() and np.abs(back - px[ok]).max() < 1e-6
+    # The field ends at the ray of the peak (unified lift of r_peak), beyond which rays would
+    # fold back onto valid pixels: the projection refuses them.
+    lam = (0.9 + math.sqrt(1 + (1 - 0.81) * r_peak**2)) / (1 + r_peak**2)
+    assert m.max_theta == pytest.approx(math.acos(lam - 0.9), rel=1e-12)
+    beyond = np.array([[math.sin(m.max_theta + 0.01), 0.0, math.cos(m.max_theta + 0.01)]])
+    assert not m.project(beyond, in_image=False)[1].any()
+
+
+def test_radtan_undistortion_stops_on_tolerance_not_count() -> None:
+    """Strongly distorted points need several Newton steps: cut the budget and they are reported
+    unconverged instead of returned half-way; with the normal budget they converge."""
+    rt = RadTan(-0.344504, 0.0984552, -0.00403995, 0.00610364)
+    xd = np.linspace(0.05, 1.0, 20)
+    yd = 0.4 * xd
+    _, _, ok_short = rt.undistort(xd, yd, max_iter=2)
+    x, y, ok = rt.undistort(xd, yd)
+    assert ok.all() and not ok_short[-5:].any()
+    back_x, back_y = rt.distort(x, y)
+    assert np.abs(back_x - xd).max() < 1e-13 and np.abs(back_y - yd).max() < 1e-13
+
+
+def test_scaramuzza_newton_polish_reports_non_convergence() -> None:
+    """With a useless invpol seed and too small an iteration budget the projection says invalid
+    rather than returning an unpolished pixel; with the normal budget the same seed converges."""
+    m = create("scaramuzza", 640, 480, **SCARA, invpol=[1.0])
+    rays, ok = m.unproject(pixel_grid(m, step=40))
+    _, ok_full = m.project(rays[ok])
+    assert ok_full.all()
+    starved = ScaramuzzaModel(640, 480, None, **SCARA, invpol=[1.0])
+    starved.MAX_ITER = 2
+    _, ok_starved = starved.project(rays[ok])
+    assert not ok_starved.all() and ok_starved.sum() < ok_full.sum()
+
+
+def test_scaramuzza_validity_stops_where_theta_stops_increasing() -> None:
+    """poly = a0 + a2 ρ²: dθ/dρ of θ(ρ) = atan2(ρ, poly(ρ)) has the sign of poly − ρ·poly' =
+    a0 − a2 ρ², so with a2 > 0 the angle turns back at ρ = √(a0 / a2)."""
+    a0, a2 = 300.0, 4e-3
+    m = create("scaramuzza", 4000, 4000, poly=[a0, 0.0, a2], cx=2000, cy=2000, c=1, d=0, e=0)
+    rho_turn = math.sqrt(a0 / a2)
+    assert m.max_theta == pytest.approx(math.atan2(rho_turn, a0 + a2 * rho_turn**2), rel=1e-12)
+    px = np.array([[2000 + 0.99 * rho_turn, 2000.0], [2000 + 1.01 * rho_turn, 2000.0]])
+    _, ok = m.unproject(px)
+    assert ok.tolist() == [True, False]
+
+
+def test_mei_xi_above_one_keeps_only_the_one_to_one_cap() -> None:
+    """ξ > 1: the projection centre (0, 0, -ξ) lies outside the sphere, and each line from it
+    meets the sphere twice. Only the far cap Zs > -1/ξ is one-to-one; its image is the disc
+    ρ² <= 1/(ξ² - 1) bounded by the tangent circle (basalt UnifiedCamera, α = ξ/(1 + ξ) > 0.5)."""
+    xi, f, c = 1.6, 500.0, 1000.0
+    m = create("mei", 2000, 2000, xi=xi, k1=0, k2=0, p1=0, p2=0, fx=f, fy=f, cx=c, cy=c)
+    assert m.max_theta == pytest.approx(math.acos(-1 / xi), rel=1e-12)
+    rho_edge = 1 / math.sqrt(xi * xi - 1)
+    px = np.array([[c + f * rho_edge * 0.999, c], [c + f * rho_edge * 1.001, c]])
+    _, ok = m.unproject(px)
+    assert ok.tolist() == [True, False]
+    # The two sphere points λ(mx, 0, 1) - (0, 0, ξ) on one line through (0, 0, -ξ) share the
+    # same m: only the far one (beyond the tangent circle) is valid.
+    mx = 0.5
+    lam = np.roots([1 + mx * mx, -2 * xi, xi * xi - 1])  # |λ(mx, 0, 1) - (0, 0, ξ)| = 1
+    pts = np.array([[s * mx, 0.0, s - xi] for s in sorted(lam)])
+    px, ok = m.project(pts, in_image=False)
+    assert ok.tolist() == [False, True]
+    assert np.allclose(px[1], [c + f * mx, c], atol=1e-9) and pts[0, 2] < -1 / xi < pts[1, 2]

@@ -1,0 +1,143 @@
+"""Our ``rig.yaml`` (DESIGN §7), read and written.
+
+``{version: 1, cameras: {name: {model, width, height, params: {...}, [fov_deg], T_rig_cam: 4x4}}}``.
+Floats are written with ``repr`` precision so a save/load round trip is exact.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from calibration.errors import CalibrationFileError
+from calibration.formats.content import CalibrationContent, build_model
+from calibration.formats.document import Document, Field
+from calibration.models import MODELS, CameraModel
+from calibration.rig import Rig
+
+__all__ = ["RIG_YAML_VERSION", "dump_rig_yaml", "is_rig_yaml", "read_rig_yaml", "write_rig_yaml"]
+
+RIG_YAML_VERSION = 1
+
+
+def is_rig_yaml(tree: Any) -> bool:
+    return isinstance(tree, Mapping) and isinstance(tree.get("cameras"), Mapping)
+
+
+def read_rig_yaml(doc: Document) -> CalibrationContent:
+    root = Field(doc.path, doc.tree)
+    version = root.get("version")
+    if version is not None and version.integer() != RIG_YAML_VERSION:
+        raise version.error(
+            f"unsupported version {version.value!r}; this software reads version {RIG_YAML_VERSION}"
+        )
+    cams = root["cameras"]
+    names = cams.members()
+    if not names:
+        raise cams.error("must name at least one camera")
+    cameras: dict[str, CameraModel] = {}
+    poses = {}
+    for name in names:
+        entry = cams[name]
+        cameras[name] = _read_camera(entry)
+        poses[name] = entry["T_rig_cam"].transform()
+    return CalibrationContent(doc.path, "rig.yaml", cameras, T_rig_cam=poses)
+
+
+def _read_camera(entry: Field) -> CameraModel:
+    model_field = entry["model"]
+    model = model_field.string()
+    cls = MODELS.get(model)
+    if cls is None:
+        raise model_field.error(f"unknown camera model {model!r}; known: {', '.join(sorted(MODELS))}")
+    width = entry["width"].integer(minimum=1)
+    height = entry["height"].integer(minimum=1)
+    fov = entry.get("fov_deg")
+    params_field = entry["params"]
+    known = cls.all_param_names()
+    params: dict[str, Any] = {}
+    for pname in params_field.members():
+        value = params_field[pname]
+        if pname not in known:
+            raise value.error(f"unknown parameter of model {model!r}; known: {', '.join(known)}")
+        params[pname] = value.numbers() if pname in cls.list_params else value.number()
+    for required in cls.param_names:
+        if required not in params:
+            raise CalibrationFileError(params_field.path, "missing", f"{params_field.name}.{required}")
+    if fov is not None:
+        params["fov_deg"] = fov.number()
+    return build_model(params_field, model, width, height, **params)
+
+
+def dump_rig_yaml(rig: Rig) -> str:
+    """The rig.yaml text of ``rig``: ``version`` first, then :meth:`Rig.to_dict`."""
+    doc = {"version": RIG_YAML_VERSION, **_plain(rig.to_dict())}
+    header = "# Rig calibration (odfc-rig rig.yaml, DESIGN §7). T_rig_cam maps camera points into the rig.\n"
+    return header + yaml.dump(doc, Dumper=_Dumper, sort_keys=False, allow_unicode=True, width=110)
+
+
+class _Dumper(yaml.SafeDumper):
+    """Mappings one key per line; lists of numbers (matrix rows, polynomials) on one line."""
+
+
+def _represent_list(dumper: yaml.SafeDumper, data: list[Any]) -> yaml.Node:
+    flow = all(not isinstance(x, list | dict) for x in data)
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
+
+
+def _represent_dict(dumper: yaml.SafeDumper, data: dict[str, Any]) -> yaml.Node:
+    return dumper.represent_mapping("tag:yaml.org,2002:map", data, flow_style=False)
+
+
+_Dumper.add_representer(list, _represent_list)
+_Dumper.add_representer(dict, _represent_dict)
+
+
+def write_rig_yaml(rig: Rig, path: str | Path) -> None:
+    """Write ``rig`` to ``path`` atomically (temp file in the same folder, fsync, os.replace)."""
+    atomic_write_text(Path(path), dump_rig_yaml(rig))
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Replace ``path`` with ``text`` so readers see the old or the new file, never a part."""
+    try:
+        mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as err:
+        raise CalibrationFileError(path, f"cannot write: {err.strerror or err}") from err
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, mode)
+        os.replace(tmp, path)
+    except OSError as err:
+        Path(tmp).unlink(missing_ok=True)
+        raise CalibrationFileError(path, f"cannot write: {err.strerror or err}") from err
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _plain(obj: Any) -> Any:
+    """Numpy scalars/arrays -> Python floats/lists so safe_dump writes plain YAML."""
+    if isinstance(obj, Mapping):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, list | tuple):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, bool | str) or obj is None:
+        return obj
+    if isinstance(obj, int | np.integer):
+        return int(obj)
+    if isinstance(obj, float | np.floating):
+        return float(obj)
+    return obj
