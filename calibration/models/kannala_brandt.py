@@ -69,7 +69,8 @@ class KannalaBrandtModel(RadialThetaModel):
             lo = np.where(active & (f <= 0), theta, lo)
             d = self.radius_derivative(theta)
             newton = theta - f / np.where(d > 0, d, 1.0)
-            bad = (d <= 0) | (newton <= lo) | (newton >= hi) | ~np.isfinite(newton)
+            # Strict bounds: a converged step lands exactly on the bracket end it came from.
+            bad = (d <= 0) | (newton < lo) | (newton > hi) | ~np.isfinite(newton)
             step = np.where(bad, 0.5 * (lo + hi), newton)
             converged |= active & (np.abs(step - theta) <= self.THETA_TOL)
             theta = np.where(active, step, theta)
