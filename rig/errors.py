@@ -8,7 +8,9 @@ __all__ = [
     "CameraUnavailable",
     "CaptureTimeout",
     "ConfigError",
+    "CorruptFrameError",
     "DiskFullError",
+    "EndOfStream",
     "EvaluationError",
     "LutError",
     "PipelineError",
@@ -65,3 +67,11 @@ class SimulationError(RigError):
 
 class EvaluationError(RigError):
     """``rig evaluate`` could not complete a step."""
+
+
+class CorruptFrameError(RigError):
+    """A frame's bytes are not a valid image (bad markers, truncated, undecodable); counted, not fatal."""
+
+
+class EndOfStream(CameraUnavailable):
+    """A file-backed camera reached the end of its recording (replay without loop)."""

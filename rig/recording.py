@@ -16,6 +16,7 @@ every indexed row points at complete files.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import errno
 import io
@@ -232,11 +233,13 @@ class RecordingWriter:
             doc = {"version": RECORDING_VERSION, "cameras": self.cameras, **(meta or {})}
             doc["version"], doc["cameras"] = RECORDING_VERSION, self.cameras
             _atomic_write(self.root / "recording.json", json.dumps(doc, indent=2).encode() + b"\n")
-            self._index: io.BufferedWriter | None = open(index, "ab")  # noqa: SIM115
-            self._index.write((",".join(FRAMES_HEADER) + "\n").encode())
-            self._index.flush()
+            # Unbuffered: each row reaches the kernel in one write() the moment it is appended.
+            self._index: io.FileIO | None = open(index, "ab", buffering=0)  # noqa: SIM115
+            self._index_size = 0
+            self._append_index((",".join(FRAMES_HEADER) + "\n").encode())
         except OSError as err:
             raise self._translate(err, self.root) from err
+        self._seqs: set[int] = set()
 
     def __enter__(self) -> RecordingWriter:
         return self
@@ -256,6 +259,9 @@ class RecordingWriter:
         """Store two encoded frames byte-exact, then index them. Returns the indexed row."""
         if self._index is None:
             raise RecordingError(f"{self.root}: recording already closed")
+        if seq in self._seqs or seq < 0:
+            # Writing it would overwrite the frame files of an indexed pair.
+            raise RecordingError(f"{self.root}: seq {seq} already written or negative")
         rel = {cam: f"{cam}/{seq:06d}{ext}" for cam in ("left", "right")}
         written: list[Path] = []
         try:
@@ -268,8 +274,7 @@ class RecordingWriter:
                     if self.fsync:
                         os.fsync(f.fileno())
             row = f"{seq},{int(left_ts_ns)},{int(right_ts_ns)},{rel['left']},{rel['right']}\n"
-            self._index.write(row.encode())
-            self._index.flush()
+            self._append_index(row.encode())
             if self.fsync:
                 os.fsync(self._index.fileno())
         except OSError as err:
@@ -277,6 +282,7 @@ class RecordingWriter:
             for p in written:
                 p.unlink(missing_ok=True)
             raise self._translate(err, self.root) from err
+        self._seqs.add(seq)
         self.count += 1
         return PairRecord(seq, int(left_ts_ns), int(right_ts_ns), rel["left"], rel["right"])
 
@@ -291,6 +297,23 @@ class RecordingWriter:
                 raise RecordingError(f"{self.root}: could not encode frame {seq} as PNG")
             enc.append(buf.tobytes())
         return self.write_pair(seq, left_ts_ns, right_ts_ns, enc[0], enc[1], ext=".png")
+
+    def _append_index(self, data: bytes) -> None:
+        """Append one row; on failure cut the file back so no partial row stays behind."""
+        assert self._index is not None
+        start = self._index_size
+        try:
+            view = memoryview(data)
+            while view:
+                n = self._index.write(view)
+                if not n:
+                    raise OSError(errno.EIO, "short write")
+                view = view[n:]
+        except OSError:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._index.fileno(), start)
+            raise
+        self._index_size = start + len(data)
 
     def close(self) -> None:
         if self._index is not None:

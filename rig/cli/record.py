@@ -1,15 +1,153 @@
-"""`rig record` (issue #5)."""
+"""`rig record`: record synchronised pairs from the cameras, or re-record a recording (issue #5)."""
 
 from __future__ import annotations
 
-import typer
+import signal
+import threading
+from pathlib import Path
+from types import FrameType
+from typing import Annotated, Any
 
-from rig.cli.common import STUB_SETTINGS, not_ready
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from rig.capture.capture import StereoCapture
+from rig.capture.config import load_capture_config
+from rig.capture.health import CaptureHealth
+from rig.capture.recorder import Recorder, RecordResult, copy_calibration, replay_capture_config
+from rig.cli.common import console, err_console, fail
+from rig.errors import DiskFullError
+from rig.recording import RecordingWriter
 
 __all__ = ["register"]
 
 
+def _summary(out: Path, result_pairs: int, stopped_by: str, health: CaptureHealth) -> str:
+    cams = health.cameras
+    dropped = ", ".join(f"{n} {c.frames_dropped}" for n, c in cams.items())
+    corrupt = ", ".join(f"{n} {c.frames_corrupt}" for n, c in cams.items())
+    p = health.pairing
+    skew = (
+        f"; skew p50 {p.skew_ms_p50:.2f} ms, p95 {p.skew_ms_p95:.2f} ms" if p.skew_ms_p50 is not None else ""
+    )
+    late = f"; pairs dropped (writer too slow): {p.pairs_evicted}" if p.pairs_evicted else ""
+    return (
+        f"recorded {result_pairs} pairs to {out} (stopped: {stopped_by}); "
+        f"frames dropped: {dropped}; corrupt: {corrupt}{skew}{late}"
+    )
+
+
+class _StopOnSignal:
+    """SIGINT/SIGTERM set a flag (the loop then flushes, closes and reports) instead of killing."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self._old: dict[int, Any] = {}
+
+    def _handler(self, signum: int, frame: FrameType | None) -> None:
+        self.event.set()
+
+    def __enter__(self) -> _StopOnSignal:
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._handler)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+
 def register(app: typer.Typer) -> None:
-    @app.command("record", context_settings=STUB_SETTINGS, help="Not implemented yet (issue #5).")
-    def record(ctx: typer.Context) -> None:
-        not_ready("record", 5)
+    @app.command(
+        "record",
+        help="Record synchronised frame pairs from the cameras of a config file (--config), or "
+        "re-record a recording (--replay), into a recording directory (DESIGN §7).",
+    )
+    def record(
+        out: Annotated[Path, typer.Option("--out", help="recording directory to create")],
+        config: Annotated[
+            Path | None, typer.Option("--config", help="YAML file with a 'cameras:' section")
+        ] = None,
+        replay: Annotated[Path | None, typer.Option("--replay", help="recording directory to replay")] = None,
+        seconds: Annotated[
+            float | None, typer.Option("--seconds", min=0.0, help="stop after this long")
+        ] = None,
+        frames: Annotated[
+            int | None, typer.Option("--frames", min=1, help="stop after this many pairs")
+        ] = None,
+        fsync: Annotated[
+            bool, typer.Option("--fsync", help="fsync every pair (survives power loss)")
+        ] = False,
+        startup_timeout: Annotated[
+            float,
+            typer.Option("--startup-timeout", min=0.0, help="fail if a camera gives no pair by then (s)"),
+        ] = 10.0,
+    ) -> None:
+        if (config is None) == (replay is None):
+            fail("give exactly one of --config FILE or --replay RECORDING")
+        if seconds is not None and frames is not None:
+            fail("give at most one of --seconds and --frames")
+        source_rec = None
+        if replay is not None:
+            capture_cfg, source_rec = replay_capture_config(replay)
+            meta: dict[str, Any] = {"created_by": "rig record", "source": {"replay": str(replay)}}
+            total: float | None = frames or (None if seconds else len(source_rec.pairs))
+        else:
+            assert config is not None
+            loaded = load_capture_config(config)
+            # Recording stores bytes; decoding in the capture threads would only cost CPU.
+            capture_cfg = loaded.model_copy(
+                update={"supervisor": loaded.supervisor.model_copy(update={"decode": False})}
+            )
+            meta = {"created_by": "rig record", "source": {"config": str(config)}}
+            total = frames
+        meta["capture"] = capture_cfg.model_dump(mode="json")
+
+        if (out / "frames.csv").exists():
+            fail(f"{out}: already holds a recording (frames.csv exists)")
+
+        def open_writer() -> RecordingWriter:
+            writer = RecordingWriter(out, meta=meta, fsync=fsync)
+            if source_rec is not None:
+                copy_calibration(source_rec, out)
+            return writer
+
+        capture = StereoCapture(capture_cfg)
+        recorder = Recorder(capture, open_writer)
+        progress = Progress(
+            TextColumn("[bold]recording[/bold]"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("pairs"),
+            TimeElapsedColumn(),
+            console=err_console,
+            transient=True,
+            disable=not err_console.is_terminal,
+        )
+        task = progress.add_task("record", total=total)
+        result: RecordResult | None = None
+        try:
+            with _StopOnSignal() as stop, progress:
+                capture.start()
+                result = recorder.run(
+                    max_pairs=frames,
+                    max_seconds=seconds,
+                    should_stop=stop.event.is_set,
+                    on_pair=lambda n: progress.update(task, completed=n),
+                    startup_timeout_s=startup_timeout,
+                )
+        except DiskFullError as err:
+            capture.stop()
+            recorder.close()
+            fail(f"{err} ({recorder.written} pairs written, {out} stays readable)")
+        finally:
+            capture.stop()
+            recorder.close()
+        assert result is not None
+        recorder.finish()
+        console.print(
+            _summary(out, result.pairs_written, result.stopped_by, capture.health()),
+            highlight=False,
+            soft_wrap=True,
+        )

@@ -1,0 +1,244 @@
+"""The stereo capture the service and ``rig record`` use: two supervised cameras → pairs.
+
+``StereoCapture(config).start()`` runs one supervisor (capture + watchdog thread) per camera;
+each valid frame goes through :class:`~rig.capture.pairing.FramePairer` under one lock, and
+complete pairs wait in a bounded buffer. ``next_pair()`` hands out the newest pair not yet
+taken (older ones are counted as skipped) or, with ``newest=False``, the oldest (recording).
+
+All buffers are bounded and drop their oldest entry when full; with
+``pairing.backpressure`` the camera threads wait for room instead (file replays, where waiting
+costs nothing and every frame must be kept).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import replace
+
+from rig.capture.config import CaptureConfig, V4L2CameraConfig
+from rig.capture.factory import open_camera
+from rig.capture.faults import Fault
+from rig.capture.frame import Frame, FramePair
+from rig.capture.health import CaptureHealth, PairingHealth
+from rig.capture.pairing import FramePairer
+from rig.capture.protocol import Camera, FaultInjectable, TimeBase
+from rig.capture.supervisor import CameraSupervisor
+from rig.errors import ConfigError
+
+__all__ = ["CAMERA_NAMES", "StereoCapture", "default_skew_gate_ns"]
+
+log = logging.getLogger("rig.capture")
+CAMERA_NAMES = ("left", "right")
+_WAIT_SLICE_S = 0.1
+
+
+def default_skew_gate_ns(fps_values: list[float | None]) -> int:
+    """Half the frame period of the faster camera (30 fps → 16.7 ms)."""
+    rates = [f for f in fps_values if f and f > 0]
+    fps = max(rates) if rates else 30.0
+    return round(0.5e9 / fps)
+
+
+class StereoCapture:
+    """Two supervised cameras and their pairing. Thread-safe; ``stop()`` is idempotent."""
+
+    def __init__(
+        self,
+        config: CaptureConfig,
+        *,
+        cameras: Mapping[str, Camera] | None = None,
+        clock: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
+        self.config = config
+        self._clock = clock
+        if cameras is None:
+            timebase = TimeBase(clock)
+            cameras = {n: open_camera(config.camera(n), n, timebase=timebase) for n in CAMERA_NAMES}
+        if set(cameras) != set(CAMERA_NAMES):
+            raise ConfigError(f"a stereo capture needs cameras {CAMERA_NAMES}, got {sorted(cameras)}")
+        self._cameras = dict(cameras)
+        p = config.pairing
+        gate = (
+            round(p.skew_gate_ms * 1e6)
+            if p.skew_gate_ms is not None
+            else default_skew_gate_ns([c.nominal_fps for c in self._cameras.values()])
+        )
+        self._pairer = FramePairer(gate, p.buffer_size, p.skew_window, CAMERA_NAMES)
+        self._cond = threading.Condition()
+        self._pairs: deque[FramePair] = deque()
+        self._taken = self._skipped = self._evicted = 0
+        self._ended: set[str] = set()
+        self._started = self._stopped = False
+        self._supervisors = {
+            n: CameraSupervisor(
+                cam, config.supervisor, self._on_frame, on_change=self._on_state_change, clock=clock
+            )
+            for n, cam in self._cameras.items()
+        }
+
+    # ----- lifecycle ---------------------------------------------------------------------------
+    def start(self) -> StereoCapture:
+        with self._cond:
+            if self._started:
+                return self
+            self._started = True
+        self._warn_bandwidth()
+        for sup in self._supervisors.values():
+            sup.start()
+        return self
+
+    def stop(self) -> None:
+        with self._cond:
+            if self._stopped:
+                return
+            self._stopped = True
+            self._cond.notify_all()
+        for sup in self._supervisors.values():
+            sup.stop()
+
+    def __enter__(self) -> StereoCapture:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def skew_gate_ns(self) -> int:
+        return self._pairer.gate_ns
+
+    @property
+    def finished(self) -> bool:
+        """A camera ended (replay without loop), no further pair can form and none is waiting."""
+        with self._cond:
+            return self._pairer.exhausted and not self._pairs
+
+    # ----- access for the service and fault injection -----------------------------------------
+    def camera(self, name: str) -> Camera:
+        self._check_name(name)
+        return self._cameras[name]
+
+    def supervisor(self, name: str) -> CameraSupervisor:
+        self._check_name(name)
+        return self._supervisors[name]
+
+    def inject(self, name: str, fault: Fault) -> None:
+        """Inject a fault into a camera that supports it (file cameras); ConfigError otherwise."""
+        cam = self.camera(name)
+        if not isinstance(cam, FaultInjectable):
+            raise ConfigError(f"camera {name} ({cam.kind}) does not support fault injection")
+        cam.inject(fault)
+
+    @staticmethod
+    def _check_name(name: str) -> None:
+        if name not in CAMERA_NAMES:
+            raise ConfigError(f"unknown camera {name!r} (expected 'left' or 'right')")
+
+    # ----- pairs -------------------------------------------------------------------------------
+    def next_pair(self, timeout_s: float, *, newest: bool = True) -> FramePair | None:
+        """The newest pair not yet taken (or the oldest with ``newest=False``); waits up to
+        ``timeout_s``; None on timeout, once finished, or when stopped."""
+        deadline = time.monotonic() + max(0.0, timeout_s)
+        with self._cond:
+            while not self._pairs:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or self._stopped or self._pairer.exhausted:
+                    return None
+                self._cond.wait(remaining)
+            if newest:
+                pair = self._pairs.pop()
+                self._skipped += len(self._pairs)
+                self._pairs.clear()
+            else:
+                pair = self._pairs.popleft()
+            self._taken += 1
+            self._cond.notify_all()  # room for a camera thread waiting under backpressure
+            return pair
+
+    def _on_frame(self, frame: Frame) -> None:
+        # Runs in a camera's capture thread. One push completes at most one pair (before it,
+        # one of the two buffers is empty), so under backpressure the room is made first and the
+        # pair goes straight into the buffer: no pair is ever in flight outside the lock.
+        p = self.config.pairing
+        with self._cond:
+            if p.backpressure:
+                self._wait_for_room(frame.camera)
+            for pair in self._pairer.push(frame):
+                if len(self._pairs) >= p.pair_buffer:
+                    self._pairs.popleft()
+                    self._evicted += 1
+                self._pairs.append(pair)
+            self._cond.notify_all()
+
+    def _wait_for_room(self, camera: str) -> None:
+        """Backpressure (lock held, released while waiting): room for one pair, and room in the
+        camera's buffer unless its peer has ended (then nothing more can pair with the oldest)."""
+        p = self.config.pairing
+        peer = next(n for n in CAMERA_NAMES if n != camera)
+        while not self._stopped:
+            pairs_full = len(self._pairs) >= p.pair_buffer
+            buffer_full = self._pairer.buffered(camera) >= p.buffer_size and peer not in self._ended
+            if not (pairs_full or buffer_full):
+                return
+            self._cond.wait(_WAIT_SLICE_S)
+
+    def _on_state_change(self) -> None:
+        # Called by supervisors outside their own locks.
+        ended = {n for n, s in self._supervisors.items() if s.state[0] == "ended"}
+        with self._cond:
+            for n in ended - self._ended:
+                self._pairer.end(n)
+            self._ended |= ended
+            self._cond.notify_all()
+
+    # ----- health ------------------------------------------------------------------------------
+    def health(self) -> CaptureHealth:
+        cams = {n: s.health() for n, s in self._supervisors.items()}
+        with self._cond:
+            counts = self._pairer.counts()
+            p50, p95 = self._pairer.skew_percentiles_ms()
+            pairing = PairingHealth(
+                skew_gate_ms=self._pairer.gate_ns / 1e6,
+                pairs_formed=counts.pairs_formed,
+                pairs_taken=self._taken,
+                pairs_skipped=self._skipped,
+                pairs_evicted=self._evicted,
+                pairs_pending=len(self._pairs),
+                skew_ms_p50=p50,
+                skew_ms_p95=p95,
+                skew_samples=self._pairer.skew_samples,
+            )
+            finished = self._pairer.exhausted and not self._pairs
+            running = self._started and not self._stopped
+        for n, h in cams.items():
+            cams[n] = replace(
+                h,
+                frames_unpaired=counts.unpaired[n],
+                frames_evicted=counts.evicted[n],
+                frames_dropped=h.frames_lost + counts.unpaired[n] + counts.evicted[n],
+            )
+        return CaptureHealth(running=running, finished=finished, cameras=cams, pairing=pairing)
+
+    # ----- USB bandwidth -----------------------------------------------------------------------
+    def _warn_bandwidth(self) -> None:
+        requests = {
+            n: c
+            for n in CAMERA_NAMES
+            if isinstance(c := self.config.camera(n), V4L2CameraConfig) and n in self._cameras
+        }
+        if len(requests) < 2:
+            return
+        from rig.usb import shared_bus_warnings  # sysfs only; no libusb needed
+
+        try:
+            warnings = shared_bus_warnings(
+                {n: (c.device, c.fourcc, c.width, c.height, c.fps) for n, c in requests.items()}
+            )
+        except Exception as err:  # a diagnostic must never stop capture
+            log.debug("USB bandwidth check skipped: %s", err)
+            return
+        for w in warnings:
+            log.warning("%s", w)

@@ -1,0 +1,201 @@
+"""Capture configuration: the ``cameras:`` section of ``rig record --config`` and of the service.
+
+```yaml
+cameras:
+  left:  {kind: v4l2, device: /dev/rig/left, fourcc: MJPG, width: 1280, height: 960, fps: 30}
+  right: {kind: v4l2, device: /dev/rig/right, fourcc: MJPG, width: 1280, height: 960, fps: 30}
+  pairing: {skew_gate_ms: null, buffer_size: 8}
+  supervisor: {watchdog_s: 0.5}
+```
+
+A file-backed camera replays one camera of a recording instead::
+
+  left: {kind: file, recording: rec/, camera: left, pace: 30, loop: true, timestamps: live}
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from rig.capture.faults import Fault
+from rig.errors import ConfigError
+
+__all__ = [
+    "CameraConfig",
+    "CaptureConfig",
+    "FileCameraConfig",
+    "PairingConfig",
+    "SupervisorConfig",
+    "V4L2CameraConfig",
+    "capture_config_from_mapping",
+    "load_capture_config",
+]
+
+
+class V4L2CameraConfig(BaseModel):
+    """A UVC camera through OpenCV's V4L2 backend. Control values are raw V4L2 units."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    kind: Literal["v4l2"] = "v4l2"
+    device: str | int = Field(
+        description="/dev/v4l/by-path/... (stable per USB port), a udev symlink such as "
+        "/dev/rig/left, /dev/videoN, or an index"
+    )
+    fourcc: Literal["MJPG", "YUYV"] = "MJPG"
+    width: int = Field(1280, ge=16, le=8192)
+    height: int = Field(960, ge=16, le=8192)
+    fps: float = Field(30.0, gt=0.0, le=500.0)
+    buffer_size: int = Field(2, ge=1, le=10, description="V4L2 buffers (CAP_PROP_BUFFERSIZE)")
+    exposure: float | None = Field(
+        None, description="manual exposure (V4L2 exposure_time_absolute, 100 µs units); None = auto"
+    )
+    gain: float | None = Field(None, description="manual gain (driver units); None = leave as is")
+    white_balance: float | None = Field(
+        None, description="manual white balance temperature (K); None = auto white balance"
+    )
+    read_timeout_ms: int = Field(
+        1000, ge=10, description="longest a grab may block (V4L2: OPENCV_VIDEOIO_V4L_SELECT_TIMEOUT, whole s)"
+    )
+    timestamp_tolerance_ms: float = Field(
+        1000.0, gt=0.0, description="buffer timestamps further than this from CLOCK_MONOTONIC → host clock"
+    )
+    fps_tolerance: float = Field(0.5, ge=0.0, description="accepted difference of negotiated fps")
+
+
+class FileCameraConfig(BaseModel):
+    """One camera of a recording directory (DESIGN §7) replayed through the camera protocol."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    kind: Literal["file"] = "file"
+    recording: Path
+    camera: str | None = Field(None, description="camera of the recording; default: the slot name")
+    pace: Literal["recorded", "fast"] | float = Field(
+        "recorded", description="'recorded' (sleep by recorded deltas), 'fast', or a fixed fps"
+    )
+    loop: bool = False
+    timestamps: Literal["recorded", "live"] = Field(
+        "live", description="'recorded' = verbatim ts and seq; 'live' = rebased onto time.monotonic_ns()"
+    )
+    faults: tuple[Fault, ...] = ()
+
+    @field_validator("pace")
+    @classmethod
+    def _positive_pace(cls, v: Any) -> Any:
+        if isinstance(v, float) and not (0.0 < v <= 1000.0):
+            raise ValueError("a numeric pace is frames per second in (0, 1000]")
+        return v
+
+    @model_validator(mode="after")
+    def _live_needs_pacing(self) -> FileCameraConfig:
+        if self.timestamps == "live" and self.pace == "fast":
+            raise ValueError("timestamps 'live' need a paced replay (pace 'recorded' or an fps), not 'fast'")
+        return self
+
+
+CameraConfig = Annotated[V4L2CameraConfig | FileCameraConfig, Field(discriminator="kind")]
+
+
+class PairingConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    skew_gate_ms: float | None = Field(
+        None, gt=0.0, description="max |left-right| capture time difference; default half a frame period"
+    )
+    buffer_size: int = Field(8, ge=1, le=1000, description="frames held per camera waiting for a partner")
+    pair_buffer: int = Field(4, ge=1, le=1000, description="complete pairs held for the consumer")
+    skew_window: int = Field(300, ge=1, description="pairs in the skew p50/p95 window")
+    backpressure: bool = Field(
+        False,
+        description="block camera threads instead of dropping when buffers are full (file replays only)",
+    )
+
+
+class SupervisorConfig(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    watchdog_s: float = Field(
+        0.5, gt=0.0, description="no frame for this long (or 3 frame periods, if longer) → unavailable"
+    )
+    reconnect_after_s: float = Field(2.0, gt=0.0, description="stalled this long → close and reopen")
+    read_timeout_s: float = Field(0.25, gt=0.0, description="longest a single read may block")
+    backoff_base_s: float = Field(0.1, gt=0.0)
+    backoff_max_s: float = Field(5.0, gt=0.0)
+    usb_reset_after: int = Field(5, ge=0, description="failed reopens before a USB reset; 0 = never")
+    max_clock_offset_ms: float = Field(
+        500.0, gt=0.0, description="host-clock timestamps older than this at arrival are rejected"
+    )
+    max_future_ms: float = Field(
+        20.0, ge=0.0, description="host-clock timestamps later than their arrival by this are rejected"
+    )
+    decode: bool = Field(True, description="decode every frame in the capture thread (else markers only)")
+    fps_window_s: float = Field(2.0, gt=0.0)
+
+
+class CaptureConfig(BaseModel):
+    """Two cameras plus pairing and supervision options."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    left: CameraConfig
+    right: CameraConfig
+    pairing: PairingConfig = PairingConfig()
+    supervisor: SupervisorConfig = SupervisorConfig()
+
+    def camera(self, name: str) -> V4L2CameraConfig | FileCameraConfig:
+        if name == "left":
+            return self.left
+        if name == "right":
+            return self.right
+        raise ConfigError(f"unknown camera {name!r} (expected 'left' or 'right')")
+
+
+def _field_path(loc: tuple[int | str, ...]) -> str:
+    # Drop pydantic's union tags ("file", "v4l2") so the path reads like the YAML.
+    parts = [str(p) for p in loc if p not in ("file", "v4l2")]
+    return ".".join(parts)
+
+
+def capture_config_from_mapping(doc: Mapping[str, Any], source: str = "<config>") -> CaptureConfig:
+    """Validate a ``cameras:`` mapping; ConfigError names the source and the field."""
+    if not isinstance(doc, Mapping):
+        raise ConfigError(f"{source}: field 'cameras' must be a mapping with 'left' and 'right'")
+    try:
+        cfg = CaptureConfig.model_validate(dict(doc))
+    except ValidationError as err:
+        first = err.errors()[0]
+        field = _field_path(("cameras", *first["loc"]))
+        raise ConfigError(f"{source}: field '{field}': {first['msg']}") from err
+    base = Path(source).parent if source != "<config>" else None
+    if base is not None:
+        # Relative recording paths are relative to the config file, like most tools read them.
+        updates = {}
+        for name in ("left", "right"):
+            cam = cfg.camera(name)
+            if isinstance(cam, FileCameraConfig) and not cam.recording.is_absolute():
+                updates[name] = cam.model_copy(update={"recording": base / cam.recording})
+        if updates:
+            cfg = cfg.model_copy(update=updates)
+    return cfg
+
+
+def load_capture_config(path: str | Path) -> CaptureConfig:
+    """Read the ``cameras:`` section of a YAML config file."""
+    p = Path(path)
+    try:
+        doc = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: config file not found") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{p}: unreadable ({err})") from err
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{p}: not valid YAML ({' '.join(str(err).split())})") from err
+    if not isinstance(doc, dict) or "cameras" not in doc:
+        raise ConfigError(f"{p}: field 'cameras' missing (the capture section with 'left' and 'right')")
+    return capture_config_from_mapping(doc["cameras"], str(p))

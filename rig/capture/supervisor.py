@@ -1,0 +1,344 @@
+"""One supervisor per camera: the capture thread, a watchdog, reconnects and the counters.
+
+State machine: ``starting`` → ``available`` ⇄ ``unavailable(reason)`` → ``ended`` / ``stopped``,
+logged once per change of (state, reason). The capture thread opens the camera, reads frames,
+validates them (structure, optionally a full decode), checks host-clock timestamps and hands
+good frames to the sink. A separate watchdog thread marks the camera unavailable when no frame
+has arrived for ``watchdog_s`` (OpenCV's ``read()`` can keep "succeeding" after an unplug, and a
+blocked read cannot report anything) and asks for a reconnect after ``reconnect_after_s``.
+Reconnects back off exponentially (``backoff_base_s`` doubling up to ``backoff_max_s``), re-open
+the camera (which re-resolves by-path device links) and, after ``usb_reset_after`` failed
+attempts in one outage, try ``camera.reset_hardware()`` (a USB reset) once.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+
+from rig.capture.config import SupervisorConfig
+from rig.capture.frame import Frame
+from rig.capture.health import CameraHealth, CameraState
+from rig.capture.protocol import Camera, CameraInfo
+from rig.errors import CorruptFrameError, EndOfStream, RigError
+
+__all__ = ["CameraSupervisor", "SupervisorCounters"]
+
+log = logging.getLogger("rig.capture")
+
+
+@dataclass
+class SupervisorCounters:
+    frames_received: int = 0
+    frames_corrupt: int = 0
+    frames_lost: int = 0
+    timestamp_errors: int = 0
+    reconnects: int = 0
+    reconnect_attempts: int = 0
+    usb_resets: int = 0
+
+
+class CameraSupervisor:
+    """Runs ``camera`` in its own daemon thread and feeds valid frames to ``sink``."""
+
+    def __init__(
+        self,
+        camera: Camera,
+        config: SupervisorConfig,
+        sink: Callable[[Frame], None],
+        *,
+        on_change: Callable[[], None] | None = None,
+        clock: Callable[[], int] = time.monotonic_ns,
+    ) -> None:
+        self.camera = camera
+        self.name = camera.name
+        self.config = config
+        self._sink = sink
+        self._on_change = on_change
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._state: CameraState = "starting"
+        self._reason: str | None = None
+        self.counters = SupervisorCounters()
+        self._last_frame_ns: int | None = None
+        self._opened_ns: int | None = None
+        self._last_seq: int | None = None
+        self._last_ts: int | None = None
+        self._last_error: tuple[str, int] | None = None
+        self._arrivals: deque[int] = deque(maxlen=4096)
+        self._reconnect = threading.Event()
+        self._info: CameraInfo = camera.info()
+        self._fresh_open = False
+
+    # ----- lifecycle ---------------------------------------------------------------------------
+    def start(self) -> None:
+        if self._threads:
+            return
+        for target, suffix in ((self._run, "capture"), (self._watchdog, "watchdog")):
+            t = threading.Thread(target=target, name=f"rig-{self.name}-{suffix}", daemon=True)
+            self._threads.append(t)
+            t.start()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Stop both threads and close the camera; idempotent."""
+        self._stop.set()
+        for t in self._threads:
+            if t is not threading.current_thread():
+                t.join(timeout_s)
+        if self.state[0] != "ended":
+            self._transition("stopped", None)
+
+    @property
+    def stopping(self) -> bool:
+        return self._stop.is_set()
+
+    @property
+    def state(self) -> tuple[CameraState, str | None]:
+        with self._lock:
+            return self._state, self._reason
+
+    def request_reconnect(self) -> None:
+        self._reconnect.set()
+
+    # ----- state -------------------------------------------------------------------------------
+    def _transition(self, state: CameraState, reason: str | None, error: str | None = None) -> None:
+        """Set the state (and the last error); logs once per change of (state, reason) and calls
+        ``on_change`` outside the lock, so the callback may take other locks."""
+        with self._lock:
+            if error is not None:
+                self._last_error = (error, self._clock())
+            changed = (state, reason) != (self._state, self._reason)
+            if changed:
+                self._state, self._reason = state, reason
+        if not changed:
+            return
+        if state == "unavailable":
+            log.warning("camera %s unavailable: %s", self.name, reason)
+        elif state == "available":
+            log.info("camera %s available (%s)", self.name, self._info.device)
+        else:
+            log.info("camera %s %s%s", self.name, state, f": {reason}" if reason else "")
+        if self._on_change is not None:
+            self._on_change()
+
+    def _error(self, message: str, *, unavailable: bool) -> None:
+        if unavailable:
+            self._transition("unavailable", message, error=message)
+        else:
+            with self._lock:
+                self._last_error = (message, self._clock())
+
+    def _watchdog_s(self) -> float:
+        fps = self.camera.nominal_fps
+        return max(self.config.watchdog_s, 3.0 / fps) if fps else self.config.watchdog_s
+
+    # ----- threads -----------------------------------------------------------------------------
+    def _watchdog(self) -> None:
+        while not self._stop.wait(min(0.05, self._watchdog_s() / 5)):
+            limit = self._watchdog_s()
+            now = self._clock()
+            with self._lock:
+                ref = max(self._last_frame_ns or 0, self._opened_ns or 0)
+                age = (now - ref) / 1e9
+                silent = bool(ref) and self._state == "available" and age > limit
+                stalled = bool(ref) and self._state == "unavailable" and self._opened_ns is not None
+            if silent:
+                self._transition("unavailable", f"no frame for more than {limit:.2f} s")
+            if stalled and age > self.config.reconnect_after_s:
+                self._reconnect.set()
+
+    def _backoff(self, attempt: int) -> float:
+        c = self.config
+        return float(min(c.backoff_max_s, c.backoff_base_s * 2 ** max(0, attempt - 1)))
+
+    def _run(self) -> None:
+        cam = self.camera
+        opened = opened_before = reset_tried = False
+        attempt = 0
+        try:
+            while not self._stop.is_set():
+                if not opened:
+                    if attempt and self._stop.wait(self._backoff(attempt)):
+                        break
+                    if opened_before:
+                        with self._lock:
+                            self.counters.reconnect_attempts += 1
+                    try:
+                        cam.open()
+                    except EndOfStream as err:
+                        self._end(str(err))
+                        return
+                    except Exception as err:  # RigError, or cv2.error/OSError from a driver: retry
+                        attempt += 1
+                        self._error(_describe(self.name, err), unavailable=True)
+                        n = self.config.usb_reset_after
+                        if n and attempt >= n and not reset_tried:
+                            reset_tried = True
+                            self._reset_hardware()
+                        continue
+                    with self._lock:
+                        self._opened_ns = self._clock()
+                        self._info = cam.info()
+                        self._fresh_open = True
+                        if opened_before:
+                            self.counters.reconnects += 1
+                    opened = opened_before = True
+                    attempt, reset_tried = 0, False
+                    self._reconnect.clear()
+                if self._reconnect.is_set():
+                    # Watchdog (stall) or a timestamp error: close, back off once, reopen.
+                    self._reconnect.clear()
+                    cam.close()
+                    with self._lock:
+                        self._opened_ns = None
+                    opened, attempt = False, 1
+                    continue
+                try:
+                    frame = cam.read(self.config.read_timeout_s)
+                except EndOfStream as err:
+                    self._end(str(err))
+                    return
+                except CorruptFrameError as err:
+                    with self._lock:
+                        self.counters.frames_corrupt += 1
+                    self._error(str(err), unavailable=False)
+                    continue
+                except Exception as err:  # device gone (or a driver error): reopen at once, then back off
+                    self._error(_describe(self.name, err), unavailable=True)
+                    cam.close()
+                    with self._lock:
+                        self._opened_ns = None
+                    opened, attempt = False, 0
+                    continue
+                if frame is not None:
+                    self._accept(frame)
+        finally:
+            cam.close()
+
+    def _end(self, reason: str) -> None:
+        self.camera.close()
+        self._transition("ended", reason)
+
+    def _reset_hardware(self) -> None:
+        try:
+            what = self.camera.reset_hardware()
+        except RigError as err:
+            log.warning("camera %s: reset failed: %s", self.name, err)
+            return
+        with self._lock:
+            self.counters.usb_resets += 1
+        log.warning("camera %s: %s", self.name, what)
+
+    def _accept(self, frame: Frame) -> None:
+        now = self._clock()
+        with self._lock:
+            if self._fresh_open:
+                # Some cameras settle their timestamp source on the first frame after open.
+                self._info = self.camera.info()
+                self._fresh_open = False
+            if self._last_seq is not None and frame.seq > self._last_seq + 1:
+                gap = frame.seq - self._last_seq - 1
+                self.counters.frames_lost += gap
+                # Reported, not a state change: a camera dropping frames (or at half rate) still works.
+                self._last_error = (f"camera {self.name}: {gap} frame(s) lost before seq {frame.seq}", now)
+            self._last_seq = frame.seq
+        try:
+            frame.check_structure()
+            if self.config.decode:
+                frame.image  # noqa: B018 - decode once here, cached for the consumer
+        except CorruptFrameError as err:
+            with self._lock:
+                self.counters.frames_corrupt += 1
+            self._error(str(err), unavailable=False)
+            return
+        problem = self._timestamp_problem(frame)
+        if problem:
+            with self._lock:
+                self.counters.timestamp_errors += 1
+                self._last_ts = None  # the reconnect re-validates the clock
+            self._error(f"camera {self.name}: {problem}", unavailable=True)
+            self._reconnect.set()
+            return
+        with self._lock:
+            self._last_ts = frame.ts_ns
+            self._last_frame_ns = now
+            self._arrivals.append(now)
+            self.counters.frames_received += 1
+        self._transition("available", None)
+        self._sink(frame)
+
+    def _timestamp_problem(self, frame: Frame) -> str | None:
+        # A capture time cannot lie after the frame's arrival (same clock), nor long before it.
+        if not self._info.host_clock:
+            return None
+        offset_ms = (frame.ts_ns - frame.host_ns) / 1e6
+        if offset_ms > self.config.max_future_ms:
+            return f"timestamp {offset_ms / 1e3:.3f} s ahead of the host clock (clock jump)"
+        if -offset_ms > self.config.max_clock_offset_ms:
+            return f"timestamp {-offset_ms / 1e3:.3f} s behind the host clock (clock jump or stale frame)"
+        if self._last_ts is not None and frame.ts_ns <= self._last_ts:
+            return f"timestamp went back {(self._last_ts - frame.ts_ns) / 1e6:.1f} ms"
+        return None
+
+    # ----- health ------------------------------------------------------------------------------
+    def health(self) -> CameraHealth:
+        """Snapshot of this camera (pairing counts are filled in by StereoCapture)."""
+        now = self._clock()
+        window = round(self.config.fps_window_s * 1e9)
+        with self._lock:
+            c = self.counters
+            recent = [t for t in self._arrivals if now - t <= window]
+            fps = (len(recent) - 1) / ((recent[-1] - recent[0]) / 1e9) if len(recent) > 1 else 0.0
+            if recent and recent[-1] - recent[0] <= 0:
+                fps = 0.0
+            age = None if self._last_frame_ns is None else (now - self._last_frame_ns) / 1e6
+            err, err_age = (None, None)
+            if self._last_error is not None:
+                err, err_age = self._last_error[0], (now - self._last_error[1]) / 1e6
+            info = self._info
+            return CameraHealth(
+                name=self.name,
+                kind=self.camera.kind,
+                device=info.device,
+                state=self._state,
+                reason=self._reason,
+                connected=self._state == "available",
+                fps=fps,
+                nominal_fps=self.camera.nominal_fps,
+                last_frame_age_ms=age,
+                last_seq=self._last_seq,
+                last_ts_ns=self._last_ts,
+                frames_received=c.frames_received,
+                frames_corrupt=c.frames_corrupt,
+                frames_lost=c.frames_lost,
+                frames_unpaired=0,
+                frames_evicted=0,
+                frames_dropped=c.frames_lost,
+                timestamp_errors=c.timestamp_errors,
+                reconnects=c.reconnects,
+                reconnect_attempts=c.reconnect_attempts,
+                usb_resets=c.usb_resets,
+                timestamp_source=info.timestamp_source,
+                timestamp_note=info.timestamp_note,
+                last_error=err,
+                last_error_age_ms=err_age,
+                format=info.format,
+                width=info.width,
+                height=info.height,
+            )
+
+
+def _describe(camera: str, err: Exception) -> str:
+    """Our errors carry their own message; anything else (cv2.error, OSError) gets named."""
+    if isinstance(err, RigError):
+        return str(err)
+    kind = "OpenCV error" if isinstance(err, cv2.error) else type(err).__name__
+    return f"camera {camera}: {kind}: {' '.join(str(err).split())}"

@@ -1,0 +1,104 @@
+"""Small recordings built on the fly for the capture tests: real JPEG/PNG bytes from cv2.imencode,
+timestamps on an exact grid so pairing outcomes are known in advance."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from rig.capture.config import CaptureConfig, FileCameraConfig, PairingConfig, SupervisorConfig
+from rig.recording import RecordingWriter
+
+PERIOD_NS = 33_333_333  # 30 fps
+T0_NS = 5_000_000_000
+
+# Fast supervision for tests: quick watchdog and reconnects.
+FAST_SUPERVISOR = SupervisorConfig(
+    watchdog_s=0.3,
+    reconnect_after_s=1.0,
+    read_timeout_s=0.05,
+    backoff_base_s=0.02,
+    backoff_max_s=0.1,
+    usb_reset_after=3,
+)
+
+
+def frame_image(cam: str, seq: int, width: int = 160, height: int = 120) -> NDArray[np.uint8]:
+    """A textured image that differs per camera and frame (so byte comparisons mean something)."""
+    rng = np.random.default_rng(seq * 2 + (cam == "right"))
+    img = rng.integers(0, 256, (height // 8, width // 8, 3), dtype=np.uint8)
+    img = cv2.resize(img, (width, height), interpolation=cv2.INTER_NEAREST)
+    cv2.putText(img, f"{cam[0]}{seq}", (4, height // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2)
+    return img
+
+
+def encode(img: NDArray[Any], ext: str) -> bytes:
+    ok, buf = cv2.imencode(ext, img)
+    assert ok
+    return bytes(buf.tobytes())
+
+
+def write_recording(
+    root: Path,
+    n: int = 30,
+    *,
+    ext: str = ".jpg",
+    period_ns: int = PERIOD_NS,
+    t0_ns: int = T0_NS,
+    right_skew_ns: int = 0,
+    seqs: Iterable[int] | None = None,
+    width: int = 160,
+    height: int = 120,
+    calibration: str | None = None,
+) -> Path:
+    """A recording of ``n`` pairs on an exact timestamp grid (seq k at t0 + k·period)."""
+    with RecordingWriter(root, meta={"source": "test"}) as w:
+        for seq in seqs if seqs is not None else range(n):
+            ts = t0_ns + seq * period_ns
+            w.write_pair(
+                seq,
+                ts,
+                ts + right_skew_ns,
+                encode(frame_image("left", seq, width, height), ext),
+                encode(frame_image("right", seq, width, height), ext),
+                ext=ext,
+            )
+    if calibration is not None:
+        (root / "calibration.yaml").write_text(calibration)
+    return root
+
+
+def replay_config(
+    recording: Path,
+    *,
+    pace: str | float = 30.0,
+    loop: bool = False,
+    timestamps: str = "live",
+    left_faults: tuple[dict[str, Any], ...] = (),
+    right_faults: tuple[dict[str, Any], ...] = (),
+    supervisor: SupervisorConfig = FAST_SUPERVISOR,
+    pairing: PairingConfig | None = None,
+) -> CaptureConfig:
+    def cam(name: str, faults: tuple[dict[str, Any], ...]) -> dict[str, Any]:
+        return {
+            "kind": "file",
+            "recording": str(recording),
+            "camera": name,
+            "pace": pace,
+            "loop": loop,
+            "timestamps": timestamps,
+            "faults": list(faults),
+        }
+
+    doc: dict[str, Any] = {"left": cam("left", left_faults), "right": cam("right", right_faults)}
+    cfg = CaptureConfig.model_validate(doc)
+    return cfg.model_copy(update={"supervisor": supervisor, "pairing": pairing or PairingConfig()})
+
+
+def file_camera_config(recording: Path, camera: str = "left", **kw: Any) -> FileCameraConfig:
+    return FileCameraConfig.model_validate({"recording": str(recording), "camera": camera, **kw})
