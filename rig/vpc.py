@@ -104,13 +104,11 @@ def design_vpc_pair(rig: Rig, config: VpcConfig | None = None) -> VpcPair:
         raise ConfigError("vpc: the mean optical axis is parallel to the baseline; no common view")
     z /= np.linalg.norm(z)
     y = np.cross(z, x)
-    # Pitch up (+) turns z towards -y (y points down): a rotation about x by -pitch.
-    R_rig_vpc = np.column_stack([x, y, z]) @ rot_x(-math.radians(config.pitch_deg))
+    # Pitch up (+) turns z towards -y (y points down): rot_x(+pitch) maps z to (0, -sin, cos).
+    R_rig_vpc = np.column_stack([x, y, z]) @ rot_x(math.radians(config.pitch_deg))
     T_rig_vpc = {
         config.left: make_transform(R_rig_vpc, c_l),
         config.right: make_transform(R_rig_vpc, c_r),
     }
-    R_cam_vpc = {
-        name: rig.T_rig_cam[name][:3, :3].T @ R_rig_vpc for name in (config.left, config.right)
-    }
+    R_cam_vpc = {name: rig.T_rig_cam[name][:3, :3].T @ R_rig_vpc for name in (config.left, config.right)}
     return VpcPair(vpc_intrinsics(config), T_rig_vpc, R_cam_vpc, baseline, config.left, config.right)

@@ -1,23 +1,118 @@
-"""`rig lut build|show` (issue #3)."""
+"""`rig lut build|show` (issue #3): build the VPC lookup tables into the cache, list the cache."""
 
 from __future__ import annotations
 
-import typer
+import time
+from typing import Annotated
 
-from rig.cli.common import STUB_SETTINGS, not_ready
+import typer
+from rich.table import Table
+
+from rig.cli.common import console, err_console
+from rig.cli.vpc_options import (
+    CacheDirOption,
+    CalibrationOption,
+    PitchOption,
+    VpcHfovOption,
+    VpcSizeOption,
+    YawOption,
+    load_calibration,
+    make_vpc_config,
+)
+from rig.errors import ConfigError
+from rig.lut_cache import LutCache, lut_key
+from rig.vpc import design_vpc_pair
 
 __all__ = ["register"]
+
+
+def _age(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    if seconds < 172800:
+        return f"{seconds / 3600:.0f} h"
+    return f"{seconds / 86400:.0f} d"
 
 
 def register(app: typer.Typer) -> None:
     lut = typer.Typer(help="Build and list cached VPC lookup tables.", no_args_is_help=True)
 
-    @lut.command("build", context_settings=STUB_SETTINGS, help="Not implemented yet (issue #3).")
-    def build(ctx: typer.Context) -> None:
-        not_ready("lut build", 3)
+    @lut.command("build")
+    def build(
+        calibration: CalibrationOption = None,
+        vpc_hfov: VpcHfovOption = 90.0,
+        vpc_size: VpcSizeOption = "640x480",
+        yaw: YawOption = 0.0,
+        pitch: PitchOption = 0.0,
+        cache_dir: CacheDirOption = None,
+        rebuild: Annotated[bool, typer.Option("--rebuild", help="Rebuild even if cached.")] = False,
+    ) -> None:
+        """Build (or find) the LUT of each camera for the VPC pair; print path, key, valid
+        fraction and build time."""
+        if calibration is None:
+            raise ConfigError("rig lut build: --calibration FILE is required")
+        rig, _ = load_calibration(calibration)
+        config = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
+        pair = design_vpc_pair(rig, config)
+        cache = LutCache(cache_dir)
+        table = Table(
+            title=f"VPC {config.width}x{config.height}, hfov {config.hfov_deg:g}°, B {pair.baseline_m:.4f} m"
+        )
+        for col in ("camera", "path", "key", "valid", "build ms", "source"):
+            table.add_column(col)
+        for name in (pair.left, pair.right):
+            model, R = rig.cameras[name], pair.R_cam_vpc[name]
+            if rebuild:
+                cache.path(lut_key(model, R, pair.camera)).unlink(missing_ok=True)
+            t0 = time.perf_counter()
+            got = cache.get(model, R, pair.camera)
+            ms = got.build_ms if not got.hit else (time.perf_counter() - t0) * 1e3
+            frac = got.lut.valid_fraction
+            table.add_row(
+                name,
+                str(got.path),
+                got.key[:16],
+                f"{100 * frac:.1f}%",
+                f"{ms:.1f}",
+                "cache (load)" if got.hit else "built",
+            )
+            if frac < 1.0:
+                err_console.print(
+                    f"[yellow]warning:[/yellow] the VPC leaves camera '{name}''s field: only "
+                    f"{100 * frac:.1f}% of its pixels are valid",
+                    highlight=False,
+                )
+        console.print(table)
 
-    @lut.command("show", context_settings=STUB_SETTINGS, help="Not implemented yet (issue #3).")
-    def show(ctx: typer.Context) -> None:
-        not_ready("lut show", 3)
+    @lut.command("show")
+    def show(
+        cache_dir: CacheDirOption = None,
+        clear: Annotated[bool, typer.Option("--clear", help="Delete every cached table.")] = False,
+    ) -> None:
+        """List the cache (key, size, age, what the table maps, check); ``--clear`` empties it."""
+        cache = LutCache(cache_dir)
+        if clear:
+            n = cache.clear()
+            console.print(f"removed {n} table(s) from {cache.directory}")
+            return
+        entries = cache.entries()
+        if not entries:
+            console.print(f"no cached tables in {cache.directory}")
+            return
+        table = Table(title=str(cache.directory))
+        for col in ("key", "size", "age", "table", "valid", "status"):
+            table.add_column(col)
+        for e in entries:
+            table.add_row(
+                e.path.stem[:16],
+                f"{e.size_bytes / 1e6:.1f} MB",
+                _age(e.age_s),
+                e.summary,
+                "" if e.valid_fraction is None else f"{100 * e.valid_fraction:.1f}%",
+                "ok" if e.ok else f"[red]bad[/red]: {e.problem}",
+            )
+        console.print(table)
 
     app.add_typer(lut, name="lut")

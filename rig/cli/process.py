@@ -1,15 +1,195 @@
-"""`rig process` (issue #3)."""
+"""`rig process RECORDING --calibration FILE --out DIR` (issue #3, DESIGN §7): depth for every
+pair of a recording, headless.
+
+Output: ``DIR/depth/NNNNNN.png`` (uint16 mm, 0 = invalid, aligned with the left VPC image),
+``DIR/left/NNNNNN.png``, ``DIR/right/NNNNNN.png`` (the VPC images), ``DIR/vpc.json``
+(``width, height, fx, fy, cx, cy, baseline_m``); with ``--ply`` also ``DIR/cloud/NNNNNN.ply``
+(rig frame), with ``--preview`` ``DIR/preview/NNNNNN.png`` (left VPC beside colour depth).
+
+A pair whose frame file is missing or not a readable image is reported on stderr by sequence
+number and skipped. Exit status: 0 when at least one pair was processed (a summary names how
+many were skipped), 2 when the calibration, recording or options are bad or no pair could be
+processed.
+"""
 
 from __future__ import annotations
 
+import json
+import logging
+from pathlib import Path
+from typing import Annotated, Any
+
+import cv2
+import numpy as np
 import typer
+import yaml
+from pydantic import ValidationError
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from rig.cli.common import STUB_SETTINGS, not_ready
+from rig.cli.common import console, err_console, fail
+from rig.cli.vpc_options import (
+    CacheDirOption,
+    CalibrationOption,
+    PitchOption,
+    VpcHfovOption,
+    VpcSizeOption,
+    YawOption,
+    load_calibration,
+    make_vpc_config,
+)
+from rig.depth import depth_to_png_mm, write_ply
+from rig.errors import ConfigError, PipelineError, RecordingError
+from rig.pipeline import DepthPipeline
+from rig.recording import Recording
+from rig.stereo import StereoParams
 
-__all__ = ["register"]
+__all__ = ["depth_preview", "load_stereo_params", "register"]
+
+log = logging.getLogger(__name__)
+
+
+def load_stereo_params(path: Path) -> StereoParams:
+    """StereoParams from a YAML/JSON mapping file; ConfigError naming file and field."""
+    try:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+        raise ConfigError(f"{path}: unreadable stereo configuration ({err})") from err
+    if doc is None:
+        doc = {}
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{path}: stereo configuration must be a mapping of parameter names")
+    try:
+        return StereoParams(**doc)
+    except ValidationError as err:
+        first = err.errors()[0]
+        field = ".".join(str(x) for x in first["loc"]) or "(document)"
+        raise ConfigError(f"{path}: field '{field}': {first['msg']}") from None
+
+
+def _write_png(path: Path, image: np.ndarray[Any, Any]) -> None:
+    if not cv2.imwrite(str(path), image):
+        raise RecordingError(f"{path}: could not write image")
 
 
 def register(app: typer.Typer) -> None:
-    @app.command("process", context_settings=STUB_SETTINGS, help="Not implemented yet (issue #3).")
-    def process(ctx: typer.Context) -> None:
-        not_ready("process", 3)
+    @app.command("process")
+    def process(
+        recording: Annotated[Path, typer.Argument(help="Recording directory (frames.csv, left/, right/).")],
+        out: Annotated[Path, typer.Option("--out", "-o", help="Output directory.")],
+        calibration: CalibrationOption = None,
+        vpc_hfov: VpcHfovOption = 90.0,
+        vpc_size: VpcSizeOption = "640x480",
+        yaw: YawOption = 0.0,
+        pitch: PitchOption = 0.0,
+        stereo: Annotated[
+            Path | None, typer.Option("--stereo", help="YAML of stereo parameters (ROS names).")
+        ] = None,
+        ply: Annotated[
+            bool, typer.Option("--ply", help="Also write DIR/cloud/NNNNNN.ply (rig frame).")
+        ] = False,
+        preview: Annotated[
+            bool,
+            typer.Option("--preview", help="Also write DIR/preview/NNNNNN.png (left VPC | colour depth)."),
+        ] = False,
+        cache_dir: CacheDirOption = None,
+    ) -> None:
+        """Depth for every pair of RECORDING into --out (DESIGN §7 layout)."""
+        rec = Recording(recording)
+        rig, cal_path = load_calibration(calibration, rec.calibration_path)
+        config = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
+        params = load_stereo_params(stereo) if stereo is not None else None
+        pipeline = DepthPipeline(rig, config, params, cache_dir=cache_dir)
+        for name, frac in pipeline.valid_fraction.items():
+            if frac < 1.0:
+                err_console.print(
+                    f"[yellow]warning:[/yellow] the VPC leaves camera '{name}''s field: "
+                    f"{100 * frac:.1f}% of its pixels are valid",
+                    highlight=False,
+                )
+        extra = (("cloud",) if ply else ()) + (("preview",) if preview else ())
+        dirs = {k: out / k for k in ("depth", "left", "right", *extra)}
+        try:
+            for d in dirs.values():
+                d.mkdir(parents=True, exist_ok=True)
+            (out / "vpc.json").write_text(json.dumps(pipeline.pair.as_json(), indent=2) + "\n")
+        except OSError as err:
+            raise RecordingError(f"{out}: cannot write output ({err.strerror or err})") from err
+        done, skipped = 0, 0
+        progress = Progress(
+            TextColumn("depth"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeRemainingColumn(),
+            console=err_console,
+            transient=True,
+        )
+        with progress:
+            task = progress.add_task("pairs", total=len(rec.pairs))
+            for pair in rec.pairs:
+                try:
+                    left = rec.read_image(pair, "left", cv2.IMREAD_UNCHANGED)
+                    right = rec.read_image(pair, "right", cv2.IMREAD_UNCHANGED)
+                    frame = pipeline.process(_as_u8(left), _as_u8(right), pair.seq, pair.left_ts_ns)
+                except (RecordingError, PipelineError) as err:
+                    skipped += 1
+                    progress.console.print(
+                        f"[yellow]skipped seq {pair.seq}:[/yellow] {' '.join(str(err).split())}",
+                        highlight=False,
+                        soft_wrap=True,
+                    )
+                    progress.advance(task)
+                    continue
+                stem = f"{pair.seq:06d}.png"
+                _write_png(dirs["depth"] / stem, depth_to_png_mm(frame.depth))
+                _write_png(dirs["left"] / stem, frame.left_vpc)
+                _write_png(dirs["right"] / stem, frame.right_vpc)
+                if preview:
+                    _write_png(dirs["preview"] / stem, depth_preview(frame.left_vpc, frame.depth))
+                if ply:
+                    pts, colors = pipeline.point_cloud(frame)
+                    write_ply(dirs["cloud"] / f"{pair.seq:06d}.ply", pts, colors)
+                done += 1
+                progress.advance(task)
+        total = len(rec.pairs)
+        if total and not done:
+            fail(f"no pair of {total} in {recording} could be processed ({skipped} skipped)")
+        note = f", [yellow]{skipped} skipped[/yellow]" if skipped else ""
+        console.print(
+            f"processed {done} of {total} pairs{note} -> {out} (calibration {cal_path}, "
+            f"VPC {config.width}x{config.height} fx {pipeline.pair.fx:.1f}, B {pipeline.baseline_m:.4f} m)",
+            highlight=False,
+            soft_wrap=True,
+        )
+
+
+def depth_preview(left_vpc: np.ndarray[Any, Any], depth: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
+    """Left VPC image beside its depth in colour (turbo on log depth between the 2nd and 98th
+    percentiles: near is red, far blue; black = invalid), with that range written on it.
+    (H, 2W, 3) uint8 BGR."""
+    ok = np.isfinite(depth) & (depth > 0)
+    vis = np.zeros((*depth.shape, 3), dtype=np.uint8)
+    label = "no depth"
+    if ok.any():
+        near, far = np.percentile(depth[ok], [2.0, 98.0])
+        far = max(far, near * 1.001)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = (np.log(far) - np.log(np.clip(depth, near, far))) / (np.log(far) - np.log(near))
+        scaled = np.clip(np.nan_to_num(t, nan=0.0) * 255.0, 0, 255).astype(np.uint8)
+        vis = cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO)
+        vis[~ok] = 0
+        label = f"{near:.2f}-{far:.2f} m"
+    left = left_vpc if left_vpc.ndim == 3 else cv2.cvtColor(left_vpc, cv2.COLOR_GRAY2BGR)
+    out = np.hstack([left, vis])
+    cv2.putText(out, label, (left.shape[1] + 8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 2)
+    return out
+
+
+def _as_u8(img: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
+    """Frames as the pipeline takes them: uint8 gray or BGR (16-bit scaled, alpha dropped)."""
+    if img.dtype == np.uint16:
+        img = (img >> 8).astype(np.uint8)
+    if img.ndim == 3 and img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    elif img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    return img

@@ -1,0 +1,144 @@
+"""Disparity to depth, point clouds and their file formats (DESIGN §3, §6, §7).
+
+Depth is z in the left VPC frame, metres, float32, NaN invalid; ``Z = fx·B/d``, invalid where
+d ≤ 0. The 16-bit PNG form is millimetres with 0 = invalid (RealSense/DepthAI convention);
+depths beyond 65.535 m do not fit and are written as 0 (invalid), never saturated.
+PLY: binary little-endian, ``x y z`` float32 (+ ``red green blue`` uchar).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from calibration.models import PinholeModel
+from rig.errors import PipelineError
+
+__all__ = [
+    "depth_from_png_mm",
+    "depth_points",
+    "depth_to_png_mm",
+    "disparity_to_depth",
+    "read_ply",
+    "write_ply",
+]
+
+F32 = NDArray[np.float32]
+
+
+def disparity_to_depth(disparity: F32, fx: float, baseline_m: float) -> F32:
+    """Depth (H, W) float32 m from disparity (H, W) px: ``fx·B/d``; NaN where d ≤ 0 or NaN."""
+    d = np.asarray(disparity, dtype=np.float32)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = np.float32(fx * baseline_m) / d
+    depth[~(d > 0)] = np.nan
+    out: F32 = depth
+    return out
+
+
+def depth_to_png_mm(depth: F32) -> NDArray[np.uint16]:
+    """uint16 millimetres, 0 where invalid (NaN, ≤ 0) or beyond 65.535 m."""
+    with np.errstate(invalid="ignore"):
+        mm = np.rint(np.asarray(depth, dtype=np.float64) * 1000.0)
+        ok = np.isfinite(mm) & (mm > 0) & (mm <= 65535)
+    return np.where(ok, mm, 0).astype(np.uint16)
+
+
+def depth_from_png_mm(png: NDArray[np.uint16]) -> F32:
+    """Inverse of :func:`depth_to_png_mm`: float32 m, NaN where 0."""
+    out = np.asarray(png, dtype=np.float32) * np.float32(1e-3)
+    out[png == 0] = np.nan
+    return out
+
+
+def depth_points(
+    depth: F32,
+    camera: PinholeModel,
+    T_rig_vpc: ArrayLike | None = None,
+    stride: int = 1,
+) -> tuple[NDArray[np.float32], NDArray[np.intp]]:
+    """3D points of the valid depth pixels: ray through the pixel scaled to z = depth.
+
+    ``depth`` (H, W) float32 m, NaN invalid; ``camera`` the VPC pinhole (distortion-free);
+    ``T_rig_vpc`` (4, 4) maps the result into the rig frame (None: stay in the VPC frame).
+    Returns points (N, 3) float32 and the flat pixel indices (N,) they came from.
+    """
+    if stride < 1:
+        raise PipelineError(f"point cloud stride must be >= 1, got {stride}")
+    h, w = depth.shape
+    rows = np.arange(0, h, stride)
+    cols = np.arange(0, w, stride)
+    sub = depth[::stride, ::stride]
+    ok = np.isfinite(sub) & (sub > 0)
+    r_idx, c_idx = np.nonzero(ok)
+    z = sub[r_idx, c_idx].astype(np.float64)
+    v, u = rows[r_idx].astype(np.float64), cols[c_idx].astype(np.float64)
+    pts = np.stack([(u - camera.cx) / camera.fx * z, (v - camera.cy) / camera.fy * z, z], axis=1)
+    if T_rig_vpc is not None:
+        T = np.asarray(T_rig_vpc, dtype=np.float64)
+        pts = pts @ T[:3, :3].T + T[:3, 3]
+    return pts.astype(np.float32), rows[r_idx] * w + cols[c_idx]
+
+
+def write_ply(path: str | Path, points: ArrayLike, colors: ArrayLike | None = None) -> Path:
+    """Binary little-endian PLY of points (N, 3) (+ colours (N, 3) uint8 RGB); atomic write."""
+    pts = np.asarray(points, dtype="<f4").reshape(-1, 3)
+    props = ["property float x", "property float y", "property float z"]
+    dtype: list[tuple[str, str]] = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    rgb = None
+    if colors is not None:
+        rgb = np.asarray(colors, dtype=np.uint8).reshape(-1, 3)
+        if rgb.shape[0] != pts.shape[0]:
+            raise PipelineError(f"PLY: {pts.shape[0]} points but {rgb.shape[0]} colours")
+        props += ["property uchar red", "property uchar green", "property uchar blue"]
+        dtype += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    rec = np.empty(pts.shape[0], dtype=dtype)
+    rec["x"], rec["y"], rec["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
+    if rgb is not None:
+        rec["red"], rec["green"], rec["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+    header = "\n".join(
+        ["ply", "format binary_little_endian 1.0", f"element vertex {pts.shape[0]}", *props, "end_header"]
+    )
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        f.write(header.encode("ascii") + b"\n")
+        f.write(rec.tobytes())
+    os.replace(tmp, path)
+    return path
+
+
+_PLY_TYPES = {"float": "<f4", "float32": "<f4", "double": "<f8", "uchar": "u1", "uint8": "u1"}
+
+
+def read_ply(path: str | Path) -> tuple[NDArray[np.float32], NDArray[np.uint8] | None]:
+    """Read what :func:`write_ply` writes (binary little-endian vertex x y z [red green blue])."""
+    path = Path(path)
+    data = path.read_bytes()
+    end = data.find(b"end_header\n")
+    if not data.startswith(b"ply\n") or end < 0:
+        raise PipelineError(f"{path}: not a PLY file")
+    lines = data[:end].decode("ascii").splitlines()
+    if "format binary_little_endian 1.0" not in lines:
+        raise PipelineError(f"{path}: only binary little-endian PLY is read")
+    count = 0
+    fields: list[tuple[str, str]] = []
+    for line in lines:
+        parts = line.split()
+        if parts[:2] == ["element", "vertex"]:
+            count = int(parts[2])
+        elif parts[:1] == ["property"] and len(parts) == 3:
+            if parts[1] not in _PLY_TYPES:
+                raise PipelineError(f"{path}: unsupported PLY property type {parts[1]!r}")
+            fields.append((parts[2], _PLY_TYPES[parts[1]]))
+    rec: Any = np.frombuffer(data, dtype=np.dtype(fields), count=count, offset=end + len(b"end_header\n"))
+    pts = np.stack([rec["x"], rec["y"], rec["z"]], axis=1).astype(np.float32)
+    names = {n for n, _ in fields}
+    cols = None
+    if {"red", "green", "blue"} <= names:
+        cols = np.stack([rec["red"], rec["green"], rec["blue"]], axis=1).astype(np.uint8)
+    return pts, cols

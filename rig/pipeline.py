@@ -1,0 +1,252 @@
+"""The depth pipeline: fisheye pair → VPC pair (cached LUT remap) → disparity → depth.
+
+``DepthPipeline(rig)`` builds (or loads from the cache) one LUT per camera for the VPC pair of
+:func:`rig.vpc.design_vpc_pair`; ``process(left, right)`` runs the stages configured by
+:class:`rig.stereo.StereoParams` and returns a :class:`DepthFrame` with per-stage timings.
+
+Thread safety: ``process`` runs on one worker thread (a lock serialises concurrent callers);
+``update_stereo`` may be called from any thread: it builds a new matcher and swaps it in
+atomically, and the next frame uses it.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from calibration.rig import Rig
+from rig.depth import depth_points, disparity_to_depth
+from rig.errors import ConfigError, PipelineError
+from rig.filters import TemporalFilter, median_filter, visible_in_right
+from rig.lut import Lut
+from rig.lut_cache import CachedLut, LutCache
+from rig.stereo import StereoMatcher, StereoParams
+from rig.subpixel import confidence_from_sigma, refine_disparity
+from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
+
+__all__ = ["DepthFrame", "DepthPipeline"]
+
+log = logging.getLogger(__name__)
+
+F32 = NDArray[np.float32]
+U8 = NDArray[np.uint8]
+
+
+@dataclass
+class DepthFrame:
+    """One processed pair. Arrays are (H, W) at the VPC size.
+
+    ``depth`` float32 m along the left VPC's z, NaN invalid; ``disparity`` float32 px, NaN
+    invalid; ``valid`` bool; ``confidence`` float32 in [0, 1] (0 where invalid) or None;
+    ``left_vpc``/``right_vpc`` uint8, gray or BGR like the input; ``timings_ms`` per stage
+    (remap, match, refine, filters, depth, total).
+    """
+
+    seq: int
+    ts_ns: int
+    depth: F32
+    disparity: F32
+    valid: NDArray[np.bool_]
+    confidence: F32 | None
+    left_vpc: U8
+    right_vpc: U8
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+def _gray(img: U8) -> U8:
+    if img.ndim == 2:
+        return img
+    return np.asarray(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
+
+
+class DepthPipeline:
+    """Depth from a fisheye pair of ``rig`` (see module doc)."""
+
+    def __init__(
+        self,
+        rig: Rig,
+        vpc: VpcConfig | None = None,
+        stereo: StereoParams | None = None,
+        cache_dir: str | Path | None = None,
+    ) -> None:
+        self.rig = rig
+        self.vpc_config = vpc or VpcConfig()
+        self.pair: VpcPair = design_vpc_pair(rig, self.vpc_config)
+        self.baseline_m = self.pair.baseline_m
+        self.cache = LutCache(cache_dir)
+        self.names = (self.pair.left, self.pair.right)
+        self.lut_info: dict[str, CachedLut] = {}
+        for name in self.names:
+            self.lut_info[name] = self.cache.get(
+                rig.cameras[name], self.pair.R_cam_vpc[name], self.pair.camera
+            )
+        self.luts: dict[str, Lut] = {n: info.lut for n, info in self.lut_info.items()}
+        self.valid_fraction = {n: lut.valid_fraction for n, lut in self.luts.items()}
+        for name, frac in self.valid_fraction.items():
+            if frac < 1.0:
+                log.warning(
+                    "VPC (%dx%d, hfov %.1f°, yaw %.1f°, pitch %.1f°) leaves camera '%s''s field: "
+                    "only %.1f%% of its pixels are valid",
+                    self.vpc_config.width,
+                    self.vpc_config.height,
+                    self.vpc_config.hfov_deg,
+                    self.vpc_config.yaw_deg,
+                    self.vpc_config.pitch_deg,
+                    name,
+                    100.0 * frac,
+                )
+        left_lut, right_lut = self.luts[self.pair.left], self.luts[self.pair.right]
+        # Masks are only applied when they exclude something (the usual VPC sees all valid).
+        self._left_mask = None if left_lut.valid_fraction == 1.0 else left_lut.valid
+        self._right_mask = None if right_lut.valid_fraction == 1.0 else right_lut.valid
+        self._swap_lock = threading.Lock()
+        self._process_lock = threading.Lock()
+        params = stereo or StereoParams()
+        self._check_params(params)
+        self._matcher = StereoMatcher(params)
+        self._temporal = TemporalFilter(params.temporal_alpha, params.temporal_reset)
+        self._temporal_owner: StereoMatcher | None = self._matcher
+
+    # ----- configuration -----------------------------------------------------------------------
+    @property
+    def stereo(self) -> StereoParams:
+        return self._matcher.params
+
+    def _check_params(self, params: StereoParams) -> None:
+        width = self.pair.camera.width
+        if params.disparity_range + max(params.min_disparity, 0) >= width:
+            raise ConfigError(
+                f"stereo: disparity_range {params.disparity_range} + min_disparity {params.min_disparity} "
+                f"must be below the VPC width {width}"
+            )
+
+    def update_stereo(self, params: StereoParams) -> None:
+        """Swap in new stereo parameters (thread-safe; takes effect at the next frame)."""
+        self._check_params(params)
+        matcher = StereoMatcher(params)
+        with self._swap_lock:
+            self._matcher = matcher
+
+    # ----- stages ------------------------------------------------------------------------------
+    def _check_input(self, name: str, img: NDArray[np.generic]) -> None:
+        model = self.rig.cameras[name]
+        if not isinstance(img, np.ndarray) or img.dtype != np.uint8:
+            raise PipelineError(
+                f"{name} image must be a uint8 numpy array, got {getattr(img, 'dtype', img)!r}"
+            )
+        if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
+            raise PipelineError(f"{name} image must be gray (H, W) or BGR (H, W, 3), got shape {img.shape}")
+        if img.shape[:2] != (model.height, model.width):
+            raise PipelineError(
+                f"{name} image is {img.shape[1]}x{img.shape[0]} but its calibration is "
+                f"{model.width}x{model.height}"
+            )
+
+    def remap(self, left: U8, right: U8) -> tuple[U8, U8]:
+        """The VPC pair from a fisheye pair (fixed-point bilinear remap, black outside the lens)."""
+        self._check_input(self.pair.left, left)
+        self._check_input(self.pair.right, right)
+        return self.luts[self.pair.left].remap(left), self.luts[self.pair.right].remap(right)
+
+    def process(self, left: U8, right: U8, seq: int = 0, ts_ns: int = 0) -> DepthFrame:
+        """Depth for one fisheye pair (see :class:`DepthFrame`)."""
+        with self._process_lock:
+            with self._swap_lock:
+                matcher = self._matcher
+            p = matcher.params
+            t0 = time.perf_counter()
+            left_vpc, right_vpc = self.remap(left, right)
+            t1 = time.perf_counter()
+            gl, gr = _gray(left_vpc), _gray(right_vpc)
+            raw = matcher.match(gl, gr)
+            disparity, valid = raw.disparity, raw.valid
+            if self._left_mask is not None:
+                valid &= self._left_mask
+            if self._right_mask is not None:
+                valid = visible_in_right(disparity, valid, self._right_mask)
+            if self._left_mask is not None or self._right_mask is not None:
+                disparity[~valid] = np.nan
+            t2 = time.perf_counter()
+            sigma = None
+            if p.subpixel or p.confidence:
+                ref = refine_disparity(
+                    gl, gr, disparity, valid, p.subpixel_window, apply=p.subpixel, want_sigma=p.confidence
+                )
+                disparity, sigma = ref.disparity, ref.sigma
+            t3 = time.perf_counter()
+            if p.median:
+                disparity, valid = median_filter(disparity, valid, p.median)
+            if matcher is not self._temporal_owner:
+                # New parameters: history made under the old ones is not averaged in.
+                self._temporal = TemporalFilter(p.temporal_alpha, p.temporal_reset)
+                self._temporal_owner = matcher
+            if p.temporal_alpha > 0.0:
+                disparity = self._temporal(disparity, valid)
+            confidence = None
+            if sigma is not None:
+                confidence = confidence_from_sigma(sigma, p.confidence_sigma)
+                confidence[~valid] = 0.0
+            t4 = time.perf_counter()
+            depth = disparity_to_depth(disparity, self.pair.fx, self.baseline_m)
+            # d <= 0 has no depth: invalid everywhere, so the arrays agree pixel for pixel.
+            gone = valid & ~np.isfinite(depth)
+            if gone.any():
+                valid &= ~gone
+                disparity[gone] = np.nan
+                if confidence is not None:
+                    confidence[gone] = 0.0
+            t5 = time.perf_counter()
+        timings = {
+            "remap": (t1 - t0) * 1e3,
+            "match": (t2 - t1) * 1e3,
+            "refine": (t3 - t2) * 1e3,
+            "filters": (t4 - t3) * 1e3,
+            "depth": (t5 - t4) * 1e3,
+            "total": (t5 - t0) * 1e3,
+        }
+        return DepthFrame(seq, ts_ns, depth, disparity, valid, confidence, left_vpc, right_vpc, timings)
+
+    # ----- outputs -----------------------------------------------------------------------------
+    def point_cloud(self, frame: DepthFrame, stride: int = 1) -> tuple[NDArray[np.float32], U8]:
+        """Points (N, 3) float32 in the rig frame and their colours (N, 3) uint8 RGB (gray
+        images give gray colours), every ``stride``-th pixel of each axis."""
+        pts, idx = depth_points(frame.depth, self.pair.camera, self.pair.T_rig_vpc[self.pair.left], stride)
+        img = frame.left_vpc
+        if img.ndim == 2:
+            colors = np.repeat(img.reshape(-1)[idx][:, None], 3, axis=1)
+        else:
+            colors = img.reshape(-1, 3)[idx][:, ::-1]  # BGR -> RGB
+        return pts, np.ascontiguousarray(colors)
+
+    def footprint(self, camera: str, samples: int = 64) -> NDArray[np.float64]:
+        """The VPC image border traced in ``camera``'s fisheye image: (M, 2) pixels, a closed
+        polyline (top, right, bottom, left edges, ``samples`` points each) of the border
+        points the lens sees. For the dashboard overlay."""
+        if camera not in self.luts:
+            raise ConfigError(f"footprint: no camera {camera!r} in the VPC pair ({', '.join(self.names)})")
+        if samples < 2:
+            raise ConfigError(f"footprint: samples must be >= 2, got {samples}")
+        c = self.pair.camera
+        u = np.linspace(0.0, c.width - 1.0, samples)
+        v = np.linspace(0.0, c.height - 1.0, samples)
+        border = np.concatenate(
+            [
+                np.stack([u, np.zeros_like(u)], 1),
+                np.stack([np.full_like(v, c.width - 1.0), v], 1),
+                np.stack([u[::-1], np.full_like(u, c.height - 1.0)], 1),
+                np.stack([np.zeros_like(v), v[::-1]], 1),
+            ]
+        )
+        rays = np.stack(
+            [(border[:, 0] - c.cx) / c.fx, (border[:, 1] - c.cy) / c.fy, np.ones(len(border))], axis=1
+        )
+        cam_rays = rays @ self.pair.R_cam_vpc[camera].T
+        pix, ok = self.rig.cameras[camera].project(cam_rays, in_image=False)
+        return pix[ok]

@@ -1,0 +1,46 @@
+"""The virtual environment: textured scenes, a ray-cast renderer for any camera model, simulated
+rigs (presets) and recordings with exact ground truth (issue #3).
+
+World frame = rig frame (DESIGN §3: x right, y down, z forward), metres.
+"""
+
+from rig.sim.mount import divergent_rig
+from rig.sim.presets import PRESETS, Preset, get_preset, scale_camera
+from rig.sim.render import Render, render, vignetting_factor
+from rig.sim.scene import (
+    Scene,
+    TexturedRect,
+    chessboard_corners,
+    chessboard_scene,
+    plane_scene,
+    rect_from_axes,
+    room_scene,
+)
+from rig.sim.simulate import SCENES, room_path, simulate_recording
+from rig.sim.textures import TEXTURES, CheckerTexture, ImageTexture, Texture, make_texture
+
+__all__ = [
+    "PRESETS",
+    "SCENES",
+    "TEXTURES",
+    "CheckerTexture",
+    "ImageTexture",
+    "Preset",
+    "Render",
+    "Scene",
+    "Texture",
+    "TexturedRect",
+    "chessboard_corners",
+    "chessboard_scene",
+    "divergent_rig",
+    "get_preset",
+    "make_texture",
+    "plane_scene",
+    "rect_from_axes",
+    "render",
+    "room_path",
+    "room_scene",
+    "scale_camera",
+    "simulate_recording",
+    "vignetting_factor",
+]

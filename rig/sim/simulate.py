@@ -1,0 +1,260 @@
+"""Rendered recordings with ground truth (``rig sim``): DESIGN §7's recording layout plus
+``calibration.yaml`` and ``ground_truth/``.
+
+Layout written under ``out``::
+
+    recording.json, frames.csv, left/NNNNNN.png, right/NNNNNN.png   (rig.recording)
+    calibration.yaml                         the preset's rig (rig.yaml, version 1)
+    ground_truth/scene.json                  what each seq shows (below)
+    ground_truth/depth/NNNNNN.npy            float32 (H, W) z in the LEFT VPC frame, m, NaN = none
+    ground_truth/reference/left/NNNNNN.png   Reference: ideal pinhole at the left VPC pose
+    ground_truth/reference/right/NNNNNN.png  ... and at the right VPC pose
+
+Scenes: ``plane`` puts the paper's fronto-parallel target at each distance (in baselines) for
+``frames_per_distance`` frames; ``room`` moves the rig along a short path through the demo room
+for ``frames`` frames. A pair is indexed in frames.csv only after its ground truth is on disk,
+so every indexed pair has ground truth even if the run is killed.
+"""
+
+from __future__ import annotations
+
+import errno
+import io
+import json
+import math
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from calibration.formats import save_rig
+from calibration.geometry import make_transform, rot_y
+from rig.errors import ConfigError, DiskFullError, RecordingError, SimulationError
+from rig.recording import RecordingWriter
+from rig.sim.presets import Preset, get_preset
+from rig.sim.render import render
+from rig.sim.scene import Scene, plane_scene, room_scene
+from rig.sim.textures import texture_name
+from rig.vpc import VpcConfig, design_vpc_pair
+
+__all__ = ["GROUND_TRUTH_VERSION", "SCENES", "ProgressCallback", "room_path", "simulate_recording"]
+
+SCENES = ("plane", "room")
+GROUND_TRUTH_VERSION = 1
+DEFAULT_DISTANCES = (3.0, 5.0, 10.0)
+DEFAULT_ROOM_FRAMES = 5
+
+#: ``progress(done, total)`` after each rendered pair.
+ProgressCallback = Callable[[int, int], None]
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class _Shot:
+    """One pair to render: the scene, the rig's pose in it and its ground-truth description."""
+
+    scene: Scene
+    T_world_rig: F64
+    info: dict[str, Any]
+
+
+def room_path(index: int, count: int) -> F64:
+    """Rig pose (4, 4) for frame ``index`` of ``count`` in the room: 1.5 m forward from
+    z = -0.5, swaying ±0.3 m sideways and ±12° in yaw (stays clear of the boxes)."""
+    a = index / max(1, count - 1)
+    phase = 2.0 * math.pi * a
+    return make_transform(
+        rot_y(math.radians(12.0) * math.sin(phase)), [0.3 * math.sin(phase), 0.0, -0.5 + 1.5 * a]
+    )
+
+
+def _shots(
+    preset: Preset,
+    scene: str,
+    distances: Sequence[float] | None,
+    frames_per_distance: int,
+    frames: int | None,
+    texture: str | int,
+    seed: int,
+) -> list[_Shot]:
+    baseline = preset.rig.baseline()
+    if scene == "plane":
+        if frames is not None:
+            raise ConfigError(
+                "frames applies to the room scene; the plane scene uses distances x frames_per_distance"
+            )
+        ks = [float(k) for k in (DEFAULT_DISTANCES if distances is None else distances)]
+        if not ks or not all(math.isfinite(k) and k > 0 for k in ks):
+            raise ConfigError(f"distances must be positive numbers of baselines, got {list(distances or [])}")
+        name = texture_name(texture)
+        out = []
+        for k in ks:
+            sc = plane_scene(k * baseline, name, seed)
+            info = {**sc.info, "distance_baselines": k}
+            out += [_Shot(sc, np.eye(4), info) for _ in range(frames_per_distance)]
+        return out
+    if scene == "room":
+        if distances is not None or frames_per_distance != 1:
+            raise ConfigError(
+                "distances and frames_per_distance apply to the plane scene; the room scene takes frames"
+            )
+        n = DEFAULT_ROOM_FRAMES if frames is None else int(frames)
+        if n < 1:
+            raise ConfigError(f"frames must be >= 1, got {frames}")
+        sc = room_scene(seed)
+        return [_Shot(sc, room_path(i, n), {**sc.info, "path_index": i}) for i in range(n)]
+    raise ConfigError(f"unknown scene {scene!r}; valid scenes: {', '.join(SCENES)}")
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+    os.replace(tmp, path)
+
+
+def _write_error(root: Path, err: OSError) -> RecordingError:
+    if err.errno in (errno.ENOSPC, errno.EDQUOT):
+        return DiskFullError(f"{root}: disk full; every pair indexed so far has its ground truth")
+    return RecordingError(f"{root}: cannot write the recording ({err.strerror or err})")
+
+
+def _png(img: NDArray[Any]) -> bytes:
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise SimulationError("could not encode a rendered image as PNG")
+    return bytes(buf.tobytes())
+
+
+def _npy(array: NDArray[Any]) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, array, allow_pickle=False)
+    return buf.getvalue()
+
+
+def _frame_seed(seed: int, seq: int, camera: int) -> int:
+    return int(np.random.SeedSequence([seed, seq, camera]).generate_state(1)[0])
+
+
+def simulate_recording(
+    preset: Preset | str,
+    scene: str,
+    out: str | Path,
+    distances: Sequence[float] | None = None,
+    frames_per_distance: int = 1,
+    texture: str | int = 0,
+    seed: int = 0,
+    noise_std: float | None = None,
+    *,
+    frames: int | None = None,
+    vignetting: float | None = None,
+    supersample: int = 3,
+    color: bool = False,
+    vpc: VpcConfig | None = None,
+    progress: ProgressCallback | None = None,
+) -> Path:
+    """Render a recording of ``scene`` ("plane" | "room") seen by ``preset``'s rig into ``out``.
+
+    plane: ``distances`` in baselines (default 3, 5, 10), ``frames_per_distance`` pairs each;
+    room: ``frames`` pairs along :func:`room_path` (default 5). ``noise_std`` / ``vignetting``
+    default to the preset's. Ground truth is for the VPC pair of ``vpc`` (default VpcConfig()).
+    ``out`` must not exist or be an empty directory. Returns ``out``.
+    """
+    p = get_preset(preset) if isinstance(preset, str) else preset
+    if isinstance(frames_per_distance, bool) or int(frames_per_distance) < 1:
+        raise ConfigError(f"frames_per_distance must be >= 1, got {frames_per_distance!r}")
+    shots = _shots(p, scene, distances, int(frames_per_distance), frames, texture, int(seed))
+    noise = p.noise_std if noise_std is None else float(noise_std)
+    vig = p.vignetting if vignetting is None else float(vignetting)
+    if not (math.isfinite(noise) and noise >= 0):
+        raise ConfigError(f"noise must be >= 0 grey levels, got {noise_std!r}")
+    if not (math.isfinite(vig) and 0 <= vig <= 1):
+        raise ConfigError(f"vignetting must be in [0, 1], got {vignetting!r}")
+    if isinstance(supersample, bool) or int(supersample) != supersample or not 1 <= supersample <= 16:
+        raise ConfigError(f"supersample must be an integer in [1, 16], got {supersample!r}")
+    pair = design_vpc_pair(p.rig, vpc)
+    root = Path(out)
+    if root.exists() and (not root.is_dir() or any(root.iterdir())):
+        raise RecordingError(f"{root}: already exists and is not an empty directory; choose a new --out")
+    gt = root / "ground_truth"
+    try:
+        for sub in ("depth", "reference/left", "reference/right"):
+            (gt / sub).mkdir(parents=True, exist_ok=True)
+        save_rig(p.rig, root / "calibration.yaml")
+    except OSError as err:
+        raise _write_error(root, err) from err
+    period_ns = round(1e9 / p.fps)
+    meta = {
+        "generator": "rig sim",
+        "preset": p.name,
+        "scene": scene,
+        "fps": p.fps,
+        "distances": list(dict.fromkeys(s.info["distance_baselines"] for s in shots))
+        if scene == "plane"
+        else None,
+        "frames": len(shots),
+        "texture": shots[0].info.get("texture"),
+        "seed": int(seed),
+        "noise_std": noise,
+        "vignetting": vig,
+        "supersample": int(supersample),
+        "color": bool(color),
+    }
+    doc: dict[str, Any] = {
+        "version": GROUND_TRUTH_VERSION,
+        "preset": p.name,
+        "scene": scene,
+        "baseline_m": p.rig.baseline(),
+        "vpc": {**pair.as_json(), "hfov_deg": (vpc or VpcConfig()).hfov_deg},
+        "T_rig_vpc": {n: T.tolist() for n, T in pair.T_rig_vpc.items()},
+        "depth": {"frame": "left VPC", "quantity": "z", "units": "m", "dtype": "float32", "invalid": "NaN"},
+        "frames": [],
+    }
+    cams = (pair.left, pair.right)
+    with RecordingWriter(root, meta=meta) as writer:
+        for seq, shot in enumerate(shots):
+            kw: dict[str, Any] = {"supersample": supersample, "color": color}
+            ref = {
+                n: render(shot.scene, pair.camera, shot.T_world_rig @ pair.T_rig_vpc[n], **kw) for n in cams
+            }
+            views = [
+                render(
+                    shot.scene,
+                    p.rig.cameras[n],
+                    shot.T_world_rig @ p.rig.T_rig_cam[n],
+                    noise_std=noise,
+                    vignetting=vig,
+                    seed=_frame_seed(int(seed), seq, i),
+                    **kw,
+                )
+                for i, n in enumerate(cams)
+            ]
+            rel = {"depth": f"ground_truth/depth/{seq:06d}.npy"}
+            rel |= {n: f"ground_truth/reference/{n}/{seq:06d}.png" for n in cams}
+            try:
+                _write_atomic(root / rel["depth"], _npy(ref[pair.left].depth))
+                for n in cams:
+                    _write_atomic(root / rel[n], _png(ref[n].image))
+                entry = {
+                    "seq": seq,
+                    **shot.info,
+                    "T_world_rig": shot.T_world_rig.tolist(),
+                    "depth": rel["depth"],
+                }
+                entry["reference"] = {n: rel[n] for n in cams}
+                doc["frames"].append(entry)
+                _write_atomic(gt / "scene.json", json.dumps(doc, indent=2).encode() + b"\n")
+            except OSError as err:
+                raise _write_error(root, err) from err
+            ts = seq * period_ns
+            writer.write_images(seq, ts, ts, views[0].image, views[1].image)
+            if progress is not None:
+                progress(seq + 1, len(shots))
+    return root

@@ -1,0 +1,146 @@
+"""Subpixel disparity refinement against SGBM's pixel locking.
+
+SGBM interpolates its cost minimum with a parabola; on Birchfield-Tomasi costs that pulls the
+disparity towards whole pixels (~0.2 px RMS on noise-free fractional shifts). We refine
+each disparity with one symmetric Gauss-Newton (Lucas-Kanade) step on the image intensities:
+
+* ``d0 = round(d_sgbm)`` per pixel; ``Rs(x) = R(x - d0(x))`` is an exact integer gather (no
+  interpolation, so no interpolation bias), ``e = Rs - L``.
+* Symmetric linearisation: ``R(x - d0) - L(x) ≈ (d - d0) · ḡ`` with ``ḡ = (∂L(x) + ∂R(x - d0)) / 2``,
+  exact to second order in ``d - d0`` (one-sided gradients leave a first-order bias).
+* A window W solves for one common disparity with each pixel relative to its *own* d0:
+  ``d = Σ_W (ḡ e + d0 ḡ²) / Σ_W ḡ²`` — box filters of per-pixel products, so the whole image
+  costs a few OpenCV passes.
+* Both images are first normalised to local zero mean and unit contrast (15 px window), so
+  gain/offset differences between the cameras (exposure, vignetting at different field angles)
+  do not bias the step; without it 1.5 grey levels of noise plus the prototype's vignetting
+  raised the error on a plane from 0.04 to 0.19 px RMS.
+* ∂ is a 5-tap derivative (``[1, -8, 0, 8, -1] / 12``): the central difference's sin(ω)/ω gain loss
+  over-scales the step on fine texture.
+
+The residuals ``r = e − (d − d0)·ḡ`` of each pixel under its refined disparity give the
+least-squares prediction of the disparity's standard deviation ``σ_d = sqrt(Σ_W r² / (n − 1) / Σ_W ḡ²)``
+(image noise over texture energy), which :func:`confidence_from_sigma` maps into [0, 1].
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["Refinement", "confidence_from_sigma", "refine_disparity"]
+
+U8 = NDArray[np.uint8]
+F32 = NDArray[np.float32]
+
+_DERIV5 = np.array([[1.0, -8.0, 0.0, 8.0, -1.0]], dtype=np.float32) / 12.0
+# A refined value further than this from the matcher's is not trusted (the step is linearised
+# around d0): the pixel keeps the matcher's disparity.
+MAX_STEP_PX = 1.0
+# Local contrast normalisation before the step: window (px) and noise floor (grey levels).
+NORM_WINDOW = 15
+NORM_EPS = 2.0
+
+
+@dataclass
+class Refinement:
+    """``disparity`` (H, W) float32 px (NaN invalid); ``sigma`` (H, W) float32 predicted σ_d in
+    px (inf where unknown) or None when not asked for."""
+
+    disparity: F32
+    sigma: F32 | None
+
+
+def _x_derivative(img: F32) -> F32:
+    return np.asarray(
+        cv2.filter2D(img, cv2.CV_32F, _DERIV5, borderType=cv2.BORDER_REPLICATE), dtype=np.float32
+    )
+
+
+@functools.lru_cache(maxsize=8)
+def _grid(h: int, w: int) -> tuple[F32, F32]:
+    """Column indices (1, W) and the row map (H, W) float32 for remap; cached per size."""
+    xs = np.arange(w, dtype=np.float32)[None, :]
+    ys = np.ascontiguousarray(np.broadcast_to(np.arange(h, dtype=np.float32)[:, None], (h, w)))
+    ys.flags.writeable = False
+    return xs, ys
+
+
+def _normalise(img: U8) -> F32:
+    """Local contrast normalisation ``(I − μ) / sqrt(σ² + ε²)`` over :data:`NORM_WINDOW`: the two
+    cameras' gain and offset differences (exposure, vignetting at different field angles) would
+    otherwise leak into the intensity residual and bias the step."""
+    k = (NORM_WINDOW, NORM_WINDOW)
+    v = img.astype(np.float32)
+    mu = np.asarray(cv2.blur(v, k), dtype=np.float32)
+    var = np.asarray(cv2.blur(v * v, k), dtype=np.float32) - mu * mu
+    var = np.maximum(var, np.float32(0.0)) + np.float32(NORM_EPS**2)
+    return ((v - mu) / np.sqrt(var)).astype(np.float32, copy=False)
+
+
+def _box(x: F32, window: int) -> F32:
+    out = cv2.boxFilter(x, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    return np.asarray(out, dtype=np.float32)
+
+
+def refine_disparity(
+    left: U8,
+    right: U8,
+    disparity: F32,
+    valid: NDArray[np.bool_],
+    window: int = 11,
+    *,
+    apply: bool = True,
+    want_sigma: bool = False,
+) -> Refinement:
+    """Refined disparity for gray VPC images ``left``/``right`` (H, W) uint8 and the matcher's
+    ``disparity`` (H, W) float32 (NaN where ``valid`` is False).
+
+    ``apply=False`` keeps the matcher's values and only predicts σ (confidence without
+    refinement). Pixels whose refined value moved more than :data:`MAX_STEP_PX` keep the
+    matcher's value and get σ = inf. Cost: two 5-tap filters, two nearest remaps and two box
+    filters (three more with σ), all float32.
+    """
+    h, w = left.shape
+    xs, ys = _grid(h, w)
+    L = _normalise(left)
+    R = _normalise(right)
+    gL = _x_derivative(L)
+    gR = _x_derivative(R)
+    vf = valid.astype(np.float32)
+    d_clean = cv2.patchNaNs(disparity.copy(), 0.0)  # NaN -> 0 without a masked pass
+    d0 = np.rint(d_clean)
+    # Integer gather R(x - d0) and ∂R(x - d0) through remap (nearest: exact on integer maps).
+    map_x = xs - d0
+    Rs = cv2.remap(R, map_x, ys, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+    gRs = cv2.remap(gR, map_x, ys, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+    # Invalid pixels (g = e = 0) do not vote in their neighbours' windows.
+    g = (gL + gRs) * (np.float32(0.5) * vf)
+    e = (Rs - L) * vf
+    a = e + d0 * g
+    sum_g2 = _box(g * g, window)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        refined = _box(g * a, window) / sum_g2
+        ok = (np.abs(refined - d_clean) <= MAX_STEP_PX) & valid
+    best = np.where(ok, refined, d_clean)
+    out = np.where(valid, best, np.float32(np.nan)).astype(np.float32) if apply else disparity
+    sigma: F32 | None = None
+    if want_sigma:
+        # Residual of each pixel under its own disparity (small numbers: float32 is enough).
+        d_used = best if apply else d_clean
+        r = e - (d_used - d0) * g
+        n = _box(vf, window)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sig = np.sqrt(_box(r * r, window) / np.maximum(n - 1.0, 1.0) / sum_g2)
+        sigma = np.where(ok & (n >= 3) & np.isfinite(sig), sig, np.float32(np.inf)).astype(np.float32)
+    return Refinement(out, sigma)
+
+
+def confidence_from_sigma(sigma: F32, sigma0: float) -> F32:
+    """Confidence in [0, 1]: ``exp(-σ_d / σ0)``; 0 where σ is unknown (inf)."""
+    out: F32 = np.exp(-sigma / np.float32(sigma0)).astype(np.float32)
+    return out

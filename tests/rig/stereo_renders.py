@@ -1,0 +1,176 @@
+"""Renders of the virtual environment shared by the stereo/pipeline tests (cached per process).
+
+Only the part of each fisheye image that the VPC's lookup table reads is rendered: a crop of a
+Kannala-Brandt (or any fx/fy/cx/cy) camera is the same camera with its principal point moved,
+so every rendered pixel is exactly the pixel of the full image; the rest stays background (0),
+which the table never samples. That makes full-size prototype renders affordable in tests.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from calibration.geometry import make_transform
+from calibration.models import CameraModel, PinholeModel
+from calibration.rig import Rig
+from rig.lut import build_vpc_lut
+from rig.sim import Scene, divergent_rig, get_preset, plane_scene, render, room_scene
+from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
+
+__all__ = [
+    "StereoShot",
+    "add_noise",
+    "central_box",
+    "mount_rig",
+    "plane_shot",
+    "prototype_rig",
+    "render_for_vpc",
+    "room_shot",
+]
+
+U8 = NDArray[np.uint8]
+F32 = NDArray[np.float32]
+_MARGIN = 3  # px around the sampled region: bilinear neighbours and supersample footprint
+
+
+@dataclass(frozen=True)
+class StereoShot:
+    """A rendered fisheye pair and the ground truth of its left VPC."""
+
+    left: U8
+    right: U8
+    depth: F32  # (H, W) z in the left VPC frame, NaN where no surface
+    pair: VpcPair
+    rig: Rig
+
+    @property
+    def disparity(self) -> F32:
+        out: F32 = (self.pair.fx * self.pair.baseline_m / self.depth).astype(np.float32)
+        return out
+
+
+@functools.lru_cache(maxsize=4)
+def prototype_rig(scale: float = 1.0) -> Rig:
+    return get_preset("prototype").scaled(scale).rig
+
+
+@functools.lru_cache(maxsize=4)
+def mount_rig(scale: float, angle_deg: float, pitch_deg: float) -> Rig:
+    """The prototype's lenses on a non-ideal mount (renderer's divergent_rig)."""
+    base = prototype_rig(scale)
+    return divergent_rig(base.cameras["left"], base.cameras["right"], base.baseline(), angle_deg, pitch_deg)
+
+
+def _crop(model: CameraModel, x0: int, y0: int, w: int, h: int) -> CameraModel:
+    p = model.param_dict
+    return model.replace(width=w, height=h, cx=p["cx"] - x0, cy=p["cy"] - y0)
+
+
+def render_for_vpc(
+    scene: Scene,
+    rig: Rig,
+    name: str,
+    pair: VpcPair,
+    T_world_rig: NDArray[np.float64],
+    supersample: int,
+    noise_std: float = 0.0,
+    vignetting: float = 0.0,
+    seed: int = 0,
+) -> U8:
+    """Full-size fisheye image of camera ``name`` with only the VPC's source region rendered
+    (noise and vignetting as the renderer applies them, per pixel)."""
+    model = rig.cameras[name]
+    lut = build_vpc_lut(model, pair.R_cam_vpc[name], pair.camera)
+    xs, ys = lut.map_x[lut.valid], lut.map_y[lut.valid]
+    x0 = max(0, math.floor(xs.min()) - _MARGIN)
+    y0 = max(0, math.floor(ys.min()) - _MARGIN)
+    x1 = min(model.width, math.ceil(xs.max()) + _MARGIN + 1)
+    y1 = min(model.height, math.ceil(ys.max()) + _MARGIN + 1)
+    crop = _crop(model, x0, y0, x1 - x0, y1 - y0)
+    T = T_world_rig @ rig.T_rig_cam[name]
+    part = render(
+        scene, crop, T, supersample=supersample, noise_std=noise_std, vignetting=vignetting, seed=seed
+    )
+    part_image = part.image
+    full = np.zeros((model.height, model.width), dtype=np.uint8)
+    full[y0:y1, x0:x1] = part_image
+    return full
+
+
+def _reference_depth(scene: Scene, camera: PinholeModel, T_world_vpc: NDArray[np.float64]) -> F32:
+    return render(scene, camera, T_world_vpc, supersample=1).depth
+
+
+@functools.lru_cache(maxsize=32)
+def plane_shot(
+    k_baselines: float,
+    *,
+    scale: float = 0.5,
+    vpc: VpcConfig | None = None,
+    texture: int = 0,
+    seed: int = 0,
+    supersample: int = 3,
+    angle_deg: float = 90.0,
+    pitch_deg: float = 0.0,
+    noise_std: float = 0.0,
+    vignetting: float = 0.0,
+) -> StereoShot:
+    """The paper's target: a textured fronto-parallel plane ``k_baselines`` baselines ahead."""
+    rig = (
+        prototype_rig(scale)
+        if (angle_deg, pitch_deg) == (90.0, 0.0)
+        else mount_rig(scale, angle_deg, pitch_deg)
+    )
+    pair = design_vpc_pair(rig, vpc or VpcConfig())
+    scene = plane_scene(k_baselines * rig.baseline(), texture=texture, seed=seed)
+    eye = np.eye(4)
+    left, right = (
+        render_for_vpc(scene, rig, n, pair, eye, supersample, noise_std, vignetting, seed * 2 + i)
+        for i, n in enumerate(("left", "right"))
+    )
+    depth = _reference_depth(scene, pair.camera, pair.T_rig_vpc[pair.left])
+    return StereoShot(left, right, depth, pair, rig)
+
+
+@functools.lru_cache(maxsize=8)
+def room_shot(
+    seed: int = 0,
+    *,
+    scale: float = 0.5,
+    vpc: VpcConfig | None = None,
+    supersample: int = 2,
+    x_m: float = 0.0,
+    angle_deg: float = 90.0,
+    pitch_deg: float = 0.0,
+) -> StereoShot:
+    """The demo room (walls and boxes: depth edges and occlusions), rig at (x_m, 0, -0.5)."""
+    rig = (
+        prototype_rig(scale)
+        if (angle_deg, pitch_deg) == (90.0, 0.0)
+        else mount_rig(scale, angle_deg, pitch_deg)
+    )
+    pair = design_vpc_pair(rig, vpc or VpcConfig())
+    scene = room_scene(seed)
+    T = make_transform(np.eye(3), [x_m, 0.0, -0.5])
+    left, right = (render_for_vpc(scene, rig, n, pair, T, supersample) for n in ("left", "right"))
+    depth = _reference_depth(scene, pair.camera, T @ pair.T_rig_vpc[pair.left])
+    return StereoShot(left, right, depth, pair, rig)
+
+
+def add_noise(image: U8, std: float, seed: int) -> U8:
+    """Gaussian sensor noise (grey levels), rounded and clipped like the renderer's."""
+    rng = np.random.default_rng(seed)
+    noisy = image.astype(np.float32) + rng.normal(0.0, std, image.shape).astype(np.float32)
+    out: U8 = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+    return out
+
+
+def central_box(shape: tuple[int, ...]) -> tuple[slice, slice]:
+    """The central 50 % × 50 % of an image."""
+    h, w = shape[:2]
+    return slice(h // 4, h - h // 4), slice(w // 4, w - w // 4)

@@ -1,0 +1,92 @@
+"""`rig lut build|show` through the installed console script."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from calibration import save_rig
+from rig.lut_cache import LutCache, lut_key
+from rig.vpc import VpcConfig, design_vpc_pair
+from tests.rig.stereo_renders import prototype_rig
+
+RIG = str(Path(sys.executable).with_name("rig"))
+
+
+def run(*args: str | Path, env_cache: Path | None = None) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "COLUMNS": "250"}
+    env.pop("RIG_DEBUG", None)
+    if env_cache is not None:
+        env["RIG_CACHE_DIR"] = str(env_cache)
+    return subprocess.run([RIG, *map(str, args)], capture_output=True, text=True, env=env, timeout=120)
+
+
+@pytest.fixture(scope="module")
+def calibration(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("cal") / "rig.yaml"
+    save_rig(prototype_rig(1.0), path)
+    return path
+
+
+def test_build_reports_path_key_valid_fraction_and_time_then_hits(calibration: Path, tmp_path: Path) -> None:
+    cache = tmp_path / "lut"
+    res = run("lut", "build", "--calibration", calibration, "--cache-dir", cache)
+    assert res.returncode == 0, res.stderr
+    pair = design_vpc_pair(prototype_rig(1.0), VpcConfig())
+    for name in ("left", "right"):
+        key = lut_key(prototype_rig(1.0).cameras[name], pair.R_cam_vpc[name], pair.camera)
+        assert (cache / f"{key}.lut").is_file()
+        assert key[:16] in res.stdout
+    assert res.stdout.count("100.0%") == 2 and res.stdout.count("built") == 2
+    assert "VPC 640x480" in res.stdout
+    again = run("lut", "build", "-c", calibration, "--cache-dir", cache)
+    assert again.returncode == 0 and again.stdout.count("cache (load)") == 2
+    forced = run("lut", "build", "-c", calibration, "--cache-dir", cache, "--rebuild")
+    assert forced.returncode == 0 and forced.stdout.count("built") == 2
+
+
+def test_build_warns_when_the_vpc_leaves_the_lens(calibration: Path, tmp_path: Path) -> None:
+    res = run(
+        "lut", "build", "-c", calibration, "--vpc-hfov", "150", "--vpc-size", "320x240", env_cache=tmp_path
+    )
+    assert res.returncode == 0, res.stderr
+    assert "warning" in res.stderr and "of its pixels are valid" in res.stderr
+    assert "VPC 320x240" in res.stdout
+    assert len(list(tmp_path.glob("*.lut"))) == 2, "RIG_CACHE_DIR is honoured"
+
+
+def test_show_lists_and_clears_the_cache(calibration: Path, tmp_path: Path) -> None:
+    cache = tmp_path / "lut"
+    empty = run("lut", "show", "--cache-dir", cache)
+    assert empty.returncode == 0 and "no cached tables" in empty.stdout
+    assert (
+        run("lut", "build", "-c", calibration, "--cache-dir", cache, "--vpc-size", "320x240").returncode == 0
+    )
+    (cache / ("f" * 64 + ".lut")).write_bytes(b"broken")
+    res = run("lut", "show", "--cache-dir", cache)
+    assert res.returncode == 0, res.stderr
+    entries = {e.path.name for e in LutCache(cache).entries()}
+    for name in entries:
+        assert name[:16] in res.stdout
+    assert res.stdout.count("kannala_brandt 1280x960 -> vpc 320x240") == 2
+    assert "bad" in res.stdout
+    cleared = run("lut", "show", "--cache-dir", cache, "--clear")
+    assert cleared.returncode == 0 and "removed 3 table(s)" in cleared.stdout
+    assert list(cache.glob("*.lut")) == []
+
+
+def test_build_errors_are_one_line_exit_2(calibration: Path, tmp_path: Path) -> None:
+    for args, needle in (
+        ((), "--calibration"),
+        (("-c", tmp_path / "nope.yaml"), "nope.yaml"),
+        (("-c", calibration, "--vpc-size", "big"), "--vpc-size"),
+        (("-c", calibration, "--pitch", "95"), "--pitch"),
+    ):
+        res = run("lut", "build", *args, "--cache-dir", tmp_path)
+        assert res.returncode == 2, (args, res.stderr)
+        lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1 and needle in lines[0], res.stderr

@@ -1,0 +1,200 @@
+"""Stereo parameters (ROS names), the OpenCV matchers and the subpixel step on exact shifts.
+
+The synthetic pairs here are sums of sinusoids evaluated at x and x + d: an exactly shifted,
+band-limited texture with no resampling at all, so the true disparity is d everywhere.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+from pydantic import ValidationError
+
+from rig.errors import PipelineError
+from rig.stereo import SGBM_MODES, StereoMatcher, StereoParams
+from rig.subpixel import confidence_from_sigma, refine_disparity
+
+U8 = NDArray[np.uint8]
+
+
+def shifted_pair(d: float, h: int = 120, w: int = 200, seed: int = 0, noise: float = 0.0) -> tuple[U8, U8]:
+    """Left image T(x, y) and right image T(x + d, y): true disparity d at every pixel."""
+    rng = np.random.default_rng(seed)
+    n = 120
+    f = rng.uniform(0.01, 0.22, n)
+    ang = rng.uniform(0.0, 2 * np.pi, n)
+    phase = rng.uniform(0.0, 2 * np.pi, n)
+    amp = 1.0 / np.sqrt(f)
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+
+    def texture(shift: float) -> NDArray[np.float64]:
+        t = np.zeros((h, w))
+        for k in range(n):
+            t += amp[k] * np.cos(
+                2 * np.pi * f[k] * (np.cos(ang[k]) * (x + shift) + np.sin(ang[k]) * y) + phase[k]
+            )
+        return t
+
+    left, right = texture(0.0), texture(d)
+    scale = 45.0 / left.std()
+    out = []
+    for img in (left, right):
+        v = 128 + (img - left.mean()) * scale + rng.normal(0.0, noise, img.shape)
+        out.append(np.clip(np.rint(v), 0, 255).astype(np.uint8))
+    return out[0], out[1]
+
+
+ROI = (slice(10, -10), slice(80, -10))  # right of the matcher's unmatched left band
+
+
+def test_defaults_follow_ros_names_and_cover_three_baselines() -> None:
+    p = StereoParams()
+    ros_names = {
+        "stereo_algorithm",
+        "prefilter_size",
+        "prefilter_cap",
+        "correlation_window_size",
+        "min_disparity",
+        "disparity_range",
+        "uniqueness_ratio",
+        "texture_threshold",
+        "speckle_size",
+        "speckle_range",
+        "disp12_max_diff",
+        "P1",
+        "P2",
+        "full_dp",
+        "sgbm_mode",
+    }
+    assert ros_names <= set(StereoParams.model_fields)
+    assert p.stereo_algorithm == 1
+    # Default VPC: 640 px over 90° -> fx = 320; 3 baselines out is d = 320 / 3 ≈ 107 px.
+    assert p.min_disparity + p.disparity_range - 1 >= 320 / 3
+    assert p.penalties() == (8 * 7 * 7, 32 * 7 * 7)
+    assert StereoParams(P1=100, P2=900).penalties() == (100, 900)
+
+
+def test_ros_sgbm_mode_numbers_and_full_dp() -> None:
+    assert [StereoParams(sgbm_mode=i).sgbm_mode for i in range(4)] == ["sgbm", "hh", "3way", "hh4"]
+    assert StereoParams(sgbm_mode="HH4").sgbm_mode == "hh4"
+    assert StereoParams(full_dp=True, sgbm_mode="sgbm").effective_mode == "hh"
+    assert set(SGBM_MODES) == {"sgbm", "hh", "3way", "hh4"}
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "field"),
+    [
+        ({"correlation_window_size": 8}, "correlation_window_size must be odd"),
+        ({"disparity_range": 100}, "multiple of 16"),
+        ({"stereo_algorithm": 0, "correlation_window_size": 3}, "block matching"),
+        ({"full_dp": True}, "full_dp conflicts"),
+        ({"P1": 500, "P2": 400}, "P2"),
+        ({"median": 4}, "median"),
+        ({"temporal_alpha": 1.0}, "temporal_alpha"),
+        ({"stereo_algorithm": 2}, "stereo_algorithm"),
+        ({"sgbm_mode": "fast"}, "sgbm_mode"),
+        ({"disparity_rnage": 64}, "disparity_rnage"),
+    ],
+)
+def test_bad_parameters_are_rejected_naming_the_field(kwargs: dict[str, object], field: str) -> None:
+    with pytest.raises(ValidationError, match=field):
+        StereoParams(**kwargs)
+
+
+@pytest.mark.parametrize("algorithm", [0, 1])
+def test_matchers_find_the_shift(algorithm: int) -> None:
+    left, right = shifted_pair(23.4)
+    params = StereoParams(stereo_algorithm=algorithm, correlation_window_size=9, disparity_range=64)
+    res = StereoMatcher(params).match(left, right)
+    assert res.disparity.dtype == np.float32 and res.valid.dtype == bool
+    assert np.isnan(res.disparity[~res.valid]).all()
+    d = res.disparity[ROI][res.valid[ROI]]
+    assert res.valid[ROI].mean() > 0.9
+    assert abs(np.median(d) - 23.4) < 0.35
+
+
+def test_matcher_rejects_bad_images() -> None:
+    left, right = shifted_pair(10.0)
+    m = StereoMatcher(StereoParams(disparity_range=64))
+    with pytest.raises(PipelineError, match="gray uint8"):
+        m.match(left, right[:, :-1])
+    with pytest.raises(PipelineError, match="gray uint8"):
+        m.match(left.astype(np.float32), right)
+    with pytest.raises(PipelineError, match="no column"):
+        StereoMatcher(StereoParams(disparity_range=256)).match(left, right)
+
+
+def test_right_disparity_from_the_mirrored_pair() -> None:
+    left, right = shifted_pair(17.6)
+    m = StereoMatcher(StereoParams(disparity_range=64))
+    dr = m.right_disparity(left, right)
+    # The right view's reference band is on the other side: its right-most columns are unmatched.
+    inner = dr[10:-10, 10:-80]
+    assert np.isfinite(inner).mean() > 0.9
+    assert abs(np.nanmedian(inner) - 17.6) < 0.35
+
+
+@pytest.mark.parametrize("d", [10.1, 15.25, 20.4, 25.5, 30.6, 35.75, 40.9])
+def test_subpixel_step_removes_pixel_locking_on_exact_shifts(d: float) -> None:
+    left, right = shifted_pair(d)
+    raw = StereoMatcher(StereoParams(disparity_range=64, subpixel=False)).match(left, right)
+    ref = refine_disparity(left, right, raw.disparity, raw.valid, 15)
+    ok = raw.valid[ROI]
+    plain = np.sqrt(np.mean((raw.disparity[ROI][ok] - d) ** 2))
+    ours = np.sqrt(np.mean((ref.disparity[ROI][ok] - d) ** 2))
+    assert ours < 0.05, f"refined RMS {ours:.3f} px at d = {d}"
+    if abs(d - round(d)) >= 0.25:  # SGBM is locked to whole pixels away from them
+        assert plain > 0.1 and ours < plain / 3
+    assert np.isnan(ref.disparity[~raw.valid]).all()
+
+
+def test_refinement_is_invariant_to_gain_and_offset_between_cameras() -> None:
+    left, right = shifted_pair(20.4)
+    darker = np.clip(right.astype(np.float32) * 0.8 + 12, 0, 255).astype(np.uint8)
+    raw = StereoMatcher(StereoParams(disparity_range=64)).match(left, darker)
+    ref = refine_disparity(left, darker, raw.disparity, raw.valid, 15)
+    ok = raw.valid[ROI]
+    assert np.sqrt(np.mean((ref.disparity[ROI][ok] - 20.4) ** 2)) < 0.06
+
+
+def test_predicted_sigma_grows_with_noise_and_confidence_falls() -> None:
+    sig_medians = []
+    for noise in (0.0, 4.0, 12.0):
+        left, right = shifted_pair(20.4, noise=noise, seed=3)
+        raw = StereoMatcher(StereoParams(disparity_range=64)).match(left, right)
+        ref = refine_disparity(left, right, raw.disparity, raw.valid, 15, want_sigma=True)
+        assert ref.sigma is not None and ref.sigma.dtype == np.float32
+        assert np.isinf(ref.sigma[~raw.valid]).all()
+        s = ref.sigma[ROI][raw.valid[ROI]]
+        err = np.abs(ref.disparity[ROI][raw.valid[ROI]] - 20.4)
+        sig_medians.append(float(np.median(s)))
+        # The prediction is calibrated to within a factor of ~3 of the actual spread.
+        if noise > 0:
+            actual = float(np.sqrt(np.mean(err**2)))
+            assert actual / 3 < float(np.sqrt(np.mean(s**2))) < actual * 3
+    assert sig_medians[0] < sig_medians[1] < sig_medians[2]
+    conf = confidence_from_sigma(np.array([0.0, 0.1, 1.0, np.inf], dtype=np.float32), 0.1)
+    assert conf[0] == 1.0 and conf[1] == pytest.approx(np.exp(-1)) and conf[3] == 0.0
+    assert np.all(np.diff(conf) < 0)
+
+
+def test_refinement_without_apply_keeps_the_matchers_values() -> None:
+    left, right = shifted_pair(12.3)
+    raw = StereoMatcher(StereoParams(disparity_range=64)).match(left, right)
+    ref = refine_disparity(left, right, raw.disparity, raw.valid, 15, apply=False, want_sigma=True)
+    assert np.array_equal(ref.disparity, raw.disparity, equal_nan=True)
+    assert ref.sigma is not None and np.isfinite(ref.sigma[ROI][raw.valid[ROI]]).mean() > 0.9
+
+
+def test_lr_check_through_the_matcher_removes_inconsistent_pixels() -> None:
+    left, right = shifted_pair(15.3)
+    # Paint an occluder into the left view only: those pixels have no true match on the right.
+    left = left.copy()
+    left[40:80, 120:150] = 255 - left[40:80, 120:150]
+    base = StereoMatcher(StereoParams(disparity_range=64, speckle_size=0, lr_check=False)).match(left, right)
+    lr = StereoMatcher(StereoParams(disparity_range=64, speckle_size=0, lr_check=True)).match(left, right)
+    assert not (lr.valid & ~base.valid).any(), "the LR check only removes pixels"
+    occ = (slice(42, 78), slice(122, 148))
+    assert lr.valid[occ].mean() < 0.5 * max(base.valid[occ].mean(), 0.02) or lr.valid[occ].mean() < 0.1
+    assert lr.valid[ROI].mean() > 0.6
