@@ -1,23 +1,323 @@
-"""`rig calibrate intrinsics|stereo` (issue #4)."""
+"""`rig calibrate intrinsics|stereo` (issue #4): chessboard images -> calibration file.
+
+``intrinsics`` writes a rig.yaml with one camera (identity pose); ``stereo`` writes the rig.yaml
+of a pair. Both detect the board in every image (progress bar), list the images they skip and
+why, calibrate from no guess, print a table of per-view errors and save a picture of the
+residuals over the image.
+"""
 
 from __future__ import annotations
 
+import glob
+import re
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
 import typer
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    SpinnerColumn,
+    TextColumn,
+    TimeElapsedColumn,
+)
+from rich.table import Table
 
-from rig.cli.common import STUB_SETTINGS, not_ready
+from calibration.calibrate import CameraCalibration, calibrate_camera
+from calibration.formats import load_camera, save_rig
+from calibration.lm import LOSSES
+from calibration.models import MODELS, CameraModel
+from calibration.rig import Rig
+from calibration.stereo_calibrate import StereoCalibration, calibrate_stereo
+from calibration.targets import BoardSpec, Detection, detect_chessboard_files, parse_board
+from rig.calibration_report import ResidualPanel, save_residual_plot
+from rig.cli.common import console, err_console, fail
 
-__all__ = ["register"]
+__all__ = ["expand_images", "register"]
+
+# Module level: typer evaluates the (string) annotations in the module's namespace.
+_MODEL_HELP = f"Camera model: {', '.join(sorted(MODELS))}."
+
+
+def _natural_key(path: str) -> list[int | str]:
+    """'left10.png' after 'left9.png'."""
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", path)]
+
+
+def expand_images(patterns: Sequence[str]) -> list[str]:
+    """Files matching each glob (or named directly), naturally sorted, without duplicates."""
+    found: set[str] = set()
+    for pattern in patterns:
+        matches = glob.glob(pattern)
+        if not matches and Path(pattern).is_file():
+            matches = [pattern]
+        if not matches:
+            fail(f"no images match {pattern!r}")
+        found.update(m for m in matches if Path(m).is_file())
+    return sorted(found, key=_natural_key)
+
+
+def _detect(paths: list[str], board: BoardSpec, label: str, subpix: int) -> list[Detection]:
+    columns = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn())
+    with Progress(*columns, TimeElapsedColumn(), console=err_console, transient=True) as progress:
+        task = progress.add_task(f"detecting {board.cols}x{board.rows} board in {label}", total=len(paths))
+        dets = detect_chessboard_files(
+            paths, board.pattern_size, lambda _: progress.advance(task), subpix_window=subpix or None
+        )
+    for d in dets:
+        if not d.ok:
+            err_console.print(
+                f"[yellow]skipped[/yellow] {d.source}: {d.reason}", highlight=False, soft_wrap=True
+            )
+    return dets
+
+
+def _image_size(dets: Sequence[Detection]) -> tuple[int, int]:
+    sized = [(d.source, d.image_size) for d in dets if d.image_size is not None]
+    if not sized:
+        fail("none of the images could be read")
+    first, (w, h) = sized[0]
+    for source, (w2, h2) in sized[1:]:
+        if (w2, h2) != (w, h):
+            fail(f"images differ in size: {first} is {w}x{h}, {source} is {w2}x{h2}")
+    return (w, h)
+
+
+def _check_options(model: str, loss: str, square: float, board: str) -> BoardSpec:
+    if model not in MODELS:
+        fail(f"--model must be one of {', '.join(sorted(MODELS))}, got {model!r}")
+    if loss not in LOSSES:
+        fail(f"--loss must be one of {', '.join(LOSSES)}, got {loss!r}")
+    if not square > 0:
+        fail(f"--square must be a positive size in metres, got {square}")
+    return parse_board(board, square)
+
+
+def _residuals_path(out: Path, residuals: Path | None) -> Path:
+    return residuals if residuals is not None else out.with_name(out.stem + "_residuals.png")
+
+
+def _fix_list(fix: str) -> list[str]:
+    return [f.strip() for f in fix.split(",") if f.strip()]
+
+
+def _load_intrinsics(path: Path | None, option: str) -> CameraModel | None:
+    if path is None:
+        return None
+    if not path.is_file():
+        fail(f"{option}: {path} not found")
+    return load_camera(path)
+
+
+def _summary(camera: CameraModel, std: dict[str, float]) -> str:
+    parts = []
+    for name, value in zip(camera.param_layout, camera.params, strict=True):
+        s = std.get(name)
+        parts.append(f"{name}={value:.6g}" + (f" ±{s:.2g}" if s is not None else ""))
+    return ", ".join(parts)
+
+
+def _mono_table(result: CameraCalibration) -> Table:
+    table = Table(title=f"per-view reprojection error ({result.camera.name})")
+    table.add_column("view")
+    table.add_column("corners", justify="right")
+    table.add_column("RMS px", justify="right")
+    table.add_column("max px", justify="right")
+    for name, r, res in zip(result.view_names, result.view_rms, result.residuals, strict=True):
+        table.add_row(name, str(len(res)), f"{r:.3f}", f"{np.linalg.norm(res, axis=1).max():.3f}")
+    for d in result.dropped:
+        table.add_row(f"[yellow]{d.name}[/yellow]", "-", "-", f"[yellow]dropped: {d.reason}[/yellow]")
+    return table
+
+
+def _stereo_table(result: StereoCalibration) -> Table:
+    left, right = result.rig.names
+    table = Table(title="per-view reprojection error (px RMS)")
+    table.add_column("view")
+    table.add_column(left, justify="right")
+    table.add_column(right, justify="right")
+    for k, name in enumerate(result.view_names):
+        cells = [result.view_rms[n][k] for n in (left, right)]
+        table.add_row(name, *("-" if c is None else f"{c:.3f}" for c in cells))
+    for cam, d in result.dropped:
+        note = f"[yellow]dropped: {d.reason}[/yellow]"
+        table.add_row(f"[yellow]{d.name}[/yellow]", *((note, "") if cam == left else ("", note)))
+    return table
+
+
+def _calibrating(message: str) -> Progress:
+    progress = Progress(
+        SpinnerColumn(), TextColumn(message), TimeElapsedColumn(), console=err_console, transient=True
+    )
+    progress.add_task(message, total=None)
+    return progress
 
 
 def register(app: typer.Typer) -> None:
-    cal = typer.Typer(help="Calibrate cameras and the rig from target images.", no_args_is_help=True)
+    cal = typer.Typer(help="Calibrate cameras and the rig from chessboard images.", no_args_is_help=True)
 
-    @cal.command("intrinsics", context_settings=STUB_SETTINGS, help="Not implemented yet (issue #4).")
-    def intrinsics(ctx: typer.Context) -> None:
-        not_ready("calibrate intrinsics", 4)
+    @cal.command("intrinsics")
+    def intrinsics(
+        board: Annotated[str, typer.Option("--board", help="Inner corners COLSxROWS, e.g. 9x6.")],
+        square: Annotated[float, typer.Option("--square", help="Square size in metres.")],
+        out: Annotated[Path, typer.Option("--out", help="rig.yaml to write (one camera, identity pose).")],
+        images: Annotated[
+            list[str] | None,
+            typer.Option("--images", help="Glob of chessboard images (quote it); repeatable."),
+        ] = None,
+        more_images: Annotated[
+            list[str] | None,
+            typer.Argument(metavar="IMAGES", help="More image files (an unquoted glob lands here)."),
+        ] = None,
+        model: Annotated[str, typer.Option("--model", help=_MODEL_HELP)] = "kannala_brandt",
+        name: Annotated[str, typer.Option("--name", help="Camera name in the file.")] = "cam0",
+        fov_deg: Annotated[
+            float | None, typer.Option("--fov-deg", help="Lens field of view to store (deg).")
+        ] = None,
+        initial: Annotated[
+            Path | None, typer.Option("--initial", help="Optional starting guess (any calibration file).")
+        ] = None,
+        fix: Annotated[
+            str, typer.Option("--fix", help="Parameters held at their start value, comma-separated.")
+        ] = "",
+        loss: Annotated[
+            str, typer.Option("--loss", help="linear, huber or soft_l1 (robust, 1 px scale).")
+        ] = "linear",
+        subpix: Annotated[
+            int, typer.Option("--subpix", help="Re-refine corners: cornerSubPix half-window px.")
+        ] = 0,
+        residuals: Annotated[
+            Path | None, typer.Option("--residuals", help="Residual picture (default OUT_residuals.png).")
+        ] = None,
+        min_views: Annotated[int, typer.Option("--min-views", help="Fewest usable views accepted.")] = 3,
+    ) -> None:
+        """Calibrate one camera's lens from chessboard images (no initial guess needed)."""
+        spec = _check_options(model, loss, square, board)
+        paths = expand_images([*(images or []), *(more_images or [])])
+        if not paths:
+            fail("no images given: use --images 'DIR/*.png'")
+        dets = _detect(paths, spec, f"{len(paths)} images", subpix)
+        size = _image_size(dets)
+        guess = _load_intrinsics(initial, "--initial")
+        with _calibrating(f"calibrating {model} from {sum(d.ok for d in dets)} views"):
+            result = calibrate_camera(
+                model, [spec.object_points()] * len(dets), [d.corners for d in dets], size, guess,
+                fix=_fix_list(fix), fov_deg=fov_deg, loss=loss, min_views=min_views,
+                view_names=[Path(d.source).name for d in dets],
+            )  # fmt: skip
+        camera = result.camera
+        save_rig(Rig({name: camera}, {name: np.eye(4)}), out)
+        picture = _write_picture(
+            _residuals_path(out, residuals),
+            [ResidualPanel(name, size, _centre(camera), result.image_points, result.residuals)],
+        )
+        console.print(_mono_table(result))
+        console.print(
+            f"{name}: {camera.name} {size[0]}x{size[1]}, RMS {result.rms:.4f} px over {result.n_corners} "
+            f"corners in {len(result.views)} views, up to {result.max_angle_deg:.1f}° off axis",
+            highlight=False,
+        )
+        console.print(f"  {_summary(camera, result.param_std)}", highlight=False, soft_wrap=True)
+        if not result.converged:
+            err_console.print(f"[yellow]warning:[/yellow] {result.message}")
+        console.print(f"wrote {out} and {picture}", highlight=False)
 
-    @cal.command("stereo", context_settings=STUB_SETTINGS, help="Not implemented yet (issue #4).")
-    def stereo(ctx: typer.Context) -> None:
-        not_ready("calibrate stereo", 4)
+    @cal.command("stereo")
+    def stereo(
+        left: Annotated[str, typer.Option("--left", help="Glob of left camera images (quote it).")],
+        right: Annotated[
+            str, typer.Option("--right", help="Glob of right camera images, same count and order.")
+        ],
+        board: Annotated[str, typer.Option("--board", help="Inner corners COLSxROWS, e.g. 9x6.")],
+        square: Annotated[float, typer.Option("--square", help="Square size in metres.")],
+        out: Annotated[Path, typer.Option("--out", help="rig.yaml to write.")],
+        model: Annotated[str, typer.Option("--model", help=_MODEL_HELP)] = "kannala_brandt",
+        left_intrinsics: Annotated[
+            Path | None, typer.Option("--left-intrinsics", help="Start from (or fix) this calibration file.")
+        ] = None,
+        right_intrinsics: Annotated[
+            Path | None, typer.Option("--right-intrinsics", help="Start from (or fix) this calibration file.")
+        ] = None,
+        fix_intrinsics: Annotated[
+            bool, typer.Option("--fix-intrinsics", help="Refine only the poses.")
+        ] = False,
+        fov_deg: Annotated[
+            float | None, typer.Option("--fov-deg", help="Lens field of view to store (deg).")
+        ] = None,
+        loss: Annotated[
+            str, typer.Option("--loss", help="linear, huber or soft_l1 (robust, 1 px scale).")
+        ] = "linear",
+        subpix: Annotated[
+            int, typer.Option("--subpix", help="Re-refine corners: cornerSubPix half-window px.")
+        ] = 0,
+        residuals: Annotated[
+            Path | None, typer.Option("--residuals", help="Residual picture (default OUT_residuals.png).")
+        ] = None,
+        min_views: Annotated[
+            int, typer.Option("--min-views", help="Fewest usable views, per camera and common.")
+        ] = 3,
+    ) -> None:
+        """Calibrate a camera pair (any divergence, corners past 90° kept) and write rig.yaml."""
+        spec = _check_options(model, loss, square, board)
+        lpaths, rpaths = expand_images([left]), expand_images([right])
+        if len(lpaths) != len(rpaths):
+            fail(f"--left matches {len(lpaths)} images but --right matches {len(rpaths)} (paired in order)")
+        ldets = _detect(lpaths, spec, f"{len(lpaths)} left images", subpix)
+        rdets = _detect(rpaths, spec, f"{len(rpaths)} right images", subpix)
+        lsize, rsize = _image_size(ldets), _image_size(rdets)
+        linit = _load_intrinsics(left_intrinsics, "--left-intrinsics")
+        rinit = _load_intrinsics(right_intrinsics, "--right-intrinsics")
+        n_both = sum(a.ok and b.ok for a, b in zip(ldets, rdets, strict=True))
+        pair_names = [
+            f"{Path(a.source).name}|{Path(b.source).name}" for a, b in zip(ldets, rdets, strict=True)
+        ]
+        with _calibrating(f"calibrating the pair ({n_both} views seen by both cameras)"):
+            result = calibrate_stereo(
+                model, [spec.object_points()] * len(ldets), [d.corners for d in ldets],
+                [d.corners for d in rdets], lsize, rsize, left_initial=linit, right_initial=rinit,
+                fix_intrinsics=fix_intrinsics, fov_deg=fov_deg, loss=loss, min_views=min_views,
+                min_common_views=min_views, view_names=pair_names,
+            )  # fmt: skip
+        save_rig(result.rig, out)
+        panels = [
+            ResidualPanel(
+                n,
+                size,
+                _centre(result.cameras[n]),
+                [p for p in result.image_points[n] if p is not None],
+                [r for r in result.residuals[n] if r is not None],
+            )
+            for n, size in zip(result.rig.names, (lsize, rsize), strict=True)
+        ]
+        picture = _write_picture(_residuals_path(out, residuals), panels)
+        console.print(_stereo_table(result))
+        axes = result.rig.axis("left") @ result.rig.axis("right")
+        console.print(
+            f"rig: baseline {result.baseline_m * 1000:.2f} mm (±{result.translation_std_m * 1000:.2f}), "
+            f"{np.degrees(np.arccos(np.clip(axes, -1, 1))):.2f}° between the optical axes "
+            f"(rotation ±{result.rotation_std_deg:.3f}°), {len(result.common_views)} common views; "
+            f"RMS {result.rms:.4f} px ("
+            + ", ".join(f"{n} {v:.4f}" for n, v in result.camera_rms.items())
+            + ")",
+            highlight=False,
+        )
+        if not result.converged:
+            err_console.print(f"[yellow]warning:[/yellow] {result.message}")
+        console.print(f"wrote {out} and {picture}", highlight=False)
 
     app.add_typer(cal, name="calibrate")
+
+
+def _centre(camera: CameraModel) -> tuple[float, float]:
+    p = camera.param_dict
+    return float(p.get("cx", (camera.width - 1) / 2)), float(p.get("cy", (camera.height - 1) / 2))
+
+
+def _write_picture(path: Path, panels: list[ResidualPanel]) -> Path:
+    try:
+        return save_residual_plot(path, panels)
+    except OSError as err:
+        fail(f"cannot write the residual picture {path}: {err.strerror or err}")

@@ -1,0 +1,361 @@
+"""Extrinsic calibration of a camera pair, including strongly divergent ones (90° apart).
+
+``calibrate_stereo``: each camera's intrinsics (given, or calibrated from all of its views with
+:func:`calibrate_camera`), then the relative pose ``T_right_left`` from the views both cameras
+see (per-view ``T_right_board · T_left_board⁻¹``, robustly averaged on SO(3)), then one joint
+refinement of the relative pose, every board pose (in the left frame) and optionally both
+cameras' intrinsics over all corners of all views. Nothing limits the angle off axis: corners
+past 90° are kept (Kalibr drops them beyond 80°; OpenCV's fisheye stereo calibration cannot use
+rays at or past 90°).
+
+A chessboard seen from two very different directions may be detected with its corners in
+opposite orders (a 180° turn of the board maps the grid onto itself). Each common view is
+checked against both orders and the one consistent with the other views is used.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from calibration.calibrate import (
+    CameraCalibration,
+    DroppedView,
+    calibrate_camera,
+    free_mask,
+    prepare_views,
+)
+from calibration.errors import CalibrationError, CalibrationFailed
+from calibration.geometry import invert_transform
+from calibration.init import board_poses
+from calibration.lm import LOSSES
+from calibration.models.base import CameraModel
+from calibration.rig import Rig
+from calibration.solver import BundleResult, CameraBlock, Observation, refine_bundle
+
+__all__ = ["StereoCalibration", "average_transforms", "calibrate_stereo"]
+
+F64 = NDArray[np.float64]
+
+_UNSEEN = "no corners detected"
+# Two per-view relative poses agree when within these (robust consensus for the initial pose).
+_AGREE_DEG = 3.0
+_AGREE_FRACTION = 0.1  # of the median baseline
+
+
+@dataclass
+class StereoCalibration:
+    """Result of :func:`calibrate_stereo`. Per-view lists follow ``views`` (input indices);
+    entries are None where that camera did not see the view."""
+
+    rig: Rig
+    T_right_left: F64  # (4, 4) p_right = T_right_left · p_left
+    cameras: dict[str, CameraModel]
+    rms: float  # px over the corners of both cameras
+    camera_rms: dict[str, float]
+    views: list[int]
+    view_names: list[str]
+    common_views: list[int]  # input indices of views seen by both cameras
+    view_rms: dict[str, list[float | None]]
+    image_points: dict[str, list[F64 | None]]
+    residuals: dict[str, list[F64 | None]]
+    rotation_std_deg: float  # 1-σ of the relative rotation (norm of the 3 axes)
+    translation_std_m: float  # 1-σ of the relative translation (norm)
+    param_std: dict[str, dict[str, float]]
+    max_angle_deg: dict[str, float]
+    mono: dict[str, CameraCalibration | None]  # per-camera calibration stage (None if given)
+    dropped: list[tuple[str, DroppedView]] = field(default_factory=list)
+    converged: bool = True
+    message: str = ""
+
+    @property
+    def baseline_m(self) -> float:
+        return float(np.linalg.norm(invert_transform(self.T_right_left)[:3, 3]))
+
+
+def average_transforms(transforms: Sequence[F64]) -> F64:
+    """Mean of rigid transforms (4x4): chordal L2 mean of the rotations (SVD projection of the
+    summed matrices onto SO(3)) and mean translation."""
+    Rs = np.stack([T[:3, :3] for T in transforms])
+    U, _, Vt = np.linalg.svd(Rs.sum(axis=0))
+    R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    out = np.eye(4)
+    out[:3, :3] = R
+    out[:3, 3] = np.mean([T[:3, 3] for T in transforms], axis=0)
+    return out
+
+
+def _angle_deg(Ra: F64, Rb: F64) -> float:
+    c = (np.trace(Ra.T @ Rb) - 1.0) / 2.0
+    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+
+
+def _half_turn(object_points: F64) -> F64 | None:
+    """Transform F (4x4) of the board onto itself by a half turn about its centre when the
+    reversed point order is that half turn (``X[::-1] == F · X``), else None."""
+    c = 0.5 * (object_points.min(axis=0) + object_points.max(axis=0))
+    F = np.eye(4)
+    F[:3, :3] = np.diag([-1.0, -1.0, 1.0])
+    F[:3, 3] = [2 * c[0], 2 * c[1], 0.0]
+    turned = object_points @ F[:3, :3].T + F[:3, 3]
+    scale = max(float(np.ptp(object_points, axis=0).max()), 1e-12)
+    if not np.allclose(object_points[:, 2], 0.0) or not np.allclose(
+        turned, object_points[::-1], atol=1e-9 * scale
+    ):
+        return None
+    return F
+
+
+def _consensus_pose(candidates: list[list[F64]]) -> tuple[F64, list[int]]:
+    """Pick per view one of its candidate relative poses so that most views agree; returns the
+    averaged pose and the chosen candidate index per view (-1 = outlier)."""
+    flat = [(v, k, T) for v, cands in enumerate(candidates) for k, T in enumerate(cands)]
+    baseline = float(np.median([np.linalg.norm(T[:3, 3]) for _, _, T in flat]))
+    t_tol = max(_AGREE_FRACTION * baseline, 1e-9)
+    best: tuple[int, list[int]] = (-1, [])
+    for _, _, ref in flat:
+        choice = []
+        for cands in candidates:
+            ok = [
+                k
+                for k, T in enumerate(cands)
+                if _angle_deg(T[:3, :3], ref[:3, :3]) < _AGREE_DEG
+                and np.linalg.norm(T[:3, 3] - ref[:3, 3]) < t_tol
+            ]
+            choice.append(ok[0] if ok else -1)
+        support = sum(c >= 0 for c in choice)
+        if support > best[0]:
+            best = (support, choice)
+    choice = best[1]
+    chosen = [candidates[v][k] for v, k in enumerate(choice) if k >= 0]
+    return average_transforms(chosen), choice
+
+
+def calibrate_stereo(
+    model: str | tuple[str, str],
+    object_points: Sequence[ArrayLike],
+    left_points: Sequence[ArrayLike | None],
+    right_points: Sequence[ArrayLike | None],
+    image_size: tuple[int, int],
+    right_image_size: tuple[int, int] | None = None,
+    *,
+    left_initial: CameraModel | None = None,
+    right_initial: CameraModel | None = None,
+    fix_intrinsics: bool = False,
+    fix: Iterable[str] = (),
+    fov_deg: float | None = None,
+    names: tuple[str, str] = ("left", "right"),
+    view_names: Sequence[str] | None = None,
+    loss: str = "linear",
+    min_views: int = 3,
+    min_common_views: int = 3,
+) -> StereoCalibration:
+    """Calibrate a camera pair from board views; ``left_points[v]``/``right_points[v]`` are
+    (N, 2) detections of ``object_points[v]`` (N, 3) or None where that camera missed view v.
+
+    ``model`` names the camera model (one for both, or a pair). ``*_initial`` are optional
+    starting guesses (any model; converted); with ``fix_intrinsics`` they are used as they are
+    (or, when absent, each camera's own calibration) and held fixed while only poses are
+    refined. ``fix``, ``fov_deg``, ``loss`` and ``min_views`` are passed to each camera's
+    :func:`calibrate_camera`. Returns the relative pose, a Rig in the canonical rig frame
+    (:meth:`Rig.from_relative_pose`) and per-camera errors. Raises CalibrationFailed with fewer
+    than ``min_common_views`` views seen by both cameras.
+    """
+    models = (model, model) if isinstance(model, str) else tuple(model)
+    if len(models) != 2:
+        raise CalibrationError(f"expected one model name or two, got {model!r}")
+    if loss not in LOSSES:
+        raise CalibrationError(f"unknown loss {loss!r}; known: {', '.join(LOSSES)}")
+    w, h = (int(v) for v in image_size)
+    rw, rh = (int(v) for v in right_image_size) if right_image_size is not None else (w, h)
+    sizes = ((w, h), (rw, rh))
+    initials = (left_initial, right_initial)
+    if len(left_points) != len(object_points) or len(right_points) != len(object_points):
+        raise CalibrationError(
+            f"{len(object_points)} object point sets but {len(left_points)} left "
+            f"and {len(right_points)} right image point sets"
+        )
+    vnames = list(view_names) if view_names is not None else [f"view {i}" for i in range(len(object_points))]
+
+    # ---- per-camera intrinsics and board poses ------------------------------------------------
+    cams: list[CameraModel] = []
+    poses: list[dict[int, F64]] = []
+    points: list[dict[int, F64]] = []
+    mono: dict[str, CameraCalibration | None] = {}
+    dropped: list[tuple[str, DroppedView]] = []
+    objs: list[F64] = []
+    for c, pts in enumerate((left_points, right_points)):
+        name = names[c]
+        if fix_intrinsics and initials[c] is not None:
+            cam = initials[c]
+            assert cam is not None
+            objs, imgs, _, drop = prepare_views(object_points, pts, vnames)
+            dropped += [(name, d) for d in drop if d.reason != _UNSEEN]
+            use = [i for i, u in enumerate(imgs) if u is not None]
+            cam_poses = _fixed_camera_poses(cam, objs, imgs, use, vnames, name, dropped)
+            cams.append(cam)
+            poses.append(cam_poses)
+            points.append({i: imgs[i] for i in cam_poses})  # type: ignore[misc]
+            mono[name] = None
+            continue
+        try:
+            res = calibrate_camera(
+                models[c], object_points, pts, sizes[c], initials[c], fix=fix, fov_deg=fov_deg, loss=loss,
+                min_views=min_views, view_names=vnames,
+            )  # fmt: skip
+        except CalibrationFailed as err:
+            raise CalibrationFailed(f"{name} camera: {err}") from err
+        objs, imgs, _, _ = prepare_views(object_points, pts, vnames)
+        # A view only the other camera saw is not a problem worth reporting.
+        dropped += [(name, d) for d in res.dropped if imgs[d.index] is not None or d.reason != _UNSEEN]
+        cams.append(res.camera)
+        poses.append(dict(zip(res.views, res.T_cam_board, strict=True)))
+        points.append({i: imgs[i] for i in res.views})  # type: ignore[misc]
+        mono[name] = res
+
+    # ---- relative pose from common views ------------------------------------------------------
+    common = sorted(set(poses[0]) & set(poses[1]))
+    if len(common) < min_common_views:
+        raise CalibrationFailed(
+            f"only {len(common)} view(s) with the board seen by both cameras, "
+            f"need at least {min_common_views}"
+        )
+    candidates: list[list[F64]] = []
+    flips: list[F64 | None] = []
+    for i in common:
+        F = _half_turn(objs[i])
+        flips.append(F)
+        T = poses[1][i] @ invert_transform(poses[0][i])
+        cands = [T]
+        if F is not None:
+            cands.append(poses[1][i] @ F @ invert_transform(poses[0][i]))
+        candidates.append(cands)
+    T_rl, choice = _consensus_pose(candidates)
+    for i, k, F in zip(common, choice, flips, strict=True):
+        if k == 1 and F is not None:
+            # The right camera numbered this board's corners the other way round.
+            points[1][i] = points[1][i][::-1].copy()
+            poses[1][i] = poses[1][i] @ F
+        elif k < 0:
+            dropped.append(
+                (names[1], DroppedView(i, vnames[i], "relative pose disagrees with the other views"))
+            )
+            del poses[1][i]
+    common = sorted(set(poses[0]) & set(poses[1]))
+    if len(common) < min_common_views:
+        raise CalibrationFailed(
+            f"only {len(common)} view(s) give a consistent relative pose, need at least {min_common_views}"
+        )
+
+    # ---- joint refinement ---------------------------------------------------------------------
+    views = common if fix_intrinsics else sorted(set(poses[0]) | set(poses[1]))
+    T_left_board = [poses[0][i] if i in poses[0] else invert_transform(T_rl) @ poses[1][i] for i in views]
+    obs = [
+        Observation(c, k, objs[i], points[c][i]) for k, i in enumerate(views) for c in (0, 1) if i in poses[c]
+    ]
+    blocks = [
+        CameraBlock(cams[0], _free(cams[0], fix, fix_intrinsics)),
+        CameraBlock(cams[1], _free(cams[1], fix, fix_intrinsics), T_cam_ref=T_rl, pose_free=True),
+    ]
+    result = refine_bundle(blocks, T_left_board, obs, loss=loss)
+    return _stereo_result(result, views, vnames, common, names, obs, mono, dropped)
+
+
+def _free(camera: CameraModel, fix: Iterable[str], fix_intrinsics: bool) -> NDArray[np.bool_]:
+    if fix_intrinsics:
+        return np.zeros(len(camera.params), bool)
+    return free_mask(camera, fix)
+
+
+def _fixed_camera_poses(
+    cam: CameraModel,
+    objs: list[F64],
+    imgs: list[F64 | None],
+    use: list[int],
+    vnames: list[str],
+    name: str,
+    dropped: list[tuple[str, DroppedView]],
+) -> dict[int, F64]:
+    """Board poses under fixed intrinsics: ray PnP, then per-view refinement."""
+    U: dict[int, F64] = {i: u for i in use if (u := imgs[i]) is not None}
+    finite = {i: np.isfinite(U[i]).all(axis=1) for i in U}
+    found = board_poses(cam, [objs[i][finite[i]] for i in U], [U[i][finite[i]] for i in U])
+    poses: dict[int, F64] = {}
+    for i, T in zip(U, found, strict=True):
+        if T is None:
+            dropped.append((name, DroppedView(i, vnames[i], "no board pose fits the corners")))
+        else:
+            poses[i] = T
+    if not poses:
+        return poses
+    keys = sorted(poses)
+    obs = [Observation(0, k, objs[i], U[i]) for k, i in enumerate(keys)]
+    refined = refine_bundle(
+        [CameraBlock(cam, np.zeros(len(cam.params), bool))], [poses[i] for i in keys], obs
+    )
+    return dict(zip(keys, refined.T_ref_board, strict=True))
+
+
+def _stereo_result(
+    result: BundleResult,
+    views: list[int],
+    vnames: list[str],
+    common: list[int],
+    names: tuple[str, str],
+    obs: list[Observation],
+    mono: dict[str, CameraCalibration | None],
+    dropped: list[tuple[str, DroppedView]],
+) -> StereoCalibration:
+    T_rl = result.T_cam_ref[1]
+    cams = {names[0]: result.cameras[0], names[1]: result.cameras[1]}
+    view_rms: dict[str, list[float | None]] = {n: [None] * len(views) for n in names}
+    image_points: dict[str, list[F64 | None]] = {n: [None] * len(views) for n in names}
+    residuals: dict[str, list[F64 | None]] = {n: [None] * len(views) for n in names}
+    sq = {n: 0.0 for n in names}
+    count = {n: 0 for n in names}
+    max_angle = {n: 0.0 for n in names}
+    for o, r, kept in zip(obs, result.residuals, result.kept, strict=True):
+        n = names[o.camera]
+        view_rms[n][o.view] = float(np.sqrt(np.mean(np.sum(r**2, axis=1))))
+        image_points[n][o.view] = o.image_points[kept]
+        residuals[n][o.view] = r
+        sq[n] += float(np.sum(r**2))
+        count[n] += len(r)
+        T = result.T_cam_ref[o.camera] @ result.T_ref_board[o.view]
+        p = o.object_points[kept] @ T[:3, :3].T + T[:3, 3]
+        ang = np.degrees(np.arccos(np.clip(p[:, 2] / np.linalg.norm(p, axis=1), -1.0, 1.0)))
+        max_angle[n] = max(max_angle[n], float(ang.max()))
+    std = result.pose_std[1]
+    param_std = {
+        n: {
+            k: float(s)
+            for k, s in zip(result.cameras[c].param_layout, result.param_std[c], strict=True)
+            if np.isfinite(s)
+        }
+        for c, n in enumerate(names)
+    }
+    return StereoCalibration(
+        rig=Rig.from_relative_pose(result.cameras[0], result.cameras[1], T_rl, names),
+        T_right_left=T_rl,
+        cameras=cams,
+        rms=result.rms,
+        camera_rms={n: math.sqrt(sq[n] / max(count[n], 1)) for n in names},
+        views=list(views),
+        view_names=[vnames[i] for i in views],
+        common_views=list(common),
+        view_rms=view_rms,
+        image_points=image_points,
+        residuals=residuals,
+        rotation_std_deg=float(np.degrees(np.linalg.norm(std[:3]))),
+        translation_std_m=float(np.linalg.norm(std[3:])),
+        param_std=param_std,
+        max_angle_deg=max_angle,
+        mono=mono,
+        dropped=dropped,
+        converged=result.success,
+        message=result.message,
+    )

@@ -1,0 +1,192 @@
+"""Rendered calibration targets with known truth, for the calibration tests.
+
+Boards are rendered by the virtual environment (``rig.sim.render``) through the true lens. To keep
+tests fast only the board's bounding box is ray-cast: the same model with its principal point /
+distortion centre shifted by the crop origin sees exactly the same ray at every pixel, so the
+crop pasted into a background canvas is the full render (pixel for pixel).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from calibration.geometry import invert_transform, make_transform, rot_x, rot_y, rot_z
+from calibration.models import CameraModel, create
+from rig.sim import chessboard_corners, chessboard_scene, render
+
+F64 = NDArray[np.float64]
+
+BOARD = (9, 6)  # inner corners; odd x even, so the detected order is unambiguous
+BACKGROUND = 90
+
+
+def true_lenses(size: int = 480) -> dict[str, CameraModel]:
+    """One realistic lens per model at ``size`` x ``size`` (all but pinhole see ~196°).
+
+    Scaramuzza's stretch has e = 0: calibration holds e (a gauge: see calibration.calibrate)."""
+    s = size / 480.0
+    c = size / 2.0 - 0.5
+    f = 137.0 * s
+    return {
+        "kannala_brandt": create(
+            "kannala_brandt", size, size, fx=f, fy=f * 1.002, cx=c + 1.3, cy=c - 0.8,
+            k1=0.02, k2=-0.01, k3=0.003, k4=-0.0005, fov_deg=196.0,
+        ),
+        "equidistant": create("equidistant", size, size, fx=f * 1.01, fy=f * 1.012, cx=c + 1.3, cy=c - 0.8,
+                              fov_deg=196.0),
+        "mei": create(
+            "mei", size, size, xi=1.1, k1=-0.05, k2=0.01, p1=2e-4, p2=-1e-4,
+            fx=226.0 * s, fy=226.5 * s, cx=c - 1.1, cy=c + 0.7, fov_deg=196.0,
+        ),
+        "double_sphere": create(
+            "double_sphere", size, size, fx=118.0 * s, fy=118.3 * s, cx=c + 0.6, cy=c - 1.2,
+            xi=-0.18, alpha=0.59, fov_deg=196.0,
+        ),
+        "eucm": create(
+            "eucm", size, size, fx=134.0 * s, fy=134.2 * s, cx=c - 0.9, cy=c + 1.0,
+            alpha=0.6, beta=1.1, fov_deg=196.0,
+        ),
+        "scaramuzza": create(
+            "scaramuzza", size, size, poly=(f, 0.0, -1.0 / (3.0 * f), 0.0, -1.0 / (45.0 * f**3)),
+            cx=c + 0.9, cy=c - 0.6, c=1.001, d=0.0004, e=0.0, fov_deg=196.0,
+        ),
+        "pinhole": create(
+            "pinhole", size, size, fx=200.0 * s, fy=200.5 * s, cx=c + 1.0, cy=c - 0.5,
+            k1=-0.08, k2=0.01, p1=3e-4, p2=-2e-4,
+        ),
+    }  # fmt: skip
+
+
+def board_pose(
+    theta_deg: float,
+    phi_deg: float,
+    distance_m: float,
+    tilt_deg: tuple[float, float] = (0.0, 0.0),
+    spin_deg: float = 0.0,
+    square_m: float = 0.05,
+) -> F64:
+    """``T_cam_board`` of a board whose centre lies ``distance_m`` along the direction at
+    ``theta_deg`` off the optical axis (azimuth ``phi_deg``), facing the camera, then tilted
+    about its own x/y axes and spun about its normal."""
+    th, ph = math.radians(theta_deg), math.radians(phi_deg)
+    d = np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)])
+    # Board z (into the board) along d: rotate z onto d.
+    axis = np.cross([0.0, 0.0, 1.0], d)
+    s = float(np.linalg.norm(axis))
+    R_face = np.eye(3)
+    if s > 1e-12:
+        k = axis / s
+        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        R_face = np.eye(3) + math.sin(th) * K + (1 - math.cos(th)) * K @ K
+    R = (
+        R_face
+        @ rot_x(math.radians(tilt_deg[0]))
+        @ rot_y(math.radians(tilt_deg[1]))
+        @ rot_z(math.radians(spin_deg))
+    )
+    centre = chessboard_corners(*BOARD, square_m).mean(axis=0)
+    return make_transform(R, d * distance_m - R @ centre)
+
+
+def circle_views(rim_theta_deg: float = 72.0, distance_m: float = 0.6) -> list[F64]:
+    """Board poses covering a wide lens's whole image circle: two tilted central views, three
+    at 35°, eight around the rim (their far corners past 90° off axis)."""
+    poses = [
+        board_pose(0, 0, distance_m, (20, 0), 5),
+        board_pose(0, 0, distance_m, (-10, -30), 40),
+        board_pose(35, 200, distance_m, (0, -25), 20),
+        board_pose(35, 20, distance_m, (25, 0), -15),
+        board_pose(35, 110, distance_m, (0, 0), 60),
+    ]
+    poses += [board_pose(rim_theta_deg + (k % 3) * 2, k * 45, distance_m, (0, 0), 17 * k) for k in range(8)]
+    return poses
+
+
+def pinhole_views(distance_m: float = 0.7) -> list[F64]:
+    """Board poses for a ~100° pinhole: tilted centre views and a ring of eight at 22°."""
+    poses = [
+        board_pose(0, 0, distance_m, (25, 0), 5),
+        board_pose(0, 0, distance_m, (-10, -30), 40),
+        board_pose(0, 0, distance_m + 0.2, (0, 20), -20),
+        board_pose(0, 0, distance_m - 0.1, (-30, 15), 70),
+    ]
+    poses += [board_pose(22, k * 45, distance_m, ((-1) ** k * 20, 10), 10 * k) for k in range(8)]
+    return poses
+
+
+def _crop_camera(camera: CameraModel, x0: int, y0: int, w: int, h: int) -> CameraModel:
+    """The same lens seeing only the window [x0, x0+w) x [y0, y0+h) of its image."""
+    return camera.replace(width=w, height=h, cx=camera.param_dict["cx"] - x0, cy=camera.param_dict["cy"] - y0)
+
+
+def render_board(
+    camera: CameraModel,
+    T_cam_board: F64,
+    square_m: float = 0.05,
+    supersample: int = 2,
+    T_world_cam: F64 | None = None,
+) -> NDArray[np.uint8]:
+    """8-bit grey image of the board through ``camera``. ``T_cam_board`` is in the camera
+    frame; ``T_world_cam`` (default identity) only moves both into a world frame."""
+    T_wc = np.eye(4) if T_world_cam is None else np.asarray(T_world_cam, dtype=np.float64)
+    scene = chessboard_scene(*BOARD, square_m, T_wc @ T_cam_board)
+    # Bounding box of the board (with its white margin) in the image, padded.
+    cols, rows = BOARD
+    outline = np.array(
+        [[x, y, 0.0] for x in np.linspace(-2 * square_m, (cols + 1) * square_m, 24)
+         for y in np.linspace(-2 * square_m, (rows + 1) * square_m, 24)]
+    )  # fmt: skip
+    pts = outline @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+    pix, ok = camera.project(pts, in_image=False)
+    image = np.full((camera.height, camera.width), BACKGROUND, dtype=np.uint8)
+    if not ok.any():
+        return image
+    pad = 6
+    x0 = max(int(np.floor(pix[ok, 0].min())) - pad, 0)
+    y0 = max(int(np.floor(pix[ok, 1].min())) - pad, 0)
+    x1 = min(int(np.ceil(pix[ok, 0].max())) + pad, camera.width)
+    y1 = min(int(np.ceil(pix[ok, 1].max())) + pad, camera.height)
+    if not ok.all():  # part of the board outside the model's domain: render everything
+        x0, y0, x1, y1 = 0, 0, camera.width, camera.height
+    if x1 <= x0 or y1 <= y0:
+        return image
+    crop = _crop_camera(camera, x0, y0, x1 - x0, y1 - y0)
+    out = render(scene, crop, T_wc, supersample=supersample, background=BACKGROUND)
+    image[y0:y1, x0:x1] = out.image
+    return image
+
+
+def true_corners(camera: CameraModel, T_cam_board: F64, square_m: float = 0.05) -> tuple[F64, F64]:
+    """Exact pixels (N, 2) of the inner corners and their angles off axis (N,) in degrees."""
+    X = chessboard_corners(*BOARD, square_m)
+    p = X @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+    pix, _ = camera.project(p, in_image=False)
+    angle = np.degrees(np.arccos(np.clip(p[:, 2] / np.linalg.norm(p, axis=1), -1.0, 1.0)))
+    return pix, angle
+
+
+def lens_difference(a: CameraModel, b: CameraModel, max_angle_deg: float) -> tuple[float, float]:
+    """RMS and max pixel distance between two lenses' projections of the same rays, over a
+    polar grid of directions up to ``max_angle_deg`` off axis."""
+    th = np.radians(np.linspace(0.0, max_angle_deg, 40))
+    ph = np.linspace(0.0, 2 * math.pi, 36, endpoint=False)
+    tt, pp = np.meshgrid(th, ph)
+    rays = np.stack([np.sin(tt) * np.cos(pp), np.sin(tt) * np.sin(pp), np.cos(tt)], axis=-1).reshape(-1, 3)
+    pa, oka = a.project(rays, in_image=False)
+    pb, okb = b.project(rays, in_image=False)
+    ok = oka & okb
+    e = np.linalg.norm(pa[ok] - pb[ok], axis=1)
+    return float(np.sqrt(np.mean(e**2))), float(e.max())
+
+
+def camera_pose_in_world(T_world_cam: F64, T_world_board: F64) -> F64:
+    """``T_cam_board`` from world poses of a camera and a board."""
+    return invert_transform(T_world_cam) @ T_world_board
+
+
+def spread(values: Sequence[float]) -> float:
+    return float(np.max(values) - np.min(values))

@@ -1,0 +1,172 @@
+"""`rig calibrate intrinsics|stereo` end to end through the installed console script, on rendered
+chessboard images written as PNG files (true lens and mount known)."""
+
+from __future__ import annotations
+
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from calibration.formats import load_camera, load_rig
+from calibration.geometry import invert_transform, rotation_angle
+from rig.sim import divergent_rig
+from tests.calibration.calibration_renders import (
+    board_pose,
+    circle_views,
+    lens_difference,
+    render_board,
+    true_lenses,
+)
+
+RIG = Path(sys.executable).with_name("rig")
+LENS = true_lenses(480)["kannala_brandt"]
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([str(RIG), *map(str, args)], capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def mono_images(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("mono")
+    poses = circle_views()
+    for i in (0, 1, 2, 3, 4, 5, 7, 9, 11):  # centre, 35° ring and rim views
+        cv2.imwrite(str(folder / f"view{i:02d}.png"), render_board(LENS, poses[i]))
+    (folder / "view99.png").write_bytes(PNG_SIGNATURE + b"truncated garbage")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def stereo_images(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, np.ndarray]:
+    """Boards in the overlap wedge of an 87°, 2°-pitched rig rendered in both cameras."""
+    folder = tmp_path_factory.mktemp("stereo")
+    rig = divergent_rig(LENS, LENS, 0.072, 87.0, 2.0)
+    wedge = [
+        board_pose(th, ph, 0.45, tilt, spin)
+        for th, ph, tilt, spin in [
+            (0, 0, (0, 0), 0), (20, 0, (15, 0), 10), (20, 180, (0, 15), -10), (25, 90, (0, -20), 20),
+            (25, 270, (20, 0), 30), (30, 30, (0, 0), -20), (30, 150, (0, 0), 15), (15, 220, (-15, 10), 5),
+            (10, 45, (30, 0), 45), (10, 135, (-30, 0), -45),
+        ]
+    ]  # fmt: skip
+    for k, T_rig_board in enumerate(wedge):
+        for name in ("left", "right"):
+            T = invert_transform(rig.T_rig_cam[name]) @ T_rig_board
+            cv2.imwrite(str(folder / f"{name}{k}.png"), render_board(LENS, T))
+    return folder, invert_transform(rig.T_rig_cam["right"]) @ rig.T_rig_cam["left"]
+
+
+def test_intrinsics_from_rendered_images(mono_images: Path, tmp_path: Path) -> None:
+    out = tmp_path / "cam.yaml"
+    proc = run(
+        "calibrate", "intrinsics", "--model", "kannala_brandt", "--images", mono_images / "*.png",
+        "--board", "9x6", "--square", "0.05", "--out", out, "--name", "front",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    # The corrupt image is listed with its reason and skipped.
+    assert "view99.png" in proc.stderr and "cannot be read" in proc.stderr
+    assert "view00.png" in proc.stdout and "RMS" in proc.stdout
+    camera = load_camera(out, "front")
+    assert camera.name == "kannala_brandt" and (camera.width, camera.height) == (480, 480)
+    rms, worst = lens_difference(LENS, camera, 95.0)
+    assert rms < 1.0 and worst < 2.0, (rms, worst)
+    picture = tmp_path / "cam_residuals.png"
+    assert picture.read_bytes()[:8] == PNG_SIGNATURE
+    image = cv2.imread(str(picture))
+    assert image is not None and image.shape[0] > 200 and image.shape[1] > 200
+
+
+def test_too_few_views_is_exit_2_with_one_line(mono_images: Path, tmp_path: Path) -> None:
+    few = tmp_path / "few"
+    few.mkdir()
+    for name in ("view00.png", "view99.png"):
+        shutil.copy(mono_images / name, few / name)
+    proc = run(
+        "calibrate", "intrinsics", "--images", few / "*.png", "--board", "9x6", "--square", "0.05",
+        "--out", tmp_path / "cam.yaml",
+    )  # fmt: skip
+    assert proc.returncode == 2
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "only 1 usable view(s), need at least 3" in errors[0]
+    assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "cam.yaml").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--board", "9", "--square", "0.05"], "COLSxROWS"),
+        (["--board", "9x6", "--square", "-1"], "--square must be a positive"),
+        (["--board", "9x6", "--square", "0.05", "--model", "fisheye"], "--model must be one of"),
+        (["--board", "9x6", "--square", "0.05", "--loss", "cauchy"], "--loss must be one of"),
+    ],
+)
+def test_bad_options_are_one_line(mono_images: Path, tmp_path: Path, args: list[str], message: str) -> None:
+    proc = run(
+        "calibrate", "intrinsics", "--images", mono_images / "*.png", "--out", tmp_path / "x.yaml", *args
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.strip().startswith("error:") and message in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_no_matching_images(tmp_path: Path) -> None:
+    proc = run(
+        "calibrate", "intrinsics", "--images", tmp_path / "*.png", "--board", "9x6", "--square", "0.05",
+        "--out", tmp_path / "x.yaml",
+    )  # fmt: skip
+    assert proc.returncode == 2 and "no images match" in proc.stderr
+
+
+def test_stereo_from_rendered_images(stereo_images: tuple[Path, np.ndarray], tmp_path: Path) -> None:
+    folder, T_true = stereo_images
+    out = tmp_path / "rig.yaml"
+    proc = run(
+        "calibrate", "stereo", "--left", folder / "left*.png", "--right", folder / "right*.png",
+        "--board", "9x6", "--square", "0.05", "--out", out, "--model", "kannala_brandt",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "left0.png|right0.png" in proc.stdout and "baseline" in proc.stdout
+    rig = load_rig(out)
+    assert rig.names == ["left", "right"]
+    T_est = invert_transform(rig.T_rig_cam["right"]) @ rig.T_rig_cam["left"]
+    rot = math.degrees(rotation_angle((invert_transform(T_true) @ T_est)[:3, :3]))
+    assert rot < 0.3 and abs(rig.baseline() - 0.072) < 2e-3, (rot, rig.baseline())
+    assert (tmp_path / "rig_residuals.png").read_bytes()[:8] == PNG_SIGNATURE
+
+
+def test_stereo_with_fixed_intrinsics_and_mismatched_lists(
+    stereo_images: tuple[Path, np.ndarray], tmp_path: Path
+) -> None:
+    folder, T_true = stereo_images
+    # The true lens as an intrinsics file, as `rig calibrate intrinsics` writes it.
+    from calibration.formats import save_rig
+    from calibration.rig import Rig
+
+    lens_file = tmp_path / "lens.yaml"
+    save_rig(Rig({"cam0": LENS}, {"cam0": np.eye(4)}), lens_file)
+    out = tmp_path / "rig.yaml"
+    proc = run(
+        "calibrate", "stereo", "--left", folder / "left*.png", "--right", folder / "right*.png",
+        "--board", "9x6", "--square", "0.05", "--out", out, "--left-intrinsics", lens_file,
+        "--right-intrinsics", lens_file, "--fix-intrinsics",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    rig = load_rig(out)
+    assert rig.cameras["left"] == LENS and rig.cameras["right"] == LENS
+    T_est = invert_transform(rig.T_rig_cam["right"]) @ rig.T_rig_cam["left"]
+    assert math.degrees(rotation_angle((invert_transform(T_true) @ T_est)[:3, :3])) < 0.05
+    assert np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]) < 0.5e-3
+
+    proc = run(
+        "calibrate", "stereo", "--left", folder / "left*.png", "--right", folder / "right1*.png",
+        "--board", "9x6", "--square", "0.05", "--out", out,
+    )  # fmt: skip
+    assert proc.returncode == 2 and "--left matches 10 images but --right matches 1" in proc.stderr
