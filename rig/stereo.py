@@ -67,8 +67,8 @@ class StereoParams(BaseModel):
     speckle_size: int = Field(100, ge=0, le=10000, description="remove blobs smaller than this (0 = off)")
     speckle_range: int = Field(2, ge=0, le=64, description="max disparity step inside a blob (px)")
     disp12_max_diff: int = Field(1, ge=-1, le=4096, description="matcher's internal L-R check (px, -1 off)")
-    P1: float = Field(0.0, ge=0.0, description="SGBM smoothness penalty, ±1 px steps (0 = 8·w²)")
-    P2: float = Field(0.0, ge=0.0, description="SGBM smoothness penalty, larger steps (0 = 32·w²)")
+    P1: float = Field(0.0, ge=0.0, le=1e7, description="SGBM smoothness penalty, ±1 px steps (0 = 8·w²)")
+    P2: float = Field(0.0, ge=0.0, le=1e7, description="SGBM smoothness penalty, larger steps (0 = 32·w²)")
     full_dp: bool = Field(False, description="SGBM full 8-direction dynamic programming (= mode hh)")
     subpixel: bool = Field(True, description="gradient-based subpixel refinement (rig.subpixel)")
     subpixel_window: int = Field(15, ge=3, le=31, description="refinement window (odd, px)")
@@ -78,7 +78,7 @@ class StereoParams(BaseModel):
     temporal_alpha: float = Field(0.0, ge=0.0, lt=1.0, description="weight of the past frame (0 = off)")
     temporal_reset: float = Field(1.0, gt=0.0, le=64.0, description="disparity change that restarts (px)")
     confidence: bool = Field(True, description="per-pixel confidence map in [0, 1]")
-    confidence_sigma: float = Field(0.1, gt=0.0, le=10.0, description="predicted σ_d giving conf. 1/e")
+    confidence_sigma: float = Field(0.1, ge=1e-4, le=10.0, description="predicted σ_d giving conf. 1/e")
 
     @field_validator("sgbm_mode", mode="before")
     @classmethod

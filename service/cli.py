@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import os
 import sys
+from pathlib import Path
+from typing import Annotated
 
 import typer
 
 from calibration.errors import CalibrationError
 from rig.cli import register as register_rig_commands
-from rig.cli.common import STUB_SETTINGS, err_console, not_ready
+from rig.cli.common import err_console
 from rig.errors import RigError
 from service.errors import ServiceError
 
@@ -29,9 +31,49 @@ def build_app() -> typer.Typer:
         add_completion=False,
     )
 
-    @app.command("serve", context_settings=STUB_SETTINGS, help="Not implemented yet (issue #6).")
-    def serve(ctx: typer.Context) -> None:
-        not_ready("serve", 6)
+    @app.command("serve")
+    def serve(
+        config: Annotated[
+            Path | None,
+            typer.Option(
+                "--config", "-c", help="YAML config file (default: $RIG_CONFIG).", show_default=False
+            ),
+        ] = None,
+        demo: Annotated[
+            bool, typer.Option("--demo", help="Serve the built-in simulated rig (rendered once, cached).")
+        ] = False,
+        host: Annotated[
+            str | None,
+            typer.Option(help="Bind address (default 127.0.0.1); non-loopback needs RIG_API_TOKEN."),
+        ] = None,
+        port: Annotated[int | None, typer.Option(help="TCP port (default 8000); 0 = any free port.")] = None,
+        recording: Annotated[
+            Path | None, typer.Option("--recording", help="Serve a recording directory (looped).")
+        ] = None,
+        calibration: Annotated[
+            Path | None,
+            typer.Option(
+                "--calibration",
+                help="Rig calibration (rig.yaml or Kalibr camchain); default: the recording's.",
+            ),
+        ] = None,
+        log_level: Annotated[
+            str, typer.Option("--log-level", help="critical, error, warning, info, debug.")
+        ] = "info",
+    ) -> None:
+        """Run the depth service (HTTP API + dashboard). With no config at all, or --demo, it serves
+        a simulated rig so you see live depth at once."""
+        from service.serve import run_serve  # FastAPI/uvicorn only when serving
+
+        run_serve(
+            config,
+            demo=demo,
+            host=host,
+            port=port,
+            recording=recording,
+            calibration=calibration,
+            log_level=log_level.lower(),
+        )
 
     register_rig_commands(app)
     return app

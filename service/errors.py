@@ -2,7 +2,16 @@
 
 from __future__ import annotations
 
-__all__ = ["ServiceError", "SettingsError"]
+from typing import Any
+
+__all__ = [
+    "ApiError",
+    "RecordingConflict",
+    "RecordingNameError",
+    "RecordingNotFound",
+    "ServiceError",
+    "SettingsError",
+]
 
 
 class ServiceError(Exception):
@@ -11,3 +20,27 @@ class ServiceError(Exception):
 
 class SettingsError(ServiceError, ValueError):
     """The service configuration (file, environment) is invalid or unsafe."""
+
+
+class ApiError(ServiceError):
+    """An HTTP request of :class:`service.client.RigClient` failed: ``status`` (0 = no response)
+    and the server's ``detail`` (the ``{"detail": ...}`` body, or the transport error)."""
+
+    def __init__(self, status: int, detail: Any, url: str = "") -> None:
+        self.status = status
+        self.detail = detail
+        self.url = url
+        where = f" {url}" if url else ""
+        super().__init__(f"HTTP {status}{where}: {detail}" if status else f"request{where} failed: {detail}")
+
+
+class RecordingNameError(ServiceError, ValueError):
+    """A recording name is not a plain directory name (see service.recordings.NAME_PATTERN)."""
+
+
+class RecordingConflict(ServiceError):
+    """The recording exists already, or another one is running."""
+
+
+class RecordingNotFound(ServiceError):
+    """No recording (or no running recording) of that name."""

@@ -1,0 +1,141 @@
+"""The FastAPI application factory.
+
+``create_app(settings)`` builds the app object only; the runtime (calibration, LUTs, cameras,
+worker) is built and started in the lifespan, or handed in ready-built (``rig serve`` builds it
+first so a bad configuration is one line before the server starts), and stopped at shutdown.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI, Request
+from fastapi.exception_handlers import http_exception_handler
+from fastapi.middleware.cors import CORSMiddleware
+from fastapi.responses import JSONResponse, Response
+from starlette.concurrency import run_in_threadpool
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import compile_path
+
+from rig.errors import ConfigError, DiskFullError, RigError
+from service.errors import RecordingConflict, RecordingNameError, RecordingNotFound, ServiceError
+from service.routes import (
+    calibration,
+    config,
+    dashboard,
+    depth,
+    faults,
+    frames,
+    health,
+    metrics,
+    recordings,
+    stream,
+)
+from service.runtime import Runtime
+from service.security import BodySizeLimit
+from service.settings import Settings, load_settings
+
+__all__ = ["API_VERSION", "create_app"]
+
+log = logging.getLogger("service.app")
+
+API_VERSION = "1"
+
+_STATUS = {
+    RecordingNameError: 422,
+    RecordingConflict: 409,
+    RecordingNotFound: 404,
+    ConfigError: 422,
+    DiskFullError: 507,
+}
+
+
+def _status_for(err: Exception) -> int:
+    for cls, status in _STATUS.items():
+        if isinstance(err, cls):
+            return status
+    return 500
+
+
+def _documented_methods(app: FastAPI, path: str) -> set[str]:
+    """HTTP methods the OpenAPI document lists for the path template matching ``path``."""
+    table: list[tuple[re.Pattern[str], set[str]]] | None = getattr(app.state, "allow_table", None)
+    if table is None:
+        table = [
+            (compile_path(template)[0], {m.upper() for m in ops})
+            for template, ops in app.openapi().get("paths", {}).items()
+        ]
+        app.state.allow_table = table
+    return {m for regex, methods in table if regex.match(path) for m in methods}
+
+
+def create_app(settings: Settings | None = None, *, runtime: Runtime | None = None) -> FastAPI:
+    """The depth service app for ``settings`` (default: :func:`load_settings`). A given
+    ``runtime`` is started at startup and stopped at shutdown (ownership passes to the app)."""
+    settings = settings if settings is not None else load_settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        rt = runtime if runtime is not None else await run_in_threadpool(Runtime.build, settings)
+        app.state.runtime = rt
+        await run_in_threadpool(rt.start)
+        try:
+            yield
+        finally:
+            await run_in_threadpool(rt.stop)
+            log.info("stopped: depth worker and camera threads joined")
+
+    app = FastAPI(
+        title="odfc-rig depth service",
+        version=API_VERSION,
+        description="Depth from an orthogonally divergent fisheye stereo rig: depth maps, frames, "
+        "point clouds, health and metrics. State-changing endpoints need `Authorization: Bearer <token>`.",
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    app.state.runtime = None
+
+    for module in (health, depth, stream, frames, calibration, config, recordings, metrics, dashboard):
+        app.include_router(module.router)
+    if settings.server.fault_injection:
+        app.include_router(faults.router)
+
+    async def package_error(request: Request, exc: Exception) -> JSONResponse:
+        status = _status_for(exc)
+        if status >= 500:
+            log.error("%s %s: %s", request.method, request.url.path, exc)
+        return JSONResponse({"detail": str(exc)}, status_code=status)
+
+    async def internal_error(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("%s %s failed", request.method, request.url.path)
+        return JSONResponse({"detail": f"internal error: {type(exc).__name__}"}, status_code=500)
+
+    async def http_error(request: Request, exc: Exception) -> Response:
+        assert isinstance(exc, StarletteHTTPException)
+        response = await http_exception_handler(request, exc)
+        if exc.status_code == 405:
+            # Each method is its own route: list every documented method of the path.
+            methods = _documented_methods(request.app, request.url.path)
+            if methods:
+                response.headers["Allow"] = ", ".join(sorted(methods))
+        return response
+
+    app.add_exception_handler(StarletteHTTPException, http_error)
+    app.add_exception_handler(ServiceError, package_error)
+    app.add_exception_handler(RigError, package_error)
+    app.add_exception_handler(Exception, internal_error)
+
+    # Added last = outermost: oversized bodies are refused before anything else reads them.
+    if settings.server.cors_origins:
+        app.add_middleware(
+            CORSMiddleware,
+            allow_origins=settings.server.cors_origins,
+            allow_methods=["GET", "POST", "PATCH"],
+            allow_headers=["Authorization", "Content-Type"],
+            expose_headers=["X-Frame-Seq", "X-Timestamp-Ns", "X-Depth-Scale", "X-Latency-Ms"],
+        )
+    app.add_middleware(BodySizeLimit, max_bytes=settings.server.max_body_bytes)
+    return app

@@ -1,0 +1,222 @@
+"""Typed Python client of the depth service (httpx).
+
+```python
+from service.client import RigClient
+
+with RigClient("http://127.0.0.1:8000") as rig:
+    print(rig.health().status)
+    d = rig.depth()                  # float32 metres, NaN = invalid
+    print(d.seq, d.depth.shape, float(np.nanmedian(d.depth)))
+    left = rig.frames("left", "vpc") # the rectified left image
+```
+
+Every failed request raises :class:`service.errors.ApiError` with the HTTP status and the
+server's ``detail``; transport failures raise it with status 0.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import cv2
+import httpx
+import numpy as np
+from numpy.typing import NDArray
+
+from service.errors import ApiError
+from service.schemas import CalibrationModel, ConfigModel, HealthModel, RecordingInfo
+
+__all__ = ["DepthResult", "DisparityResult", "FrameResult", "PointCloudResult", "RigClient"]
+
+
+@dataclass(frozen=True)
+class DepthResult:
+    """``depth`` (H, W) float32 metres, NaN invalid; ``scale`` metres per unit of the body that
+    was transferred (0.001 for a mm PNG, 1.0 for npy)."""
+
+    depth: NDArray[np.float32]
+    seq: int
+    ts_ns: int
+    scale: float
+
+
+@dataclass(frozen=True)
+class DisparityResult:
+    disparity: NDArray[np.float32]
+    seq: int
+    ts_ns: int
+
+
+@dataclass(frozen=True)
+class FrameResult:
+    image: NDArray[np.uint8]
+    seq: int
+    ts_ns: int
+    camera: str
+    view: str
+
+
+@dataclass(frozen=True)
+class PointCloudResult:
+    """``points`` (N, 3) float32 in the rig frame (m); ``colors`` (N, 3) uint8 RGB or None."""
+
+    points: NDArray[np.float32]
+    colors: NDArray[np.uint8] | None
+    seq: int
+    ts_ns: int
+
+
+def _frame_meta(response: httpx.Response) -> tuple[int, int]:
+    return int(response.headers["X-Frame-Seq"]), int(response.headers["X-Timestamp-Ns"])
+
+
+def _load_npy(data: bytes) -> NDArray[Any]:
+    return np.load(io.BytesIO(data), allow_pickle=False)
+
+
+def _decode_image(data: bytes, url: str) -> NDArray[Any]:
+    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise ApiError(200, "response body is not a decodable image", url)
+    return img
+
+
+def parse_ply(data: bytes) -> tuple[NDArray[np.float32], NDArray[np.uint8] | None]:
+    """Binary little-endian PLY vertices (x y z float [red green blue uchar]) from bytes."""
+    end = data.find(b"end_header\n")
+    if not data.startswith(b"ply\n") or end < 0:
+        raise ApiError(200, "response body is not a PLY file")
+    header = data[:end].decode("ascii").splitlines()
+    count = next(int(line.split()[2]) for line in header if line.startswith("element vertex"))
+    types = {"float": "<f4", "uchar": "u1"}
+    fields = [(p.split()[2], types[p.split()[1]]) for p in header if p.startswith("property")]
+    rec: Any = np.frombuffer(data, dtype=np.dtype(fields), count=count, offset=end + len(b"end_header\n"))
+    pts = np.stack([rec["x"], rec["y"], rec["z"]], axis=1).astype(np.float32)
+    names = {n for n, _ in fields}
+    cols = (
+        np.stack([rec["red"], rec["green"], rec["blue"]], axis=1)
+        if {"red", "green", "blue"} <= names
+        else None
+    )
+    return pts, cols
+
+
+class RigClient:
+    """Client of one depth service; a context manager (closes its connection pool)."""
+
+    def __init__(
+        self,
+        base_url: str = "http://127.0.0.1:8000",
+        token: str | None = None,
+        timeout: float = 10.0,
+        *,
+        transport: httpx.BaseTransport | None = None,
+    ) -> None:
+        headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self._http = httpx.Client(base_url=base_url, timeout=timeout, headers=headers, transport=transport)
+
+    def __enter__(self) -> RigClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._http.close()
+
+    # ----- plumbing ----------------------------------------------------------------------------
+    def _request(self, method: str, path: str, *, ok: tuple[int, ...] = (200,), **kw: Any) -> httpx.Response:
+        try:
+            response = self._http.request(method, path, **kw)
+        except httpx.HTTPError as err:
+            raise ApiError(0, f"{type(err).__name__}: {err}", path) from err
+        if response.status_code not in ok:
+            try:
+                detail = response.json().get("detail", response.text)
+            except ValueError:
+                detail = response.text
+            raise ApiError(response.status_code, detail, path)
+        return response
+
+    # ----- reading -----------------------------------------------------------------------------
+    def health(self) -> HealthModel:
+        """The health document; also on 503 ("down"), which is an answer, not an error."""
+        return HealthModel.model_validate_json(self._request("GET", "/health", ok=(200, 503)).content)
+
+    def ready(self) -> bool:
+        return self._request("GET", "/readyz", ok=(200, 503)).status_code == 200
+
+    def depth(self, format: Literal["npy", "png"] = "npy") -> DepthResult:
+        """Latest depth in metres (NaN invalid), whichever encoding is transferred."""
+        r = self._request("GET", "/depth", params={"format": format})
+        seq, ts = _frame_meta(r)
+        scale = float(r.headers["X-Depth-Scale"])
+        if format == "npy":
+            depth = _load_npy(r.content).astype(np.float32, copy=False)
+        else:
+            units = _decode_image(r.content, "/depth")
+            depth = units.astype(np.float32) * np.float32(scale)
+            depth[units == 0] = np.nan
+        return DepthResult(depth, seq, ts, scale)
+
+    def disparity(self, format: Literal["npy", "png"] = "npy") -> DisparityResult:
+        r = self._request("GET", "/disparity", params={"format": format})
+        seq, ts = _frame_meta(r)
+        if format == "npy":
+            disp = _load_npy(r.content).astype(np.float32, copy=False)
+        else:
+            units = _decode_image(r.content, "/disparity")
+            disp = units.astype(np.float32) * np.float32(float(r.headers["X-Disparity-Scale"]))
+            disp[units == 0] = np.nan
+        return DisparityResult(disp, seq, ts)
+
+    def frames(self, camera: str, view: Literal["raw", "vpc"] = "vpc") -> FrameResult:
+        r = self._request("GET", f"/frames/{camera}", params={"view": view})
+        seq, ts = _frame_meta(r)
+        return FrameResult(_decode_image(r.content, f"/frames/{camera}"), seq, ts, camera, view)
+
+    def depth_colorized(self) -> FrameResult:
+        r = self._request("GET", "/depth/colorized")
+        seq, ts = _frame_meta(r)
+        return FrameResult(_decode_image(r.content, "/depth/colorized"), seq, ts, "left", "depth")
+
+    def pointcloud(self, stride: int = 1) -> PointCloudResult:
+        r = self._request("GET", "/pointcloud", params={"stride": stride})
+        seq, ts = _frame_meta(r)
+        points, colors = parse_ply(r.content)
+        return PointCloudResult(points, colors, seq, ts)
+
+    def calibration(self) -> CalibrationModel:
+        return CalibrationModel.model_validate_json(self._request("GET", "/calibration").content)
+
+    def config(self) -> ConfigModel:
+        return ConfigModel.model_validate_json(self._request("GET", "/config").content)
+
+    def metrics(self) -> str:
+        return self._request("GET", "/metrics").text
+
+    # ----- changing (bearer token) -------------------------------------------------------------
+    def patch_config(self, **stereo: Any) -> ConfigModel:
+        """Change stereo parameters (rig.stereo.StereoParams names); returns the new config."""
+        r = self._request("PATCH", "/config", json={"stereo": stereo})
+        return ConfigModel.model_validate_json(r.content)
+
+    def start_recording(self, name: str) -> RecordingInfo:
+        r = self._request("POST", "/recordings", json={"name": name}, ok=(201,))
+        return RecordingInfo.model_validate_json(r.content)
+
+    def stop_recording(self, name: str | None = None) -> RecordingInfo:
+        """Stop recording ``name`` (default: the one running)."""
+        if name is None:
+            running = [r for r in self.recordings() if r.active]
+            if not running:
+                raise ApiError(404, "no recording is running", "/recordings")
+            name = running[0].name
+        r = self._request("POST", f"/recordings/{name}/stop")
+        return RecordingInfo.model_validate_json(r.content)
+
+    def recordings(self) -> list[RecordingInfo]:
+        r = self._request("GET", "/recordings")
+        return [RecordingInfo.model_validate(d) for d in r.json()]

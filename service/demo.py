@@ -1,0 +1,229 @@
+"""The embedded demo: a rendered room recording replayed by file cameras, so ``rig serve --demo``
+shows live depth with no hardware.
+
+The first run renders the demo room once with the virtual environment (:mod:`rig.sim`, the
+``prototype`` rig: 190° Kannala-Brandt lenses, 72 mm baseline) into the user cache directory,
+keyed by a hash of everything that determines it, then adds fresh sensor noise to each of
+``frames`` copies of that view: a static scene whose depth visibly lives, looping seamlessly at
+30 fps. The render goes into a temporary directory that is renamed into place only when
+complete, so an interrupted render is never used (its leftovers are removed next time).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import platformdirs
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    SpinnerColumn,
+    TextColumn,
+    TimeElapsedColumn,
+)
+
+from rig.recording import RECORDING_VERSION, Recording, RecordingWriter
+from rig.sim import get_preset, simulate_recording
+from rig.sim.simulate import GROUND_TRUTH_VERSION
+from rig.vpc import VpcConfig
+
+__all__ = [
+    "DEMO_FPS",
+    "DEMO_VERSION",
+    "DemoSpec",
+    "demo_cache_dir",
+    "demo_key",
+    "demo_overrides",
+    "ensure_demo_recording",
+    "render_demo",
+]
+
+DEMO_VERSION = 1
+DEMO_FPS = 30.0
+#: ``progress(step, done, total)``: step is "render" (0/1 → 1/1) or "noise" (k of frames).
+StepProgress = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class DemoSpec:
+    """What the demo recording is made of; every field is part of its cache key."""
+
+    preset: str = "prototype"
+    scale: float = 1.0
+    frames: int = 30
+    supersample: int = 2
+    seed: int = 0
+    vpc: VpcConfig = field(default_factory=VpcConfig)
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "demo_version": DEMO_VERSION,
+            "ground_truth_version": GROUND_TRUTH_VERSION,
+            "recording_version": RECORDING_VERSION,
+            "preset": self.preset,
+            "scale": self.scale,
+            "frames": self.frames,
+            "supersample": self.supersample,
+            "seed": self.seed,
+            "vpc": self.vpc.model_dump(mode="json"),
+        }
+
+
+def demo_cache_dir() -> Path:
+    """``<user cache dir>/odfc-rig/demo`` (honours ``XDG_CACHE_HOME`` on Linux)."""
+    return Path(platformdirs.user_cache_dir("odfc-rig")) / "demo"
+
+
+def demo_key(spec: DemoSpec) -> str:
+    doc = json.dumps(spec.as_json(), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(doc.encode()).hexdigest()[:16]
+
+
+def render_demo(spec: DemoSpec, out: Path, progress: StepProgress | None = None) -> Path:
+    """Render the demo into ``out`` (new): ``out/render`` is the noise-free rendered recording
+    with ground truth, ``out/loop`` the replayed recording (``frames`` noisy pairs and the rig's
+    calibration.yaml). Returns ``out/loop``."""
+    preset = get_preset(spec.preset)
+    if spec.scale != 1.0:
+        preset = preset.scaled(spec.scale)
+    render_dir = out / "render"
+    if progress is not None:
+        progress("render", 0, 1)
+    simulate_recording(
+        preset,
+        "room",
+        render_dir,
+        frames=1,
+        noise_std=0.0,
+        supersample=spec.supersample,
+        seed=spec.seed,
+        vpc=spec.vpc,
+    )
+    if progress is not None:
+        progress("render", 1, 1)
+    source = Recording(render_dir)
+    base = {cam: source.read_image(source.pairs[0], cam).astype(np.float32) for cam in ("left", "right")}
+    period_ns = round(1e9 / DEMO_FPS)
+    loop_dir = out / "loop"
+    rng = np.random.default_rng(np.random.SeedSequence([spec.seed, DEMO_VERSION]))
+    meta = {"generator": "rig serve --demo", "demo": spec.as_json(), "fps": DEMO_FPS, "scene": "room"}
+    with RecordingWriter(loop_dir, meta=meta) as writer:
+        for k in range(spec.frames):
+            noisy = [
+                np.clip(
+                    np.rint(base[cam] + rng.normal(0.0, preset.noise_std, base[cam].shape)), 0, 255
+                ).astype(np.uint8)
+                for cam in ("left", "right")
+            ]
+            ts = k * period_ns
+            writer.write_images(k, ts, ts, noisy[0], noisy[1])
+            if progress is not None:
+                progress("noise", k + 1, spec.frames)
+    shutil.copyfile(render_dir / "calibration.yaml", loop_dir / "calibration.yaml")
+    return loop_dir
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _remove_leftovers(cache: Path, key: str) -> None:
+    """Temporary directories of interrupted renders (their process is gone)."""
+    for tmp in cache.glob(f".{key}.tmp-*"):
+        try:
+            pid = int(tmp.name.rsplit("-", 1)[1])
+        except ValueError:
+            pid = -1
+        if pid != os.getpid() and not _pid_alive(pid):
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def ensure_demo_recording(
+    spec: DemoSpec | None = None,
+    cache_dir: Path | None = None,
+    *,
+    console: Console | None = None,
+    progress: StepProgress | None = None,
+) -> Path:
+    """The demo's loop recording, rendered on first use (with a progress bar on ``console``)."""
+    spec = spec or DemoSpec()
+    cache = cache_dir or demo_cache_dir()
+    key = demo_key(spec)
+    final = cache / key
+    if (final / "loop" / "frames.csv").is_file():
+        return final / "loop"
+    cache.mkdir(parents=True, exist_ok=True)
+    _remove_leftovers(cache, key)
+    tmp = cache / f".{key}.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    try:
+        if console is not None and progress is None:
+            _render_with_bar(spec, tmp, console)
+        else:
+            render_demo(spec, tmp, progress)
+        (tmp / "demo.json").write_text(json.dumps(spec.as_json(), indent=2) + "\n")
+        try:
+            os.rename(tmp, final)
+        except OSError:
+            if not (final / "loop" / "frames.csv").is_file():  # not a concurrent render that won
+                raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return final / "loop"
+
+
+def _render_with_bar(spec: DemoSpec, out: Path, console: Console) -> None:
+    with Progress(
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        transient=False,
+    ) as bar:
+        render_task = bar.add_task("rendering the demo room (once; cached)", total=1)
+        noise_task = bar.add_task("adding sensor noise", total=spec.frames)
+
+        def step(name: str, done: int, total: int) -> None:
+            bar.update(render_task if name == "render" else noise_task, completed=done, total=total)
+
+        render_demo(spec, out, step)
+
+
+def demo_overrides(loop_recording: Path, fps: float = DEMO_FPS) -> dict[str, Any]:
+    """Settings overrides that replay ``loop_recording`` with file cameras (looping, live
+    timestamps) and use its calibration."""
+    camera = {
+        "kind": "file",
+        "recording": str(loop_recording),
+        "pace": fps,
+        "loop": True,
+        "timestamps": "live",
+    }
+    return {
+        "cameras": {
+            "left": {**camera, "camera": "left"},
+            "right": {**camera, "camera": "right"},
+            # Decode only the pairs the worker takes, not all 2 x 30 frames/s in the camera threads.
+            "supervisor": {"decode": False},
+        },
+        "calibration": {"path": str(loop_recording / "calibration.yaml")},
+    }

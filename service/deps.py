@@ -1,0 +1,96 @@
+"""FastAPI dependencies shared by the routes (``Annotated`` aliases, as the routes use them).
+
+They are ``async`` on purpose: they only read attributes, and FastAPI would run a plain ``def``
+dependency in the thread pool, one thread hop per dependency per request.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Annotated, Any
+
+from fastapi import Depends, HTTPException, Request
+from starlette.concurrency import run_in_threadpool
+
+from service.runtime import Runtime
+from service.settings import Settings
+from service.store import FrameResult
+
+__all__ = [
+    "BINARY",
+    "ResultDep",
+    "RuntimeDep",
+    "SettingsDep",
+    "binary_response_doc",
+    "cached_body",
+    "frame_headers",
+]
+
+BINARY = {"schema": {"type": "string", "format": "binary"}}
+_ERROR_REF = {"type": "object", "properties": {"detail": {}}, "required": ["detail"]}
+_HEADER_DOCS = {
+    "X-Frame-Seq": {
+        "description": "sequence number of the pair (left camera)",
+        "schema": {"type": "integer"},
+    },
+    "X-Timestamp-Ns": {"description": "capture time, CLOCK_MONOTONIC ns", "schema": {"type": "integer"}},
+}
+
+
+def binary_response_doc(
+    description: str, *media_types: str, depth_scale: bool = False
+) -> dict[int | str, Any]:
+    """OpenAPI ``responses`` for an endpoint serving the latest frame as bytes."""
+    headers = dict(_HEADER_DOCS)
+    if depth_scale:
+        headers["X-Depth-Scale"] = {
+            "description": "metres per unit of the body (1 for npy, which is in metres)",
+            "schema": {"type": "number"},
+        }
+    return {
+        200: {"description": description, "content": {m: BINARY for m in media_types}, "headers": headers},
+        503: {"description": "no depth frame yet", "content": {"application/json": {"schema": _ERROR_REF}}},
+    }
+
+
+async def get_runtime(request: Request) -> Runtime:
+    runtime: Runtime | None = getattr(request.app.state, "runtime", None)
+    if runtime is None:
+        raise HTTPException(503, "the service is starting")
+    return runtime
+
+
+async def get_settings(request: Request) -> Settings:
+    settings: Settings = request.app.state.settings
+    return settings
+
+
+async def latest_result(runtime: Annotated[Runtime, Depends(get_runtime)]) -> FrameResult:
+    result = runtime.store.latest
+    if result is None:
+        raise HTTPException(503, "no depth frame yet: the pipeline has not processed a pair")
+    return result
+
+
+RuntimeDep = Annotated[Runtime, Depends(get_runtime)]
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+ResultDep = Annotated[FrameResult, Depends(latest_result)]
+
+
+def frame_headers(result: FrameResult, **extra: str) -> dict[str, str]:
+    return {
+        "X-Frame-Seq": str(result.seq),
+        "X-Timestamp-Ns": str(result.ts_ns),
+        "X-Latency-Ms": f"{result.latency_ms:.2f}",
+        "Cache-Control": "no-store",
+        **extra,
+    }
+
+
+async def cached_body(result: FrameResult, key: str, produce: Callable[[], bytes]) -> bytes:
+    """The encoded body for ``key``: cached bytes at once, else encoded in a worker thread (the
+    event loop never encodes) — once per frame, whoever asks first."""
+    body = result.cache.peek(key)
+    if body is not None:
+        return body
+    return await run_in_threadpool(result.cache.get, key, produce)

@@ -1,0 +1,107 @@
+"""Response encodings of one depth frame: 16-bit PNG depth, npy, JPEG, colourised depth, PLY.
+
+All vectorised numpy plus OpenCV's encoders (which release the GIL), so encoding in a request
+thread does not stall the worker.
+"""
+
+from __future__ import annotations
+
+import io
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from rig.errors import PipelineError
+
+__all__ = [
+    "DISPARITY_PNG_SCALE",
+    "colorize_depth",
+    "depth_to_png16",
+    "disparity_to_png16",
+    "encode_jpeg",
+    "encode_png",
+    "npy_bytes",
+    "ply_bytes",
+]
+
+F32 = NDArray[np.float32]
+#: Disparity PNGs store 1/16 px units (OpenCV's fixed point), 0 = invalid.
+DISPARITY_PNG_SCALE = 1.0 / 16.0
+_PNG_FAST = [cv2.IMWRITE_PNG_COMPRESSION, 1]
+
+
+def depth_to_png16(depth: F32, scale_m: float) -> NDArray[np.uint16]:
+    """Depth (H, W) float32 m → uint16 units of ``scale_m`` (0.001 = mm), 0 where invalid (NaN,
+    ≤ 0) or beyond 65535 units (not saturated: a clipped depth would be a wrong depth)."""
+    with np.errstate(invalid="ignore"):
+        units = np.rint(np.asarray(depth, dtype=np.float64) / scale_m)
+        ok = np.isfinite(units) & (units > 0) & (units <= 65535)
+    return np.where(ok, units, 0).astype(np.uint16)
+
+
+def disparity_to_png16(disparity: F32) -> NDArray[np.uint16]:
+    """Disparity (H, W) float32 px → uint16 1/16 px, 0 where invalid or ≤ 0."""
+    with np.errstate(invalid="ignore"):
+        units = np.rint(np.asarray(disparity, dtype=np.float64) / DISPARITY_PNG_SCALE)
+        ok = np.isfinite(units) & (units > 0) & (units <= 65535)
+    return np.where(ok, units, 0).astype(np.uint16)
+
+
+def encode_png(image: NDArray[Any]) -> bytes:
+    ok, buf = cv2.imencode(".png", image, _PNG_FAST)
+    if not ok:
+        raise PipelineError(f"PNG encoding failed for an image of shape {image.shape}")
+    return bytes(buf.tobytes())
+
+
+def encode_jpeg(image: NDArray[Any], quality: int) -> bytes:
+    """JPEG of a gray (H, W) or BGR (H, W, 3) uint8 image."""
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise PipelineError(f"JPEG encoding failed for an image of shape {image.shape}")
+    return bytes(buf.tobytes())
+
+
+def npy_bytes(array: NDArray[Any]) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, np.ascontiguousarray(array), allow_pickle=False)
+    return buf.getvalue()
+
+
+def colorize_depth(depth: F32, near_m: float, far_m: float) -> NDArray[np.uint8]:
+    """BGR (H, W, 3) turbo colour map of log depth between ``near_m`` (red) and ``far_m``
+    (blue); invalid pixels black. A log scale keeps both a close hand and a far wall readable."""
+    d = np.asarray(depth, dtype=np.float32)
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(d) & (d > 0)
+    logd = np.log(np.where(valid, d, np.float32(far_m)))
+    lo, hi = np.float32(np.log(near_m)), np.float32(np.log(far_m))
+    t = np.clip((hi - logd) / (hi - lo), 0.0, 1.0)
+    gray = np.rint(t * 255.0).astype(np.uint8)
+    out = np.asarray(cv2.applyColorMap(gray, cv2.COLORMAP_TURBO), dtype=np.uint8)
+    out[~valid] = 0
+    return out
+
+
+def ply_bytes(points: NDArray[np.float32], colors: NDArray[np.uint8] | None = None) -> bytes:
+    """Binary little-endian PLY: ``x y z`` float32 (+ ``red green blue`` uchar) per vertex,
+    the layout of :func:`rig.depth.write_ply`, built in memory."""
+    pts = np.asarray(points, dtype="<f4").reshape(-1, 3)
+    fields: list[tuple[str, str]] = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    props = ["property float x", "property float y", "property float z"]
+    if colors is not None:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+        props += ["property uchar red", "property uchar green", "property uchar blue"]
+    rec = np.empty(pts.shape[0], dtype=fields)
+    rec["x"], rec["y"], rec["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
+    if colors is not None:
+        rgb = np.asarray(colors, dtype=np.uint8).reshape(-1, 3)
+        if rgb.shape[0] != pts.shape[0]:
+            raise PipelineError(f"PLY: {pts.shape[0]} points but {rgb.shape[0]} colours")
+        rec["red"], rec["green"], rec["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+    header = "\n".join(
+        ["ply", "format binary_little_endian 1.0", f"element vertex {pts.shape[0]}", *props, "end_header"]
+    )
+    return header.encode("ascii") + b"\n" + rec.tobytes()

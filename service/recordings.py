@@ -1,0 +1,287 @@
+"""Recordings made by the running service: the raw camera frames of the pairs the worker takes.
+
+``start(name)`` opens a :class:`~rig.recording.RecordingWriter` under ``recordings_dir/name``
+(with the rig's ``calibration.yaml``, so ``rig serve --recording`` replays it) and a writer
+thread; the worker hands every pair to :meth:`RecordingManager.offer`, which never blocks: a
+full queue drops the pair and counts it (``dropped`` in the listing). Frames are stored as the
+cameras delivered them (MJPEG byte-exact, PNG for rendered replays; decoded-only frames as
+lossless PNG). ``stop(name)`` drains the queue, closes the files and writes the stop time and
+counts into ``recording.json``.
+
+Names match :data:`NAME_PATTERN` (no separators, no ``..``) and are resolved under
+``recordings_dir`` and checked again after resolution, so no name can leave it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import queue
+import re
+import threading
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from calibration import save_rig
+from calibration.rig import Rig
+from rig.capture.frame import FramePair
+from rig.errors import RecordingError, RigError
+from rig.recording import RecordingWriter
+from service.errors import RecordingConflict, RecordingNameError, RecordingNotFound
+
+__all__ = ["NAME_PATTERN", "RecordingManager", "RecordingStatus", "recording_path", "validate_name"]
+
+log = logging.getLogger("service.recordings")
+
+#: 1-64 of A-Z a-z 0-9 . _ -, first a letter or digit, no ".." (ECMA/Python regex, lookahead).
+NAME_PATTERN = r"^(?!.*\.\.)[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
+_NAME_RE = re.compile(NAME_PATTERN)
+_STOP = object()
+
+
+def validate_name(name: str) -> str:
+    if not isinstance(name, str) or not _NAME_RE.fullmatch(name) or ".." in name:
+        raise RecordingNameError(
+            f"invalid recording name {name!r}: 1-64 characters of A-Z a-z 0-9 . _ -, "
+            "starting with a letter or digit, without '..'"
+        )
+    return name
+
+
+def recording_path(root: Path, name: str) -> Path:
+    """``root/name`` after validation, checked to lie directly inside ``root`` once resolved."""
+    validate_name(name)
+    base = root.expanduser().resolve()
+    path = (base / name).resolve()
+    if path.parent != base:
+        raise RecordingNameError(f"invalid recording name {name!r}: resolves outside {base}")
+    return path
+
+
+def _now_iso() -> str:
+    return datetime.now(UTC).isoformat(timespec="milliseconds")
+
+
+@dataclass(frozen=True)
+class RecordingStatus:
+    name: str
+    path: str
+    active: bool
+    pairs: int
+    bytes: int
+    dropped: int
+    started_at: str | None
+    stopped_at: str | None
+    error: str | None
+
+
+class _Active:
+    def __init__(self, name: str, path: Path, writer: RecordingWriter, queue_size: int) -> None:
+        self.name = name
+        self.path = path
+        self.writer = writer
+        self.queue: queue.Queue[Any] = queue.Queue(maxsize=queue_size)
+        self.started_at = _now_iso()
+        self.dropped = 0
+        self.error: str | None = None
+        self.last_seq: int | None = None
+        self.thread = threading.Thread(target=self._run, name=f"rig-recording-{name}", daemon=True)
+
+    def _run(self) -> None:
+        while True:
+            item = self.queue.get()
+            if item is _STOP:
+                return
+            if self.error is not None:
+                continue  # failed: drain without writing
+            try:
+                self._write(item)
+            except RigError as err:
+                self.error = str(err)
+                log.error("recording %s stopped writing: %s", self.name, err)
+
+    def _write(self, pair: FramePair) -> None:
+        if self.last_seq is not None and pair.seq <= self.last_seq:
+            raise RecordingError(
+                f"{self.path}: left camera seq went from {self.last_seq} back to {pair.seq} "
+                "(a looping replay with recorded timestamps; use timestamps: live)"
+            )
+        left, right = pair.left, pair.right
+        if left.raw is not None and right.raw is not None and left.extension == right.extension:
+            self.writer.write_pair(
+                pair.seq, left.ts_ns, right.ts_ns, left.raw, right.raw, ext=left.extension or ".jpg"
+            )
+        else:
+            self.writer.write_images(pair.seq, left.ts_ns, right.ts_ns, left.image, right.image)
+        self.last_seq = pair.seq
+
+
+def _dir_bytes(path: Path) -> int:
+    total = 0
+    for dirpath, _, files in os.walk(path):
+        for f in files:
+            try:
+                total += os.stat(os.path.join(dirpath, f)).st_size
+            except OSError:
+                continue
+    return total
+
+
+def _count_pairs(path: Path) -> int:
+    try:
+        with open(path / "frames.csv", "rb") as f:
+            lines = sum(1 for line in f if line.strip())
+    except OSError:
+        return 0
+    return max(0, lines - 1)
+
+
+class RecordingManager:
+    """Starts, feeds, stops and lists recordings under ``root`` (see module doc). Thread-safe."""
+
+    def __init__(self, root: Path, *, queue_size: int = 64, rig: Rig | None = None) -> None:
+        self.root = root.expanduser()
+        self.queue_size = queue_size
+        self.rig = rig
+        self._lock = threading.Lock()
+        self._active: _Active | None = None
+
+    def start(self, name: str, meta: dict[str, Any] | None = None) -> RecordingStatus:
+        path = recording_path(self.root, name)
+        with self._lock:
+            if self._active is not None:
+                raise RecordingConflict(f"recording {self._active.name!r} is running; stop it first")
+            if path.exists():
+                raise RecordingConflict(f"recording {name!r} already exists in {self.root}")
+            try:
+                self.root.mkdir(parents=True, exist_ok=True)
+                path.mkdir()
+            except FileExistsError:
+                raise RecordingConflict(f"recording {name!r} already exists in {self.root}") from None
+            except OSError as err:
+                raise RecordingError(f"{path}: cannot create the recording ({err.strerror})") from err
+            doc = {"source": "rig serve", "name": name, "started_at": _now_iso(), **(meta or {})}
+            writer = RecordingWriter(path, meta=doc)
+            if self.rig is not None:
+                try:
+                    save_rig(self.rig, path / "calibration.yaml")
+                except Exception as err:  # the frames matter more than the calibration copy
+                    log.warning("recording %s: calibration not saved: %s", name, err)
+            active = _Active(name, path, writer, self.queue_size)
+            active.started_at = doc["started_at"]
+            active.thread.start()
+            self._active = active
+            log.info("recording %s started in %s", name, path)
+            return self._status_active(active)
+
+    def offer(self, pair: FramePair) -> None:
+        """Queue a pair for the running recording (if any); never blocks, counts drops."""
+        active = self._active
+        if active is None:
+            return
+        try:
+            active.queue.put_nowait(pair)
+        except queue.Full:
+            active.dropped += 1
+
+    def stop(self, name: str) -> RecordingStatus:
+        validate_name(name)
+        with self._lock:
+            active = self._active
+            if active is None or active.name != name:
+                running = f"; running: {active.name!r}" if active is not None else "; none is running"
+                raise RecordingNotFound(f"recording {name!r} is not running{running}")
+            self._active = None
+        return self._finish(active)
+
+    def close(self) -> None:
+        """Stop the running recording, if any (service shutdown)."""
+        with self._lock:
+            active, self._active = self._active, None
+        if active is not None:
+            self._finish(active)
+
+    def _finish(self, active: _Active) -> RecordingStatus:
+        active.queue.put(_STOP)  # blocks only while the writer drains a full queue
+        active.thread.join()
+        try:
+            active.writer.close()
+        except RigError as err:
+            active.error = active.error or str(err)
+        stopped = _now_iso()
+        meta_path = active.path / "recording.json"
+        try:
+            doc = json.loads(meta_path.read_text(encoding="utf-8"))
+            doc.update(
+                stopped_at=stopped, pairs=active.writer.count, dropped=active.dropped, error=active.error
+            )
+            tmp = meta_path.with_name(meta_path.name + ".tmp")
+            tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+            os.replace(tmp, meta_path)
+        except (OSError, ValueError) as err:
+            log.warning("recording %s: could not note the stop in recording.json: %s", active.name, err)
+        log.info(
+            "recording %s stopped: %d pairs, %d dropped", active.name, active.writer.count, active.dropped
+        )
+        return RecordingStatus(
+            name=active.name,
+            path=str(active.path),
+            active=False,
+            pairs=active.writer.count,
+            bytes=_dir_bytes(active.path),
+            dropped=active.dropped,
+            started_at=active.started_at,
+            stopped_at=stopped,
+            error=active.error,
+        )
+
+    def _status_active(self, active: _Active) -> RecordingStatus:
+        return RecordingStatus(
+            name=active.name,
+            path=str(active.path),
+            active=True,
+            pairs=active.writer.count,
+            bytes=_dir_bytes(active.path),
+            dropped=active.dropped,
+            started_at=active.started_at,
+            stopped_at=None,
+            error=active.error,
+        )
+
+    @property
+    def active(self) -> RecordingStatus | None:
+        active = self._active
+        return None if active is None else self._status_active(active)
+
+    def list(self) -> list[RecordingStatus]:
+        """Every recording directory under ``root`` (those with a recording.json), by name."""
+        active = self._active
+        out: list[RecordingStatus] = []
+        if not self.root.is_dir():
+            return out
+        for path in sorted(p for p in self.root.iterdir() if (p / "recording.json").is_file()):
+            if active is not None and path.name == active.name:
+                out.append(self._status_active(active))
+                continue
+            try:
+                doc = json.loads((path / "recording.json").read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                doc = {}
+            doc = doc if isinstance(doc, dict) else {}
+            out.append(
+                RecordingStatus(
+                    name=path.name,
+                    path=str(path),
+                    active=False,
+                    pairs=_count_pairs(path),
+                    bytes=_dir_bytes(path),
+                    dropped=int(doc.get("dropped") or 0),
+                    started_at=doc.get("started_at"),
+                    stopped_at=doc.get("stopped_at"),
+                    error=doc.get("error"),
+                )
+            )
+        return out

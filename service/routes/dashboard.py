@@ -1,0 +1,37 @@
+"""``/``: the dashboard page and its two assets, served from the package (no build step)."""
+
+from __future__ import annotations
+
+from functools import cache
+from importlib import resources
+
+from fastapi import APIRouter, HTTPException, Response
+from fastapi.responses import HTMLResponse
+
+__all__ = ["router"]
+
+router = APIRouter(tags=["dashboard"])
+
+_ASSETS = {"app.js": "text/javascript; charset=utf-8", "style.css": "text/css; charset=utf-8"}
+
+
+@cache
+def _read(name: str) -> bytes:
+    return resources.files("service").joinpath("dashboard", name).read_bytes()
+
+
+@router.get("/", response_class=HTMLResponse, summary="Dashboard page")
+def dashboard() -> HTMLResponse:
+    return HTMLResponse(_read("index.html"), headers={"Cache-Control": "no-cache"})
+
+
+@router.get("/favicon.ico", include_in_schema=False)
+def favicon() -> Response:
+    return Response(status_code=204)
+
+
+@router.get("/dashboard/{name}", include_in_schema=False)
+def dashboard_asset(name: str) -> Response:
+    if name not in _ASSETS:
+        raise HTTPException(404, f"no dashboard asset {name!r}")
+    return Response(_read(name), media_type=_ASSETS[name], headers={"Cache-Control": "no-cache"})

@@ -1,0 +1,127 @@
+"""Depth, disparity, colourised depth and point cloud of the latest frame."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Query, Response
+
+from service.deps import ResultDep, RuntimeDep, SettingsDep, binary_response_doc, cached_body, frame_headers
+from service.encoders import (
+    DISPARITY_PNG_SCALE,
+    colorize_depth,
+    depth_to_png16,
+    disparity_to_png16,
+    encode_jpeg,
+    encode_png,
+    npy_bytes,
+    ply_bytes,
+)
+from service.runtime import Runtime
+from service.store import FrameResult
+
+__all__ = ["colorized_body", "router"]
+
+router = APIRouter(tags=["depth"])
+
+NPY = "application/x-npy"
+PLY = "application/x-ply"
+ArrayFormat = Literal["png", "npy"]
+
+
+@router.get(
+    "/depth",
+    response_class=Response,
+    summary="Latest depth map",
+    responses=binary_response_doc(
+        "png: uint16 in units of X-Depth-Scale metres (1 mm default), 0 = invalid; npy: float32 metres, "
+        "NaN = invalid. z in the left VPC frame.",
+        "image/png",
+        NPY,
+        depth_scale=True,
+    ),
+)
+async def get_depth(
+    result: ResultDep,
+    settings: SettingsDep,
+    format: Annotated[ArrayFormat, Query(description="png (16-bit) or npy (float32 m)")] = "png",
+) -> Response:
+    scale = settings.server.depth_scale_m
+    depth = result.frame.depth
+    if format == "npy":
+        body = await cached_body(result, "depth_npy", lambda: npy_bytes(depth))
+        return Response(body, media_type=NPY, headers=frame_headers(result, **{"X-Depth-Scale": "1"}))
+    body = await cached_body(result, "depth_png", lambda: encode_png(depth_to_png16(depth, scale)))
+    return Response(
+        body, media_type="image/png", headers=frame_headers(result, **{"X-Depth-Scale": f"{scale:g}"})
+    )
+
+
+@router.get(
+    "/disparity",
+    response_class=Response,
+    summary="Latest disparity map",
+    responses=binary_response_doc(
+        "png: uint16 in 1/16 px (X-Disparity-Scale), 0 = invalid; npy: float32 px, NaN = invalid.",
+        "image/png",
+        NPY,
+    ),
+)
+async def get_disparity(
+    result: ResultDep,
+    format: Annotated[ArrayFormat, Query(description="png (16-bit, 1/16 px) or npy (float32 px)")] = "png",
+) -> Response:
+    disp = result.frame.disparity
+    if format == "npy":
+        body = await cached_body(result, "disparity_npy", lambda: npy_bytes(disp))
+        return Response(body, media_type=NPY, headers=frame_headers(result, **{"X-Disparity-Scale": "1"}))
+    body = await cached_body(result, "disparity_png", lambda: encode_png(disparity_to_png16(disp)))
+    headers = frame_headers(result, **{"X-Disparity-Scale": f"{DISPARITY_PNG_SCALE:g}"})
+    return Response(body, media_type="image/png", headers=headers)
+
+
+async def colorized_body(runtime: Runtime, result: FrameResult) -> bytes:
+    """The colour-mapped depth JPEG of ``result`` (shared by /depth/colorized and the stream)."""
+    near, far = runtime.settings.server.color_range_m
+    quality = runtime.settings.server.jpeg_quality
+    depth = result.frame.depth
+    return await cached_body(
+        result, "colorized", lambda: encode_jpeg(colorize_depth(depth, near, far), quality)
+    )
+
+
+@router.get(
+    "/depth/colorized",
+    response_class=Response,
+    summary="Latest depth as a colour-mapped JPEG (the dashboard's and the stream's image)",
+    responses=binary_response_doc("turbo colour map of inverse depth; black = invalid", "image/jpeg"),
+)
+async def get_depth_colorized(runtime: RuntimeDep, result: ResultDep) -> Response:
+    body = await colorized_body(runtime, result)
+    return Response(body, media_type="image/jpeg", headers=frame_headers(result))
+
+
+@router.get(
+    "/pointcloud",
+    response_class=Response,
+    summary="Latest point cloud (binary PLY, rig frame, metres)",
+    responses=binary_response_doc(
+        "binary little-endian PLY: x y z float32 (rig frame, m) and red green blue uchar", PLY
+    ),
+)
+async def get_pointcloud(
+    runtime: RuntimeDep,
+    result: ResultDep,
+    stride: Annotated[int, Query(ge=1, le=64, description="use every stride-th pixel of each axis")] = 1,
+) -> Response:
+    pipeline = runtime.pipeline
+
+    def produce() -> bytes:
+        points, colors = pipeline.point_cloud(result.frame, stride)
+        return ply_bytes(points, colors)
+
+    body = await cached_body(result, f"pointcloud:{stride}", produce)
+    headers = frame_headers(
+        result, **{"Content-Disposition": f'inline; filename="depth_{result.seq:06d}.ply"'}
+    )
+    return Response(body, media_type=PLY, headers=headers)

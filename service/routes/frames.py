@@ -1,0 +1,47 @@
+"""Camera frames of the latest processed pair: the raw fisheye frames and the VPC images."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, HTTPException, Path, Query, Response
+
+from rig.capture.capture import CAMERA_NAMES
+from service.deps import ResultDep, SettingsDep, binary_response_doc, cached_body, frame_headers
+from service.encoders import encode_jpeg
+
+__all__ = ["router"]
+
+router = APIRouter(tags=["frames"])
+
+_DOC = binary_response_doc(
+    "JPEG. raw: the fisheye frame as the camera delivered it (MJPEG bytes unchanged; other formats "
+    "encoded once); vpc: the rectified virtual pinhole image.",
+    "image/jpeg",
+)
+_DOC[404] = {"description": "unknown camera", "content": {"application/json": {"schema": {"type": "object"}}}}
+
+
+@router.get("/frames/{camera}", response_class=Response, summary="Latest frame of one camera", responses=_DOC)
+async def get_frame(
+    result: ResultDep,
+    settings: SettingsDep,
+    camera: Annotated[str, Path(description="left or right")],
+    view: Annotated[Literal["raw", "vpc"], Query(description="raw fisheye frame or VPC image")] = "vpc",
+) -> Response:
+    if camera not in CAMERA_NAMES:
+        raise HTTPException(404, f"unknown camera {camera!r}; cameras: {', '.join(CAMERA_NAMES)}")
+    quality = settings.server.jpeg_quality
+    headers = frame_headers(result, **{"X-Camera": camera, "X-View": view})
+    if view == "vpc":
+        image = result.frame.left_vpc if camera == "left" else result.frame.right_vpc
+        body = await cached_body(result, f"vpc:{camera}", lambda: encode_jpeg(image, quality))
+        return Response(body, media_type="image/jpeg", headers=headers)
+    raw = result.raw_frame(camera)
+    # X-Frame-Seq/X-Timestamp-Ns stay the pair's (as on every endpoint); this camera's own:
+    headers["X-Camera-Seq"] = str(raw.seq)
+    headers["X-Camera-Timestamp-Ns"] = str(raw.ts_ns)
+    if raw.format == "jpeg" and raw.raw is not None:
+        return Response(raw.raw, media_type="image/jpeg", headers=headers)
+    body = await cached_body(result, f"raw:{camera}", lambda: encode_jpeg(raw.image, quality))
+    return Response(body, media_type="image/jpeg", headers=headers)

@@ -1,0 +1,86 @@
+"""``/health`` (DESIGN §7, extended), ``/livez`` and ``/readyz``."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+from fastapi.responses import JSONResponse
+
+from service.deps import RuntimeDep
+from service.runtime import HealthReport
+from service.schemas import (
+    CameraHealthModel,
+    HealthModel,
+    HostModel,
+    PairingHealthModel,
+    ProbeModel,
+    RecordingInfo,
+    WorkerHealthModel,
+)
+
+__all__ = ["health_model", "router"]
+
+router = APIRouter(tags=["health"])
+
+
+def health_model(report: HealthReport) -> HealthModel:
+    p = report.capture.pairing
+    w = report.worker
+    cams = {
+        name: CameraHealthModel.model_validate(c, from_attributes=True)
+        for name, c in report.capture.cameras.items()
+    }
+    return HealthModel(
+        status=report.status,
+        reasons=report.reasons,
+        uptime_s=report.uptime_s,
+        cameras=cams,
+        worker=WorkerHealthModel.model_validate(w, from_attributes=True),
+        pairing=PairingHealthModel(
+            skew_ms=p.skew_ms_p50,
+            skew_ms_p95=p.skew_ms_p95,
+            skew_gate_ms=p.skew_gate_ms,
+            pairs_formed=p.pairs_formed,
+            pairs_taken=p.pairs_taken,
+            pairs_skipped=p.pairs_skipped,
+            pairs_evicted=p.pairs_evicted,
+        ),
+        host=HostModel.model_validate(report.host, from_attributes=True),
+        recording=None
+        if report.recording is None
+        else RecordingInfo.model_validate(report.recording, from_attributes=True),
+    )
+
+
+@router.get(
+    "/health",
+    response_model=HealthModel,
+    summary="Service health: 200 ok/degraded, 503 down",
+    responses={503: {"model": HealthModel, "description": "down: no camera delivers or the worker stopped"}},
+)
+def get_health(runtime: RuntimeDep) -> JSONResponse:
+    model = health_model(runtime.health())
+    return JSONResponse(model.model_dump(mode="json"), status_code=503 if model.status == "down" else 200)
+
+
+@router.get(
+    "/livez",
+    response_model=ProbeModel,
+    summary="Liveness: 200 while the process and its depth worker run",
+    responses={503: {"model": ProbeModel}},
+)
+async def get_livez(runtime: RuntimeDep) -> JSONResponse:
+    if runtime.worker.is_alive():
+        return JSONResponse({"status": "ok", "detail": None})
+    return JSONResponse({"status": "down", "detail": "depth worker not running"}, status_code=503)
+
+
+@router.get(
+    "/readyz",
+    response_model=ProbeModel,
+    summary="Readiness: 200 once a depth frame has been produced",
+    responses={503: {"model": ProbeModel}},
+)
+async def get_readyz(runtime: RuntimeDep) -> JSONResponse:
+    if runtime.store.latest is not None:
+        return JSONResponse({"status": "ready", "detail": None})
+    return JSONResponse({"status": "not ready", "detail": "no depth frame yet"}, status_code=503)

@@ -1,0 +1,72 @@
+"""``/recordings``: record the raw frames the service processes.
+
+``POST /recordings {"name": N}`` starts recording into ``server.recordings_dir/N`` (201);
+``POST /recordings/{name}/stop`` stops it (200, with the final counts); ``GET /recordings``
+lists every recording there. One recording runs at a time; both POSTs need the bearer token.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, HTTPException, Path
+
+from rig.errors import DiskFullError, RigError
+from service.deps import RuntimeDep
+from service.errors import RecordingConflict, RecordingNameError, RecordingNotFound
+from service.recordings import NAME_PATTERN, RecordingStatus
+from service.schemas import BODY_ERRORS, ErrorModel, RecordingInfo, RecordingStart
+from service.security import AuthDep
+
+__all__ = ["router"]
+
+router = APIRouter(tags=["recordings"])
+
+# Documented with the pattern, checked by validate_name (422): FastAPI's parameter validation
+# uses pydantic's Rust regex engine, which has no lookahead.
+NameParam = Annotated[str, Path(description="recording name", json_schema_extra={"pattern": NAME_PATTERN})]
+
+
+def _info(status: RecordingStatus) -> RecordingInfo:
+    return RecordingInfo.model_validate(status, from_attributes=True)
+
+
+@router.get("/recordings", response_model=list[RecordingInfo], summary="Recordings on this device")
+def list_recordings(runtime: RuntimeDep) -> list[RecordingInfo]:
+    return [_info(s) for s in runtime.recordings.list()]
+
+
+@router.post(
+    "/recordings",
+    response_model=RecordingInfo,
+    status_code=201,
+    summary="Start recording the camera pairs",
+    responses={**BODY_ERRORS, 409: {"model": ErrorModel}, 507: {"model": ErrorModel}},
+)
+def start_recording(body: RecordingStart, runtime: RuntimeDep, _auth: AuthDep) -> RecordingInfo:
+    meta = {"vpc": runtime.pipeline.pair.as_json()}
+    try:
+        return _info(runtime.recordings.start(body.name, meta))
+    except RecordingNameError as err:
+        raise HTTPException(422, str(err)) from err
+    except RecordingConflict as err:
+        raise HTTPException(409, str(err)) from err
+    except DiskFullError as err:
+        raise HTTPException(507, str(err)) from err
+    except RigError as err:
+        raise HTTPException(500, str(err)) from err
+
+
+@router.post(
+    "/recordings/{name}/stop",
+    response_model=RecordingInfo,
+    summary="Stop the running recording",
+    responses={**BODY_ERRORS, 404: {"model": ErrorModel}},
+)
+def stop_recording(name: NameParam, runtime: RuntimeDep, _auth: AuthDep) -> RecordingInfo:
+    try:
+        return _info(runtime.recordings.stop(name))
+    except RecordingNameError as err:
+        raise HTTPException(422, str(err)) from err
+    except RecordingNotFound as err:
+        raise HTTPException(404, str(err)) from err

@@ -1,0 +1,201 @@
+"""Everything a running service holds: calibration, pipeline, capture, worker, result store,
+recordings and metrics, built from :class:`~service.settings.Settings` and started/stopped as one.
+
+:meth:`Runtime.build` does all the fallible work (calibration file, LUTs, opening the recording
+of file cameras) before anything starts, so a bad configuration is one error, not a half-running
+service. :meth:`Runtime.stop` joins the worker, finishes a running recording and joins the
+capture threads.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from calibration import load_rig
+from calibration.rig import Rig
+from rig.capture.capture import CAMERA_NAMES, StereoCapture
+from rig.capture.config import CaptureConfig, FileCameraConfig
+from rig.capture.health import CaptureHealth
+from rig.pipeline import DepthPipeline
+from rig.recording import Recording
+from service.errors import SettingsError
+from service.host import HostInfo, host_info
+from service.metrics import MetricsSnapshot, ServiceMetrics
+from service.recordings import RecordingManager, RecordingStatus
+from service.settings import Settings
+from service.store import ResultStore
+from service.worker import DepthWorker, WorkerStats
+
+__all__ = ["HealthReport", "Runtime", "resolve_calibration"]
+
+log = logging.getLogger("service.runtime")
+
+
+def resolve_calibration(settings: Settings) -> Path:
+    """``calibration.path``, else the ``calibration.yaml`` of the recording both file cameras
+    replay; SettingsError naming the field otherwise."""
+    if settings.calibration.path is not None:
+        return settings.calibration.path
+    cams = settings.cameras
+    if (
+        cams is not None
+        and isinstance(cams.left, FileCameraConfig)
+        and isinstance(cams.right, FileCameraConfig)
+    ):
+        candidate = cams.left.recording / "calibration.yaml"
+        if cams.left.recording == cams.right.recording and candidate.is_file():
+            return candidate
+    raise SettingsError(
+        "settings: field 'calibration.path': not set, and the cameras replay no recording with a "
+        "calibration.yaml"
+    )
+
+
+def _check_sizes(settings_cams: CaptureConfig, capture: StereoCapture, rig: Rig) -> None:
+    """Frames of another size than the calibration's would give wrong depth: refuse at start."""
+    for name in CAMERA_NAMES:
+        info = capture.camera(name).info()
+        model = rig.cameras[name]
+        if info.width and info.height and (info.width, info.height) != (model.width, model.height):
+            source = "recording" if isinstance(settings_cams.camera(name), FileCameraConfig) else "config"
+            raise SettingsError(
+                f"settings: field 'cameras.{name}': the camera's {source} gives {info.width}x{info.height} "
+                f"frames but its calibration is {model.width}x{model.height}"
+            )
+
+
+HealthStatus = Literal["ok", "degraded", "down"]
+
+
+@dataclass(frozen=True)
+class HealthReport:
+    status: HealthStatus
+    reasons: list[str]
+    uptime_s: float
+    capture: CaptureHealth
+    worker: WorkerStats
+    host: HostInfo
+    recording: RecordingStatus | None
+
+
+class Runtime:
+    """The running parts of one service (see module doc)."""
+
+    def __init__(
+        self,
+        settings: Settings,
+        rig: Rig,
+        pipeline: DepthPipeline,
+        capture: StereoCapture,
+        calibration_path: Path | None = None,
+    ) -> None:
+        self.settings = settings
+        self.rig = rig
+        self.pipeline = pipeline
+        self.capture = capture
+        self.calibration_path = calibration_path
+        self.store = ResultStore()
+        self.recordings = RecordingManager(
+            settings.server.recordings_dir, queue_size=settings.server.recording_queue, rig=rig
+        )
+        self.metrics = ServiceMetrics(self.metrics_snapshot)
+        self.worker = DepthWorker(
+            capture, pipeline, self.store, on_pair=self.recordings.offer, on_result=self.metrics.observe
+        )
+        self.started_ns = time.monotonic_ns()
+        self.calibration_doc: Any = None  # /calibration's response, made on first request
+        self._running = False
+
+    @classmethod
+    def build(cls, settings: Settings) -> Runtime:
+        """Load the calibration, build the pipeline (LUTs from the cache) and the capture."""
+        if settings.cameras is None:
+            raise SettingsError(
+                "settings: field 'cameras': no cameras configured (give --config, --recording or --demo)"
+            )
+        calibration = resolve_calibration(settings)
+        rig = load_rig(calibration)
+        for name in CAMERA_NAMES:
+            if name not in rig.cameras:
+                raise SettingsError(
+                    f"{calibration}: the rig has no camera {name!r} (has {', '.join(rig.names)})"
+                )
+        pipeline = DepthPipeline(rig, vpc=settings.vpc, stereo=settings.stereo, cache_dir=settings.cache_dir)
+        for name in CAMERA_NAMES:
+            cam = settings.cameras.camera(name)
+            if isinstance(cam, FileCameraConfig):
+                Recording(cam.recording)  # RecordingError naming the file, before any thread starts
+        capture = StereoCapture(settings.cameras)
+        _check_sizes(settings.cameras, capture, rig)
+        return cls(settings, rig, pipeline, capture, calibration)
+
+    # ----- lifecycle ---------------------------------------------------------------------------
+    def start(self) -> None:
+        if self._running:
+            return
+        self._running = True
+        self.started_ns = time.monotonic_ns()
+        self.capture.start()
+        self.worker.start()
+        log.info(
+            "depth service running: VPC %s, baseline %.4f m",
+            self.pipeline.pair.as_json(),
+            self.pipeline.baseline_m,
+        )
+
+    def stop(self) -> None:
+        """Join the worker, finish a running recording, join the capture threads; idempotent."""
+        self.worker.stop()
+        self.recordings.close()
+        self.capture.stop()
+        self._running = False
+
+    # ----- state -------------------------------------------------------------------------------
+    def metrics_snapshot(self) -> MetricsSnapshot:
+        return MetricsSnapshot(
+            capture=self.capture.health(),
+            worker=self.worker.stats(),
+            encodes=self.store.counter.snapshot(),
+            recording=self.recordings.active,
+        )
+
+    def health(self) -> HealthReport:
+        """``down``: no camera delivers, the worker or the capture is not running; ``degraded``:
+        one camera out, no depth yet or depth older than ``server.stale_after_s``; else ``ok``."""
+        cap = self.capture.health()
+        worker = self.worker.stats()
+        reasons: list[str] = []
+        for name, cam in cap.cameras.items():
+            if not cam.connected:
+                why = cam.reason or cam.last_error or "no frames yet"
+                reasons.append(f"camera {name} {cam.state}: {why}")
+        if not worker.alive:
+            reasons.append("depth worker not running")
+        stale_ms = self.settings.server.stale_after_s * 1e3
+        if worker.last_result_age_ms is None:
+            reasons.append("no depth frame yet")
+        elif worker.last_result_age_ms > stale_ms:
+            reasons.append(f"no depth frame for {worker.last_result_age_ms / 1e3:.1f} s")
+        if (
+            worker.last_error is not None
+            and worker.last_error_age_ms is not None
+            and worker.last_error_age_ms < stale_ms
+        ):
+            reasons.append(f"depth worker error: {worker.last_error}")
+        down = not cap.running or not worker.alive or not any(c.connected for c in cap.cameras.values())
+        if not cap.running:
+            reasons.append("capture not running")
+        status: HealthStatus = "down" if down else ("degraded" if reasons else "ok")
+        return HealthReport(
+            status=status,
+            reasons=reasons,
+            uptime_s=(time.monotonic_ns() - self.started_ns) / 1e9,
+            capture=cap,
+            worker=worker,
+            host=host_info(self.settings.server.recordings_dir),
+            recording=self.recordings.active,
+        )

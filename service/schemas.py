@@ -1,0 +1,247 @@
+"""Request and response models of the HTTP API (also the typed results of ``RigClient``)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal, Optional
+
+from annotated_types import MultipleOf
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model, field_validator
+from pydantic.json_schema import JsonDict
+
+from rig.capture.faults import Fault
+from rig.stereo import StereoParams
+from rig.vpc import VpcConfig
+from service.recordings import NAME_PATTERN, validate_name
+
+__all__ = [
+    "BODY_ERRORS",
+    "CalibrationModel",
+    "CameraCalibrationModel",
+    "CameraHealthModel",
+    "ConfigModel",
+    "ConfigPatch",
+    "ErrorModel",
+    "FaultRequest",
+    "HealthModel",
+    "HostModel",
+    "PairingHealthModel",
+    "ProbeModel",
+    "RecordingInfo",
+    "RecordingStart",
+    "ServerPublicModel",
+    "StereoPatch",
+    "VpcModel",
+    "WorkerHealthModel",
+]
+
+
+class ErrorModel(BaseModel):
+    detail: Any = Field(description="what went wrong (a string, or FastAPI's list of validation errors)")
+
+
+#: Statuses every endpoint with a JSON body or the bearer token can answer with.
+BODY_ERRORS: dict[int | str, dict[str, Any]] = {
+    400: {"model": ErrorModel, "description": "body is not valid JSON / invalid Content-Length"},
+    401: {"model": ErrorModel, "description": "missing or wrong bearer token"},
+    413: {"model": ErrorModel, "description": "body larger than server.max_body_bytes"},
+    422: {"model": ErrorModel, "description": "invalid parameters"},
+}
+
+
+class ProbeModel(BaseModel):
+    status: Literal["ok", "ready", "not ready", "down"]
+    detail: str | None = None
+
+
+class CameraHealthModel(BaseModel):
+    name: str
+    kind: str
+    device: str
+    state: str = Field(description="starting, available, unavailable, ended or stopped")
+    reason: str | None = Field(description="why the camera is not available")
+    connected: bool
+    fps: float
+    nominal_fps: float | None
+    frames_received: int
+    frames_dropped: int = Field(description="lost + unpaired + evicted")
+    frames_lost: int
+    frames_corrupt: int
+    timestamp_errors: int
+    reconnects: int
+    last_frame_age_ms: float | None
+    last_seq: int | None
+    last_error: str | None
+    format: str
+    width: int
+    height: int
+
+
+class WorkerHealthModel(BaseModel):
+    alive: bool
+    fps: float
+    latency_ms: float | None = Field(description="mean processing time per pair (decode to depth)")
+    age_ms: float | None = Field(description="mean time from a frame's arrival to its depth being served")
+    frames_processed: int
+    errors: int
+    last_error: str | None
+    last_seq: int | None
+    last_result_age_ms: float | None
+    stage_ms: dict[str, float]
+
+
+class PairingHealthModel(BaseModel):
+    skew_ms: float | None = Field(description="median |left - right| capture time difference")
+    skew_ms_p95: float | None
+    skew_gate_ms: float
+    pairs_formed: int
+    pairs_taken: int
+    pairs_skipped: int
+    pairs_evicted: int
+
+
+class HostModel(BaseModel):
+    cpu_temp_c: float | None = Field(description="hottest CPU thermal zone; null where the board has none")
+    load_avg: tuple[float, float, float] | None
+    cpu_count: int | None
+    disk_free_bytes: int | None = Field(description="free space where recordings go")
+    disk_path: str
+
+
+class RecordingInfo(BaseModel):
+    name: str
+    path: str
+    active: bool
+    pairs: int
+    bytes: int
+    dropped: int = Field(description="pairs the writer could not keep up with (queue full)")
+    started_at: str | None
+    stopped_at: str | None
+    error: str | None
+
+
+class HealthModel(BaseModel):
+    status: Literal["ok", "degraded", "down"]
+    reasons: list[str]
+    uptime_s: float
+    cameras: dict[str, CameraHealthModel]
+    worker: WorkerHealthModel
+    pairing: PairingHealthModel
+    host: HostModel
+    recording: RecordingInfo | None
+
+
+class VpcModel(BaseModel):
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline_m: float
+    hfov_deg: float
+    yaw_deg: float
+    pitch_deg: float
+    T_rig_vpc: dict[str, list[list[float]]]
+
+
+class CameraCalibrationModel(BaseModel):
+    model: str
+    width: int
+    height: int
+    params: dict[str, float]
+    fov_deg: float | None = None
+    T_rig_cam: list[list[float]]
+    footprint: list[tuple[float, float]] = Field(description="VPC border traced in this fisheye image (px)")
+    valid_fraction: float | None = Field(description="share of VPC pixels this lens sees")
+
+
+class CalibrationModel(BaseModel):
+    cameras: dict[str, CameraCalibrationModel]
+    vpc: VpcModel
+    baseline_m: float
+    depth_scale_m: float
+    source: str | None
+
+
+class ServerPublicModel(BaseModel):
+    host: str
+    port: int
+    depth_scale_m: float
+    jpeg_quality: int
+    stream_fps: float
+    cors_origins: list[str]
+    max_body_bytes: int
+    recordings_dir: str
+    api_token_set: bool
+
+
+class ConfigModel(BaseModel):
+    stereo: StereoParams
+    vpc: VpcConfig
+    server: ServerPublicModel
+    cameras: dict[str, Any] | None
+
+
+def _reject_bool(value: Any) -> Any:
+    # JSON true/false equal 1/0 in Python; for a number or a Literal[0, 3, 5] they are no numbers.
+    if isinstance(value, bool):
+        raise ValueError("must be a number, not a boolean")
+    return value
+
+
+# StereoParams checks these in a model validator; stated per field so the schema says it too.
+_ODD: JsonDict = {"not": {"multipleOf": 2}}
+_EXTRA_CONSTRAINTS: dict[str, list[Any]] = {
+    "disparity_range": [MultipleOf(16)],
+    "correlation_window_size": [Field(json_schema_extra=_ODD)],
+    "prefilter_size": [Field(json_schema_extra=_ODD)],
+    "subpixel_window": [Field(json_schema_extra=_ODD)],
+}
+
+
+def _optional_fields(model: type[BaseModel]) -> dict[str, Any]:
+    annotated: Any = Annotated  # built at runtime from each field's own constraints
+    optional: Any = Optional
+    fields: dict[str, Any] = {}
+    for name, info in model.model_fields.items():
+        inner: Any = info.annotation
+        metadata = [*info.metadata, *_EXTRA_CONSTRAINTS.get(name, [])]
+        if inner is not bool:
+            metadata.append(BeforeValidator(_reject_bool))
+        if metadata:
+            inner = annotated[(inner, *metadata)]
+        fields[name] = (optional[inner], Field(None, description=info.description))
+    return fields
+
+
+#: Every StereoParams field, optional: the fields given replace the current ones. Strict, as
+#: the schema says (JSON 0 is not false); the merged set is validated again as StereoParams.
+StereoPatch: Any = create_model(
+    "StereoPatch", __config__=ConfigDict(extra="forbid", strict=True), **_optional_fields(StereoParams)
+)
+
+
+class ConfigPatch(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    stereo: StereoPatch = Field(
+        description="stereo parameters to change (rig.stereo.StereoParams names); absent or null = keep"
+    )
+
+
+class RecordingStart(BaseModel):
+    # The name pattern has a lookahead (no ".."), which pydantic's default Rust engine lacks.
+    model_config = ConfigDict(extra="forbid", regex_engine="python-re")
+
+    name: str = Field(pattern=NAME_PATTERN, description="directory name under server.recordings_dir")
+
+    @field_validator("name")
+    @classmethod
+    def _plain_name(cls, v: str) -> str:
+        return validate_name(v)
+
+
+class FaultRequest(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    fault: Fault

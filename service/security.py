@@ -1,0 +1,109 @@
+"""Security of the HTTP API: bearer-token check for state-changing endpoints and a request
+body size limit.
+
+Every endpoint that changes state requires ``Authorization: Bearer <server.api_token>``; when no
+token is configured (allowed only on a loopback bind) those endpoints refuse everyone, so a page
+in a local browser cannot change anything behind the user's back. The token comparison is
+constant-time.
+"""
+
+from __future__ import annotations
+
+import hmac
+import json
+from typing import Annotated
+
+from fastapi import Depends, HTTPException, Request
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+__all__ = ["AuthDep", "BodySizeLimit", "require_token"]
+
+
+async def require_token(request: Request) -> None:
+    """FastAPI dependency: 401 unless the request carries the configured bearer token."""
+    expected = request.app.state.settings.server.token
+    challenge = {"WWW-Authenticate": "Bearer"}
+    if expected is None:
+        raise HTTPException(
+            401,
+            "state-changing endpoints are disabled: no API token configured (set RIG_API_TOKEN)",
+            challenge,
+        )
+    header = request.headers.get("authorization", "")
+    scheme, _, token = header.partition(" ")
+    if scheme.lower() != "bearer" or not token:
+        raise HTTPException(401, "missing bearer token (Authorization: Bearer <token>)", challenge)
+    if not hmac.compare_digest(token.strip().encode(), expected.encode()):
+        raise HTTPException(401, "invalid bearer token", challenge)
+
+
+AuthDep = Annotated[None, Depends(require_token)]
+
+
+class _TooLarge(HTTPException):
+    """Raised from inside the body read: FastAPI passes HTTPExceptions through to its handler."""
+
+
+class BodySizeLimit:
+    """ASGI middleware: 413 JSON ``{"detail": ...}`` for request bodies over ``max_bytes``,
+    judged by Content-Length up front and by counting a streamed (chunked) body."""
+
+    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        for name, value in scope.get("headers", []):
+            if name == b"content-length":
+                try:
+                    declared = int(value)
+                except ValueError:
+                    await self._reject(send, 400, "invalid Content-Length header")
+                    return
+                if declared > self.max_bytes:
+                    await self._reject(send, 413, self._message())
+                    return
+        received = 0
+        started = False
+
+        async def counting_receive() -> Message:
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > self.max_bytes:
+                    raise _TooLarge(413, f"request body larger than {self.max_bytes} bytes")
+            return message
+
+        async def tracking_send(message: Message) -> None:
+            nonlocal started
+            if message["type"] == "http.response.start":
+                started = True
+            await send(message)
+
+        try:
+            await self.app(scope, counting_receive, tracking_send)
+        except _TooLarge:
+            if not started:
+                await self._reject(send, 413, self._message())
+
+    def _message(self) -> str:
+        return f"request body larger than {self.max_bytes} bytes"
+
+    @staticmethod
+    async def _reject(send: Send, status: int, detail: str) -> None:
+        body = json.dumps({"detail": detail}).encode()
+        await send(
+            {
+                "type": "http.response.start",
+                "status": status,
+                "headers": [
+                    (b"content-type", b"application/json"),
+                    (b"content-length", str(len(body)).encode()),
+                ],
+            }
+        )
+        await send({"type": "http.response.body", "body": body})

@@ -1,0 +1,312 @@
+"""Service settings: a YAML config file plus ``RIG_*`` environment variables (pydantic-settings).
+
+Precedence, highest first: explicit overrides (the CLI's ``--host``/``--port``…), environment
+(``RIG_SERVER__PORT=9000``, nested with ``__``; ``RIG_API_TOKEN`` for ``server.api_token``), the
+config file (``--config FILE`` or ``RIG_CONFIG``), defaults. Relative paths in the config file
+resolve relative to the file; relative paths from the environment to the working directory.
+
+```yaml
+server: {host: 127.0.0.1, port: 8000, depth_scale_m: 0.001, recordings_dir: recordings}
+cameras:                         # rig.capture.CaptureConfig; omitted = no cameras (demo)
+  left:  {kind: v4l2, device: /dev/rig/left}
+  right: {kind: v4l2, device: /dev/rig/right}
+calibration: {path: rig.yaml}    # rig.yaml or Kalibr camchain.yaml
+vpc: {width: 640, height: 480, hfov_deg: 90}
+stereo: {disparity_range: 128}   # rig.stereo.StereoParams
+cache_dir: null                  # LUT cache (default: $RIG_CACHE_DIR or the user cache dir)
+```
+
+Nothing here touches a camera or a file other than the config file: building the runtime is
+:mod:`service.runtime`'s job.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from contextvars import ContextVar
+from pathlib import Path
+from typing import Any
+
+import platformdirs
+import yaml
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SecretStr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+from pydantic.fields import FieldInfo
+from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
+
+from rig.capture.config import CaptureConfig
+from rig.stereo import StereoParams
+from rig.vpc import VpcConfig
+from service.errors import SettingsError
+
+__all__ = [
+    "CONFIG_ENV",
+    "TOKEN_ENV",
+    "CalibrationSettings",
+    "ServerSettings",
+    "Settings",
+    "is_loopback",
+    "load_settings",
+    "settings_summary",
+]
+
+CONFIG_ENV = "RIG_CONFIG"
+TOKEN_ENV = "RIG_API_TOKEN"
+ENV_PREFIX = "RIG_"
+MIN_TOKEN_CHARS = 16
+DEPTH_SCALES = (0.001, 0.0001)
+
+
+def default_recordings_dir() -> Path:
+    return Path(platformdirs.user_data_dir("odfc-rig")) / "recordings"
+
+
+def is_loopback(host: str) -> bool:
+    """True for ``localhost`` and loopback IP literals (127.0.0.0/8, ::1)."""
+    if host.strip().lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+class ServerSettings(BaseModel):
+    """HTTP server, security and response options."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    host: str = Field("127.0.0.1", min_length=1, description="bind address; non-loopback needs a token")
+    port: int = Field(8000, ge=0, le=65535, description="TCP port (0 = any free port)")
+    api_token: SecretStr | None = Field(
+        None, description=f"bearer token for state-changing endpoints (env {TOKEN_ENV})"
+    )
+    cors_origins: list[str] = Field(default_factory=list, description="allowed CORS origins; [] = CORS off")
+    max_body_bytes: int = Field(64 * 1024, ge=256, le=64 * 1024 * 1024, description="request body limit")
+    depth_scale_m: float = Field(
+        0.001, description="metres per unit of the 16-bit depth PNG: 0.001 or 0.0001"
+    )
+    recordings_dir: Path = Field(default_factory=default_recordings_dir)
+    jpeg_quality: int = Field(85, ge=10, le=100)
+    stream_fps: float = Field(10.0, gt=0.0, le=60.0, description="max parts per second of /stream.mjpg")
+    color_range_m: tuple[float, float] = Field(
+        (0.3, 8.0), description="depth range spanned by the colour map (near, far), log scale"
+    )
+    recording_queue: int = Field(64, ge=1, le=10_000, description="pairs waiting for the recording writer")
+    stale_after_s: float = Field(2.0, gt=0.0, description="no depth frame for this long → degraded")
+    fault_injection: bool = Field(False, description="expose POST /cameras/{name}/faults (file cameras)")
+
+    @field_validator("api_token", mode="before")
+    @classmethod
+    def _empty_token_is_none(cls, v: Any) -> Any:
+        if v is None or (isinstance(v, str) and not v.strip()):
+            return None
+        return v
+
+    @field_validator("api_token")
+    @classmethod
+    def _token_length(cls, v: SecretStr | None) -> SecretStr | None:
+        if v is not None and len(v.get_secret_value()) < MIN_TOKEN_CHARS:
+            raise ValueError(f"the API token must have at least {MIN_TOKEN_CHARS} characters")
+        return v
+
+    @field_validator("depth_scale_m", mode="before")
+    @classmethod
+    def _known_scale(cls, v: Any) -> Any:
+        try:
+            value = float(v)
+        except (TypeError, ValueError):
+            raise ValueError(f"must be one of {DEPTH_SCALES} (m per unit), got {v!r}") from None
+        for scale in DEPTH_SCALES:
+            if abs(value - scale) < 1e-12:
+                return scale
+        raise ValueError(f"must be one of {DEPTH_SCALES} (1 mm or 0.1 mm per unit), got {v!r}")
+
+    @field_validator("color_range_m")
+    @classmethod
+    def _ordered_range(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not (0.0 < v[0] < v[1]):
+            raise ValueError(f"must be (near, far) with 0 < near < far, got {v}")
+        return v
+
+    @model_validator(mode="after")
+    def _loopback_or_token(self) -> ServerSettings:
+        if not is_loopback(self.host) and self.api_token is None:
+            raise ValueError(
+                f"refusing to bind non-loopback address {self.host!r} without an API token: set {TOKEN_ENV}"
+            )
+        return self
+
+    @property
+    def token(self) -> str | None:
+        return None if self.api_token is None else self.api_token.get_secret_value()
+
+
+class CalibrationSettings(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+    path: Path | None = Field(
+        None,
+        description="rig.yaml or Kalibr camchain.yaml; default: the replayed recording's calibration.yaml",
+    )
+
+
+# The config file's contents for the Settings being built (set by load_settings only).
+_FILE_DATA: ContextVar[dict[str, Any] | None] = ContextVar("rig_settings_file_data", default=None)
+
+
+class _FileSource(PydanticBaseSettingsSource):
+    def get_field_value(self, field: FieldInfo, field_name: str) -> tuple[Any, str, bool]:
+        return None, field_name, False
+
+    def __call__(self) -> dict[str, Any]:
+        return dict(_FILE_DATA.get() or {})
+
+
+class _TokenEnvSource(PydanticBaseSettingsSource):
+    """``RIG_API_TOKEN`` → ``server.api_token`` (the documented short name)."""
+
+    def get_field_value(self, field: FieldInfo, field_name: str) -> tuple[Any, str, bool]:
+        return None, field_name, False
+
+    def __call__(self) -> dict[str, Any]:
+        token = os.environ.get(TOKEN_ENV)
+        return {} if token is None else {"server": {"api_token": token}}
+
+
+class Settings(BaseSettings):
+    """Everything ``rig serve`` needs; see the module docstring for sources and precedence."""
+
+    model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, env_nested_delimiter="__", extra="forbid")
+
+    server: ServerSettings = Field(default_factory=ServerSettings)
+    cameras: CaptureConfig | None = Field(None, description="the capture section; None = none configured")
+    calibration: CalibrationSettings = Field(default_factory=CalibrationSettings)
+    vpc: VpcConfig = Field(default_factory=VpcConfig)
+    stereo: StereoParams = Field(default_factory=StereoParams)
+    cache_dir: Path | None = Field(None, description="LUT cache directory (env RIG_CACHE_DIR)")
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        return (
+            init_settings,
+            _TokenEnvSource(settings_cls),
+            env_settings,
+            _FileSource(settings_cls),
+            file_secret_settings,
+        )
+
+
+# ----- loading ---------------------------------------------------------------------------------
+_PATH_FIELDS = (("server", "recordings_dir"), ("calibration", "path"), ("cache_dir",))
+
+
+def _resolve_relative(doc: dict[str, Any], base: Path) -> dict[str, Any]:
+    """Paths in a config file are relative to the file (a copy; the input is not changed)."""
+
+    def fix(value: Any) -> Any:
+        if isinstance(value, str) and value and not Path(value).expanduser().is_absolute():
+            return str(base / value)
+        return value
+
+    out = {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in doc.items()}
+    for path in _PATH_FIELDS:
+        holder: Any = out
+        for key in path[:-1]:
+            holder = holder.get(key) if isinstance(holder, dict) else None
+        if isinstance(holder, dict) and path[-1] in holder:
+            holder[path[-1]] = fix(holder[path[-1]])
+    cams = out.get("cameras")
+    if isinstance(cams, dict):
+        for name in ("left", "right"):
+            cam = cams.get(name)
+            if isinstance(cam, Mapping) and cam.get("kind") == "file" and "recording" in cam:
+                cams[name] = {**cam, "recording": fix(cam["recording"])}
+    return out
+
+
+def _read_config(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SettingsError(f"{path}: config file not found") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise SettingsError(f"{path}: config file unreadable ({err})") from err
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise SettingsError(f"{path}: not valid YAML ({' '.join(str(err).split())})") from err
+    if doc is None:
+        return {}
+    if not isinstance(doc, dict):
+        raise SettingsError(f"{path}: the config file must hold a mapping (server, cameras, ...)")
+    return _resolve_relative(doc, path.parent)
+
+
+def _field_name(loc: tuple[int | str, ...]) -> str:
+    # Drop the union tags of discriminated unions so the path reads like the YAML.
+    return ".".join(str(p) for p in loc if p not in ("file", "v4l2"))
+
+
+def _source_of(loc: tuple[int | str, ...], config: Path | None) -> str:
+    if tuple(loc[:2]) == ("server", "api_token") and TOKEN_ENV in os.environ:
+        return f"environment {TOKEN_ENV}"
+    parts = [str(p) for p in loc if p not in ("file", "v4l2")]
+    for n in range(len(parts), 0, -1):
+        name = ENV_PREFIX + "__".join(parts[:n]).upper()
+        if name in os.environ:
+            return f"environment {name}"
+    return str(config) if config is not None else "settings"
+
+
+@contextmanager
+def _file_data(doc: dict[str, Any]) -> Iterator[None]:
+    token = _FILE_DATA.set(doc)
+    try:
+        yield
+    finally:
+        _FILE_DATA.reset(token)
+
+
+def load_settings(config: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Settings:
+    """Settings from ``config`` (default: ``$RIG_CONFIG``; none = defaults), the environment and
+    ``overrides`` (nested mapping, highest precedence). SettingsError names the file (or
+    environment variable) and the field."""
+    if config is None and os.environ.get(CONFIG_ENV):
+        config = os.environ[CONFIG_ENV]
+    path = Path(config).expanduser() if config is not None else None
+    doc = _read_config(path) if path is not None else {}
+    try:
+        with _file_data(doc):
+            return Settings(**dict(overrides or {}))
+    except ValidationError as err:
+        first = err.errors()[0]
+        loc = tuple(first["loc"])
+        msg = first["msg"].removeprefix("Value error, ")
+        raise SettingsError(
+            f"{_source_of(loc, path)}: field '{_field_name(loc) or '<root>'}': {msg}"
+        ) from err
+
+
+def settings_summary(settings: Settings) -> dict[str, Any]:
+    """Settings as JSON without secrets (the token shows only whether one is set)."""
+    doc = settings.model_dump(mode="json", exclude={"server": {"api_token"}})
+    doc["server"]["api_token_set"] = settings.server.api_token is not None
+    return doc

@@ -1,0 +1,135 @@
+"""The latest depth result and its encodings, shared by every HTTP client.
+
+The worker publishes one immutable :class:`FrameResult` per processed pair (a reference swap
+under a lock: it never waits for clients). Each response body (PNG, npy, JPEG, PLY …) is made
+lazily the first time a client asks for it and cached on that result, so N clients asking for
+the same frame cost one encode: a lock per key makes the others wait for the first one's bytes
+instead of encoding again. A new frame brings a new, empty cache; old ones die with their result.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rig.capture.frame import Frame
+from rig.pipeline import DepthFrame
+
+__all__ = ["EncodeCache", "EncodeCounter", "FrameResult", "ResultStore"]
+
+
+class EncodeCounter:
+    """Counts encodes per kind (the part of the key before ``:``); thread-safe."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._counts: dict[str, int] = {}
+
+    def add(self, key: str) -> None:
+        kind = key.split(":", 1)[0]
+        with self._lock:
+            self._counts[kind] = self._counts.get(kind, 0) + 1
+
+    def snapshot(self) -> dict[str, int]:
+        with self._lock:
+            return dict(self._counts)
+
+
+class EncodeCache:
+    """Bytes per key, each produced at most once (a lock per key; see module doc)."""
+
+    def __init__(self, counter: EncodeCounter | None = None) -> None:
+        self._counter = counter
+        self._guard = threading.Lock()
+        self._locks: dict[str, threading.Lock] = {}
+        self._bytes: dict[str, bytes] = {}
+
+    def peek(self, key: str) -> bytes | None:
+        """The cached bytes, or None (lock-free read: dict lookups are atomic)."""
+        return self._bytes.get(key)
+
+    def get(self, key: str, produce: Callable[[], bytes]) -> bytes:
+        cached = self._bytes.get(key)
+        if cached is not None:
+            return cached
+        with self._guard:
+            lock = self._locks.setdefault(key, threading.Lock())
+        with lock:
+            cached = self._bytes.get(key)
+            if cached is None:
+                cached = produce()
+                self._bytes[key] = cached
+                if self._counter is not None:
+                    self._counter.add(key)
+            return cached
+
+
+@dataclass(frozen=True, eq=False)
+class FrameResult:
+    """One processed pair. ``index`` counts published results (1, 2, …); ``seq``/``ts_ns`` are
+    the pair's (left camera's); ``left``/``right`` the raw frames as the cameras delivered them;
+    ``published_ns`` when the worker published it (time.monotonic_ns)."""
+
+    index: int
+    frame: DepthFrame
+    left: Frame
+    right: Frame
+    published_ns: int
+    latency_ms: float
+    cache: EncodeCache = field(default_factory=EncodeCache)
+
+    def __post_init__(self) -> None:
+        # Shared read-only by every client thread: make accidental writes fail loudly. (Not the
+        # disparity: the pipeline's temporal filter keeps it as its state.)
+        for arr in (self.frame.depth, self.frame.valid, self.frame.left_vpc, self.frame.right_vpc):
+            arr.setflags(write=False)
+
+    @property
+    def seq(self) -> int:
+        return self.frame.seq
+
+    @property
+    def ts_ns(self) -> int:
+        return self.frame.ts_ns
+
+    def raw_frame(self, camera: str) -> Frame:
+        return self.left if camera == "left" else self.right
+
+    def valid_fraction(self) -> float:
+        return float(np.count_nonzero(self.frame.valid)) / max(1, self.frame.valid.size)
+
+
+class ResultStore:
+    """Holds the newest :class:`FrameResult`; readers never block the publisher for long."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._latest: FrameResult | None = None
+        self.counter = EncodeCounter()
+
+    def new_cache(self) -> EncodeCache:
+        return EncodeCache(self.counter)
+
+    def publish(self, result: FrameResult) -> None:
+        with self._cond:
+            self._latest = result
+            self._cond.notify_all()
+
+    @property
+    def latest(self) -> FrameResult | None:
+        return self._latest
+
+    def wait_newer(self, index: int, timeout_s: float) -> FrameResult | None:
+        """The latest result if its index is above ``index``, waiting up to ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            while self._latest is None or self._latest.index <= index:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return None
+                self._cond.wait(remaining)
+            return self._latest

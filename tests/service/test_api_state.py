@@ -1,0 +1,242 @@
+"""Endpoints that change state or need their own server: auth, PATCH /config, recordings, body
+limit, faults → /health, readiness before the first frame, CORS on, 0.1 mm depth, encode once."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Iterator
+
+import httpx
+import numpy as np
+import pytest
+
+from calibration import load_rig
+from rig.capture.faults import DisconnectFault
+from rig.recording import Recording
+from service.client import RigClient
+from service.errors import ApiError
+from tests.service.conftest import TOKEN, LiveServer, SmallRecording, wait_for
+from tests.service.test_api import metric_values, same_frame
+
+pytestmark = pytest.mark.timeout(180)
+
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+StartServer = Callable[..., LiveServer]
+
+
+def test_state_changing_endpoints_need_the_token(start_server: StartServer) -> None:
+    live = start_server()
+    base = live.base_url
+    before = httpx.get(base + "/config").json()["stereo"]
+    calls = [
+        ("PATCH", "/config", {"stereo": {"uniqueness_ratio": before["uniqueness_ratio"] + 7}}),
+        ("POST", "/recordings", {"name": "unauth"}),
+        ("POST", "/recordings/unauth/stop", None),
+        ("POST", "/cameras/left/faults", {"fault": {"kind": "drop", "count": 1}}),
+    ]
+    for method, path, body in calls:
+        for headers in ({}, {"Authorization": "Bearer wrong-token-000000000000"}, {"Authorization": TOKEN}):
+            r = httpx.request(method, base + path, json=body, headers=headers)
+            assert r.status_code == 401, (method, path, headers)
+            assert r.headers["www-authenticate"] == "Bearer" and "token" in r.json()["detail"]
+    # Nothing happened.
+    assert httpx.get(base + "/config").json()["stereo"] == before
+    assert httpx.get(base + "/recordings").json() == []
+    assert live.runtime.pipeline.stereo.uniqueness_ratio == before["uniqueness_ratio"]
+
+
+def test_patch_config_applies_validated_stereo_params(start_server: StartServer) -> None:
+    live = start_server()
+    with RigClient(live.base_url, token=TOKEN) as c:
+        before = c.config().stereo
+        median = 3 if before.median != 3 else 5
+        new = c.patch_config(median=median, uniqueness_ratio=before.uniqueness_ratio + 5)
+        assert new.stereo.median == median and new.stereo.uniqueness_ratio == before.uniqueness_ratio + 5
+        assert new.stereo.disparity_range == before.disparity_range  # untouched fields stay
+        assert c.config().stereo.median == median
+        assert live.runtime.pipeline.stereo.median == median  # applied to the running pipeline
+        for bad, where in (
+            ({"disparity_range": 50}, "multiple of 16"),
+            ({"median": 4}, "median"),
+            ({"correlation_window_size": 4}, "odd"),
+            ({"disparity_range": 512}, "VPC width"),
+            ({"no_such_param": 1}, "no_such_param"),
+            ({"confidence": 0}, "boolean"),  # strict, as the schema says
+            ({"P1": 1e300}, "refused by the matcher"),  # pydantic accepts it, OpenCV cannot
+        ):
+            with pytest.raises(ApiError) as info:
+                c.patch_config(**bad)
+            assert info.value.status == 422 and where in str(info.value.detail), bad
+        assert c.config().stereo.median == median  # failed patches changed nothing
+        kept = c.patch_config(median=None)  # null = keep the current value
+        assert kept.stereo.median == median
+    r = httpx.patch(
+        live.base_url + "/config", content=b"{not json", headers={**AUTH, "content-type": "application/json"}
+    )
+    assert r.status_code == 422 and "detail" in r.json()
+
+
+def test_recording_round_trip_is_byte_exact(
+    start_server: StartServer, small_recording: SmallRecording
+) -> None:
+    live = start_server()
+    with RigClient(live.base_url, token=TOKEN) as c:
+        info = c.start_recording("run-1")
+        assert info.active and info.name == "run-1"
+        with pytest.raises(ApiError) as conflict:
+            c.start_recording("run-2")
+        assert conflict.value.status == 409
+        wait_for(lambda: c.recordings()[0].pairs >= 3, 20, "three recorded pairs")
+        assert c.health().recording is not None
+        done = c.stop_recording("run-1")
+        assert not done.active and done.pairs >= 3 and done.dropped == 0 and done.stopped_at
+        with pytest.raises(ApiError) as missing:
+            c.stop_recording("run-1")
+        assert missing.value.status == 404
+        listing = c.recordings()
+    assert [(r.name, r.pairs, r.active) for r in listing] == [("run-1", done.pairs, False)]
+    rec = Recording(done.path)
+    src = Recording(small_recording.loop)
+    assert len(rec.pairs) == done.pairs
+    for pair in rec.pairs:
+        original = src.pairs[pair.seq % len(src.pairs)]  # live seq = recorded seq + loops · 3
+        assert rec.read_bytes(pair, "left") == src.read_bytes(original, "left")
+        assert rec.read_bytes(pair, "right") == src.read_bytes(original, "right")
+    assert rec.calibration_path is not None
+    assert load_rig(rec.calibration_path).baseline() == pytest.approx(live.runtime.rig.baseline())
+
+
+@pytest.mark.parametrize("name", ["../x", "/abs", "", "a" * 65, "a..b", ".hidden", "a/b", "-x", "x y"])
+def test_recording_names_are_validated(start_server: StartServer, name: str) -> None:
+    live = start_server(ready=False)
+    r = httpx.post(live.base_url + "/recordings", json={"name": name}, headers=AUTH)
+    assert r.status_code == 422 and r.json()["detail"]
+    assert not live.settings.server.recordings_dir.exists() or not any(
+        live.settings.server.recordings_dir.iterdir()
+    )
+
+
+def test_recording_stop_path_names_are_validated(start_server: StartServer) -> None:
+    live = start_server(ready=False)
+    for raw_path in ("/recordings/..%2Fx/stop", "/recordings/%2Fabs/stop", "/recordings/.x/stop"):
+        r = httpx.post(live.base_url + raw_path, headers=AUTH)
+        assert 400 <= r.status_code < 500 and r.json()["detail"], raw_path
+
+
+def test_body_size_limit(start_server: StartServer) -> None:
+    live = start_server(ready=False, max_body_bytes=1024)
+    big = b'{"name": "' + b"x" * 4000 + b'"}'
+    r = httpx.post(
+        live.base_url + "/recordings", content=big, headers={**AUTH, "content-type": "application/json"}
+    )
+    assert r.status_code == 413 and "1024" in r.json()["detail"]
+
+    def chunks() -> Iterator[bytes]:  # no Content-Length: counted while streaming
+        yield b'{"name": "'
+        for _ in range(10):
+            yield b"y" * 500
+        yield b'"}'
+
+    r = httpx.post(
+        live.base_url + "/recordings", content=chunks(), headers={**AUTH, "content-type": "application/json"}
+    )
+    assert r.status_code == 413 and r.json()["detail"]
+    ok = httpx.post(live.base_url + "/recordings", json={"name": "small"}, headers=AUTH)
+    assert ok.status_code == 201
+
+
+def test_health_degraded_then_down_when_cameras_stop(start_server: StartServer) -> None:
+    live = start_server()
+    base = live.base_url
+    r = httpx.post(
+        base + "/cameras/left/faults", json={"fault": {"kind": "disconnect", "duration_s": 60}}, headers=AUTH
+    )
+    assert r.status_code == 202
+
+    def left_down() -> bool:
+        h = httpx.get(base + "/health")
+        cam = h.json()["cameras"]["left"]
+        return h.status_code == 200 and h.json()["status"] == "degraded" and not cam["connected"]
+
+    wait_for(left_down, 10, "left camera reported down")
+    h = httpx.get(base + "/health").json()
+    assert h["cameras"]["left"]["state"] == "unavailable"
+    assert "disconnected" in h["cameras"]["left"]["reason"]
+    assert any("camera left" in reason for reason in h["reasons"])
+    assert h["cameras"]["right"]["connected"] is True
+    live.runtime.capture.inject("right", DisconnectFault(duration_s=60))
+
+    def down() -> bool:
+        return httpx.get(base + "/health").status_code == 503
+
+    wait_for(down, 10, "both cameras down")
+    h = httpx.get(base + "/health").json()
+    assert h["status"] == "down" and not h["cameras"]["right"]["connected"]
+    assert httpx.get(base + "/livez").status_code == 200  # the process and worker still run
+    r = httpx.post(base + "/cameras/middle/faults", json={"fault": {"kind": "drop"}}, headers=AUTH)
+    assert r.status_code == 404
+
+
+def test_not_ready_before_the_first_frame(start_server: StartServer) -> None:
+    live = start_server(ready=False, camera_faults=[{"kind": "stall", "duration_s": 60}])
+    base = live.base_url
+    r = httpx.get(base + "/readyz")
+    assert r.status_code == 503 and r.json()["status"] == "not ready"
+    for path in ("/depth", "/disparity", "/frames/left", "/pointcloud", "/depth/colorized"):
+        r = httpx.get(base + path)
+        assert r.status_code == 503 and "no depth frame yet" in r.json()["detail"], path
+    assert httpx.get(base + "/livez").status_code == 200
+    wait_for(lambda: httpx.get(base + "/health").status_code == 503, 10, "health down while stalled")
+    assert "no depth frame yet" in httpx.get(base + "/health").json()["reasons"]
+
+
+def test_cors_on_when_configured(start_server: StartServer) -> None:
+    live = start_server(ready=False, cors_origins=["http://robot-ui.test"])
+    r = httpx.get(live.base_url + "/livez", headers={"Origin": "http://robot-ui.test"})
+    assert r.headers["access-control-allow-origin"] == "http://robot-ui.test"
+    pre = httpx.options(
+        live.base_url + "/config",
+        headers={"Origin": "http://robot-ui.test", "Access-Control-Request-Method": "PATCH"},
+    )
+    assert pre.status_code == 200 and "PATCH" in pre.headers["access-control-allow-methods"]
+    other = httpx.get(live.base_url + "/livez", headers={"Origin": "http://evil.test"})
+    assert "access-control-allow-origin" not in other.headers
+
+
+def test_tenth_millimetre_depth_scale(start_server: StartServer) -> None:
+    live = start_server(depth_scale_m=0.0001)
+    with RigClient(live.base_url) as c:
+        npy, png = same_frame(lambda: c.depth("npy"), lambda: c.depth("png"))
+    assert png.scale == 0.0001
+    r = httpx.get(live.base_url + "/depth")
+    assert r.headers["X-Depth-Scale"] == "0.0001"
+    ok = np.isfinite(npy.depth)
+    fits = np.zeros_like(ok)
+    fits[ok] = npy.depth[ok] <= 6.55345  # 16 bits of 0.1 mm reach 6.5535 m
+    assert fits.any() and np.array_equal(fits, np.isfinite(png.depth))
+    assert np.abs(png.depth[fits] - npy.depth[fits]).max() <= 0.00005 + 1e-6
+
+
+def test_each_response_is_encoded_once_per_frame(start_server: StartServer) -> None:
+    live = start_server()
+    seqs: list[int] = []
+    lock = threading.Lock()
+
+    def fetch() -> None:
+        with httpx.Client(base_url=live.base_url) as client:
+            for _ in range(4):
+                r = client.get("/depth")
+                assert r.status_code == 200
+                with lock:
+                    seqs.append(int(r.headers["X-Frame-Seq"]))
+
+    threads = [threading.Thread(target=fetch) for _ in range(12)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    m = metric_values(httpx.get(live.base_url + "/metrics").text)
+    encodes = m[("rig_encodes_total", (("kind", "depth_png"),))]
+    assert len(seqs) == 48
+    assert encodes == len(set(seqs))  # one PNG encode per frame served, however many clients
+    assert encodes < len(seqs)

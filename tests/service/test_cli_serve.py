@@ -1,0 +1,225 @@
+"""``rig serve`` as a real subprocess: refusals are one line + exit 2, a recording is served over
+HTTP, SIGINT/SIGTERM shut down gracefully, and ``--demo`` works from an empty cache."""
+
+from __future__ import annotations
+
+import os
+import re
+import selectors
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.service.conftest import SmallRecording
+
+RIG = Path(sys.executable).with_name("rig")
+URL_RE = re.compile(r"depth service: (http://127\.0\.0\.1:\d+/)")
+
+
+def clean_env(tmp: Path, **extra: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RIG_")}
+    env.update(
+        PYTHONUNBUFFERED="1",
+        XDG_CACHE_HOME=str(tmp / "cache"),
+        XDG_DATA_HOME=str(tmp / "data"),
+        RIG_SERVER__RECORDINGS_DIR=str(tmp / "recordings"),
+        COLUMNS="200",
+        **extra,
+    )
+    return env
+
+
+def run_rig(args: list[str], env: dict[str, str], timeout: float = 60) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([str(RIG), *args], env=env, capture_output=True, text=True, timeout=timeout)
+
+
+def assert_one_line_error(result: subprocess.CompletedProcess[str], *needles: str) -> None:
+    assert result.returncode == 2, result
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("error:") and "Traceback" not in result.stderr
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+
+
+def test_non_loopback_without_token_refused(tmp_path: Path) -> None:
+    result = run_rig(["serve", "--host", "0.0.0.0"], clean_env(tmp_path))
+    assert_one_line_error(result, "0.0.0.0", "RIG_API_TOKEN")
+
+
+def test_bad_config_names_file_and_field(tmp_path: Path) -> None:
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text("server: {port: 99999}\n")
+    assert_one_line_error(
+        run_rig(["serve", "--config", str(cfg)], clean_env(tmp_path)), str(cfg), "server.port"
+    )
+
+
+def test_missing_recording_and_calibration(tmp_path: Path, small_recording: SmallRecording) -> None:
+    env = clean_env(tmp_path)
+    assert_one_line_error(
+        run_rig(["serve", "--recording", str(tmp_path / "nope")], env), "--recording", "nope"
+    )
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    for f in ("recording.json", "frames.csv"):
+        (bare / f).write_bytes((small_recording.loop / f).read_bytes())
+    assert_one_line_error(run_rig(["serve", "--recording", str(bare)], env), "--calibration")
+    both = run_rig(["serve", "--demo", "--recording", str(bare)], env)
+    assert_one_line_error(both, "--demo")
+
+
+def test_busy_port_is_one_line(tmp_path: Path) -> None:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        result = run_rig(
+            ["serve", "--port", str(port), "--config", str(_empty_config(tmp_path))], clean_env(tmp_path)
+        )
+    assert_one_line_error(result, f"127.0.0.1:{port}")
+
+
+def _empty_config(tmp: Path) -> Path:
+    # Cameras that cannot open are fine here: the bind fails before any camera is touched.
+    cfg = tmp / "cams.yaml"
+    cfg.write_text(
+        "cameras:\n  left: {kind: v4l2, device: /dev/null-left}\n"
+        "  right: {kind: v4l2, device: /dev/null-right}\ncalibration: {path: missing.yaml}\n"
+    )
+    return cfg
+
+
+class Served:
+    def __init__(self, proc: subprocess.Popen[str], url: str, output: list[str]) -> None:
+        self.proc = proc
+        self.url = url
+        self.output = output
+
+
+def start_serve(args: list[str], env: dict[str, str], timeout: float) -> Served:
+    proc = subprocess.Popen(
+        [str(RIG), "serve", "--port", "0", *args],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    assert proc.stdout is not None
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stdout, selectors.EVENT_READ)
+    output: list[str] = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if not sel.select(timeout=1.0):
+            if proc.poll() is not None:
+                break
+            continue
+        line = proc.stdout.readline()
+        if not line:
+            break
+        output.append(line)
+        m = URL_RE.search(line)
+        if m:
+            return Served(proc, m.group(1), output)
+    proc.kill()
+    raise AssertionError("rig serve printed no URL:\n" + "".join(output))
+
+
+def wait_healthy(url: str, timeout: float) -> dict[str, object]:
+    deadline = time.monotonic() + timeout
+    last: object = None
+    while time.monotonic() < deadline:
+        try:
+            r = httpx.get(url + "health", timeout=5)
+            last = r.json()
+            if r.status_code == 200 and r.json()["status"] == "ok":
+                return r.json()
+        except httpx.HTTPError as err:
+            last = err
+        time.sleep(0.2)
+    raise AssertionError(f"no healthy service at {url}: {last}")
+
+
+@pytest.fixture
+def served_recording(tmp_path: Path, small_recording: SmallRecording) -> Iterator[Served]:
+    env = clean_env(tmp_path, RIG_VPC__WIDTH="320", RIG_VPC__HEIGHT="240", RIG_STEREO__DISPARITY_RANGE="64")
+    served = start_serve(
+        ["--recording", str(small_recording.loop), "--log-level", "warning"], env, timeout=90
+    )
+    yield served
+    if served.proc.poll() is None:
+        served.proc.kill()
+        served.proc.wait()
+
+
+@pytest.mark.timeout(240)
+@pytest.mark.parametrize("stop_signal", [signal.SIGINT, signal.SIGTERM])
+def test_serve_recording_then_graceful_stop(served_recording: Served, stop_signal: signal.Signals) -> None:
+    health = wait_healthy(served_recording.url, 90)
+    assert health["cameras"]["left"]["kind"] == "file"  # type: ignore[index]
+    r = httpx.get(served_recording.url + "depth", timeout=10)
+    assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+    assert r.headers["X-Depth-Scale"] == "0.001" and int(r.headers["X-Frame-Seq"]) >= 0
+    cfg = httpx.get(served_recording.url + "config", timeout=10).json()
+    assert cfg["vpc"]["width"] == 320  # RIG_VPC__WIDTH reached the pipeline
+    # A stream client is connected while we stop: shutdown must still be prompt and clean.
+    with httpx.stream("GET", served_recording.url + "stream.mjpg", timeout=30) as stream:
+        next(stream.iter_bytes())
+        served_recording.proc.send_signal(stop_signal)
+        out, _ = served_recording.proc.communicate(timeout=60)
+    text = "".join(served_recording.output) + out
+    assert served_recording.proc.returncode == 0, text
+    assert "depth service stopped (worker and capture threads joined)" in text
+    assert "Traceback" not in text
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_serve_demo_from_an_empty_cache(tmp_path: Path) -> None:
+    env = clean_env(tmp_path)
+    served = start_serve(["--demo", "--log-level", "warning"], env, timeout=800)
+    try:
+        assert (tmp_path / "cache" / "odfc-rig" / "demo").is_dir()  # rendered into the user cache dir
+        health = wait_healthy(served.url, 120)
+        assert health["status"] == "ok"
+        r = httpx.get(served.url + "depth", timeout=30)
+        assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+        page = httpx.get(served.url, timeout=10)
+        assert page.status_code == 200 and 'id="depth-img"' in page.text
+    finally:
+        served.proc.send_signal(signal.SIGINT)
+        served.proc.communicate(timeout=60)
+    assert served.proc.returncode == 0
+
+
+def test_served_connections_have_tcp_nodelay() -> None:
+    """``rig serve`` binds its own socket; asyncio sets TCP_NODELAY on accepted connections only
+    for IPPROTO_TCP sockets, and without it every keep-alive response waits for a delayed ACK."""
+    import asyncio
+
+    from service.serve import bind_socket
+
+    async def accepted_nodelay() -> int:
+        sock = bind_socket("127.0.0.1", 0)
+        got: asyncio.Future[int] = asyncio.get_running_loop().create_future()
+
+        def on_client(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            got.set_result(writer.get_extra_info("socket").getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY))
+            writer.close()
+
+        server = await asyncio.start_server(on_client, sock=sock)
+        async with server:
+            _, writer = await asyncio.open_connection(*sock.getsockname()[:2])
+            value = await asyncio.wait_for(got, 10)
+            writer.close()
+        return value
+
+    assert asyncio.run(accepted_nodelay()) != 0

@@ -1,0 +1,93 @@
+"""The dashboard in a real headless Chromium (Debian's, driven by Playwright): it loads, its
+images refresh, the footprint is drawn, and a stopped camera shows up as unavailable."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.service.conftest import TOKEN, LiveServer
+
+CHROMIUM = os.environ.get("RIG_CHROMIUM", "/usr/bin/chromium")
+ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+    "--disable-sync",
+]
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.timeout(180),
+    pytest.mark.skipif(
+        not (Path(CHROMIUM).exists() or shutil.which(CHROMIUM)),
+        reason=f"Debian's chromium not installed at {CHROMIUM} (apt-get install chromium; .ci/run does)",
+    ),
+]
+
+
+def test_dashboard_live_in_chromium(start_server: Callable[..., LiveServer], tmp_path: Path) -> None:
+    from playwright.sync_api import sync_playwright
+
+    live = start_server()
+    console_errors: list[str] = []
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1400, "height": 1100})
+            page.on("console", lambda m: console_errors.append(m.text) if m.type == "error" else None)
+            page.goto(live.base_url + "/")
+            page.wait_for_function("document.getElementById('status').textContent === 'ok'", timeout=20_000)
+
+            # Images load and refresh: the depth image's src follows new frames.
+            page.wait_for_function("document.getElementById('depth-img').naturalWidth > 0", timeout=20_000)
+            first = page.get_attribute("#depth-img", "src")
+            page.wait_for_function(
+                f"document.getElementById('depth-img').getAttribute('src') !== {first!r}", timeout=20_000
+            )
+            for img in ("vpc-left", "vpc-right", "raw-left", "raw-right"):
+                page.wait_for_function(f"document.getElementById('{img}').naturalWidth > 0", timeout=20_000)
+            assert page.eval_on_selector("#depth-img", "e => e.naturalWidth") == 320
+            assert page.eval_on_selector("#raw-left", "e => e.naturalWidth") == 640
+
+            # The VPC footprint is drawn on the fisheye overlay (canvas at the fisheye's size).
+            page.wait_for_function("document.getElementById('overlay-left').width === 640", timeout=20_000)
+            drawn = page.eval_on_selector(
+                "#overlay-left",
+                "c => { const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;"
+                " let n = 0; for (let i = 3; i < d.length; i += 4) if (d[i] > 0) n++; return n; }",
+            )
+            assert drawn > 500
+            assert page.text_content("#cam-left-state") == "available"
+            assert float(page.text_content("#fps") or "0") > 0
+            page.screenshot(path=str(tmp_path / "dashboard-ok.png"), full_page=True)
+
+            # Stop the left camera: the page says so, with the reason.
+            r = httpx.post(
+                live.base_url + "/cameras/left/faults",
+                json={"fault": {"kind": "disconnect", "duration_s": 120}},
+                headers={"Authorization": f"Bearer {TOKEN}"},
+            )
+            assert r.status_code == 202
+            page.wait_for_function(
+                "document.getElementById('cam-left-state').textContent === 'unavailable'", timeout=20_000
+            )
+            assert "disconnected" in (page.text_content("#cam-left-reason") or "")
+            assert page.is_visible("#banner-left") and not page.is_visible("#banner-right")
+            assert page.text_content("#cam-right-state") == "available"
+            assert page.text_content("#status") == "degraded"
+            shot = tmp_path / "dashboard-left-camera-down.png"
+            page.screenshot(path=str(shot), full_page=True)
+            assert shot.stat().st_size > 10_000
+            print(f"dashboard screenshots: {tmp_path}")
+        finally:
+            browser.close()
+    assert console_errors == []
