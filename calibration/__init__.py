@@ -4,6 +4,7 @@ Imports only numpy, scipy and cv2: nothing here knows about streaming cameras or
 """
 
 from calibration.calibrate import CameraCalibration, DroppedView, calibrate_camera
+from calibration.corner_refine import RefinementReport, refine_corners_local
 from calibration.errors import CalibrationError, CalibrationFailed, CalibrationFileError, ModelError
 from calibration.formats import detect_format, load_camera, load_rig, save_rig
 from calibration.models import MODELS, CameraModel, create
@@ -30,6 +31,7 @@ __all__ = [
     "Detection",
     "DroppedView",
     "ModelError",
+    "RefinementReport",
     "Rig",
     "StereoCalibration",
     "board_object_points",
@@ -43,5 +45,6 @@ __all__ = [
     "load_rig",
     "read_corner_lists",
     "read_omnidir_corners",
+    "refine_corners_local",
     "save_rig",
 ]

@@ -8,6 +8,10 @@ cameras' intrinsics over all corners of all views. Nothing limits the angle off 
 past 90° are kept (Kalibr drops them beyond 80°; OpenCV's fisheye stereo calibration cannot use
 rays at or past 90°).
 
+With each camera's images (``left_images``/``right_images``) the corners are refined for the
+fisheye (:mod:`calibration.corner_refine`) with that camera's lens: within its own calibration,
+or once with the given lens when intrinsics are fixed.
+
 A chessboard seen from two very different directions may be detected with its corners in
 opposite orders (a 180° turn of the board maps the grid onto itself). Each common view is
 checked against both orders and the one consistent with the other views is used.
@@ -23,17 +27,20 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from calibration.calibrate import (
+    MIN_CORNERS,
     CameraCalibration,
     DroppedView,
     calibrate_camera,
     free_mask,
     prepare_views,
 )
+from calibration.corner_refine import ImageSource, RefinementReport, refine_views
 from calibration.errors import CalibrationError, CalibrationFailed
 from calibration.geometry import invert_transform
 from calibration.init import board_poses
 from calibration.lm import LOSSES
 from calibration.models.base import CameraModel
+from calibration.pose_consensus import average_transforms, consensus_pose, half_turn
 from calibration.rig import Rig
 from calibration.solver import BundleResult, CameraBlock, Observation, refine_bundle
 
@@ -42,9 +49,6 @@ __all__ = ["StereoCalibration", "average_transforms", "calibrate_stereo"]
 F64 = NDArray[np.float64]
 
 _UNSEEN = "no corners detected"
-# Two per-view relative poses agree when within these (robust consensus for the initial pose).
-_AGREE_DEG = 3.0
-_AGREE_FRACTION = 0.1  # of the median baseline
 
 
 @dataclass
@@ -71,68 +75,11 @@ class StereoCalibration:
     dropped: list[tuple[str, DroppedView]] = field(default_factory=list)
     converged: bool = True
     message: str = ""
+    refinement: dict[str, RefinementReport | None] = field(default_factory=dict)  # per camera
 
     @property
     def baseline_m(self) -> float:
         return float(np.linalg.norm(invert_transform(self.T_right_left)[:3, 3]))
-
-
-def average_transforms(transforms: Sequence[F64]) -> F64:
-    """Mean of rigid transforms (4x4): chordal L2 mean of the rotations (SVD projection of the
-    summed matrices onto SO(3)) and mean translation."""
-    Rs = np.stack([T[:3, :3] for T in transforms])
-    U, _, Vt = np.linalg.svd(Rs.sum(axis=0))
-    R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
-    out = np.eye(4)
-    out[:3, :3] = R
-    out[:3, 3] = np.mean([T[:3, 3] for T in transforms], axis=0)
-    return out
-
-
-def _angle_deg(Ra: F64, Rb: F64) -> float:
-    c = (np.trace(Ra.T @ Rb) - 1.0) / 2.0
-    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
-
-
-def _half_turn(object_points: F64) -> F64 | None:
-    """Transform F (4x4) of the board onto itself by a half turn about its centre when the
-    reversed point order is that half turn (``X[::-1] == F · X``), else None."""
-    c = 0.5 * (object_points.min(axis=0) + object_points.max(axis=0))
-    F = np.eye(4)
-    F[:3, :3] = np.diag([-1.0, -1.0, 1.0])
-    F[:3, 3] = [2 * c[0], 2 * c[1], 0.0]
-    turned = object_points @ F[:3, :3].T + F[:3, 3]
-    scale = max(float(np.ptp(object_points, axis=0).max()), 1e-12)
-    if not np.allclose(object_points[:, 2], 0.0) or not np.allclose(
-        turned, object_points[::-1], atol=1e-9 * scale
-    ):
-        return None
-    return F
-
-
-def _consensus_pose(candidates: list[list[F64]]) -> tuple[F64, list[int]]:
-    """Pick per view one of its candidate relative poses so that most views agree; returns the
-    averaged pose and the chosen candidate index per view (-1 = outlier)."""
-    flat = [(v, k, T) for v, cands in enumerate(candidates) for k, T in enumerate(cands)]
-    baseline = float(np.median([np.linalg.norm(T[:3, 3]) for _, _, T in flat]))
-    t_tol = max(_AGREE_FRACTION * baseline, 1e-9)
-    best: tuple[int, list[int]] = (-1, [])
-    for _, _, ref in flat:
-        choice = []
-        for cands in candidates:
-            ok = [
-                k
-                for k, T in enumerate(cands)
-                if _angle_deg(T[:3, :3], ref[:3, :3]) < _AGREE_DEG
-                and np.linalg.norm(T[:3, 3] - ref[:3, 3]) < t_tol
-            ]
-            choice.append(ok[0] if ok else -1)
-        support = sum(c >= 0 for c in choice)
-        if support > best[0]:
-            best = (support, choice)
-    choice = best[1]
-    chosen = [candidates[v][k] for v, k in enumerate(choice) if k >= 0]
-    return average_transforms(chosen), choice
 
 
 def calibrate_stereo(
@@ -153,6 +100,10 @@ def calibrate_stereo(
     loss: str = "linear",
     min_views: int = 3,
     min_common_views: int = 3,
+    left_images: Sequence[ImageSource | None] | None = None,
+    right_images: Sequence[ImageSource | None] | None = None,
+    refine_rounds: int = 3,
+    refine_tol_px: float = 1e-3,
 ) -> StereoCalibration:
     """Calibrate a camera pair from board views; ``left_points[v]``/``right_points[v]`` are
     (N, 2) detections of ``object_points[v]`` (N, 3) or None where that camera missed view v.
@@ -164,6 +115,10 @@ def calibrate_stereo(
     :func:`calibrate_camera`. Returns the relative pose, a Rig in the canonical rig frame
     (:meth:`Rig.from_relative_pose`) and per-camera errors. Raises CalibrationFailed with fewer
     than ``min_common_views`` views seen by both cameras.
+
+    ``left_images``/``right_images`` (one per view: array, path or None) switch on corner
+    refinement for that camera (``refine_rounds``, ``refine_tol_px``: see
+    :func:`calibrate_camera`); ``result.refinement`` reports it per camera.
     """
     models = (model, model) if isinstance(model, str) else tuple(model)
     if len(models) != 2:
@@ -180,12 +135,17 @@ def calibrate_stereo(
             f"and {len(right_points)} right image point sets"
         )
     vnames = list(view_names) if view_names is not None else [f"view {i}" for i in range(len(object_points))]
+    images = (left_images, right_images)
+    for c, ims in enumerate(images):
+        if ims is not None and len(ims) != len(object_points):
+            raise CalibrationError(f"{len(ims)} {names[c]} images for {len(object_points)} views")
 
     # ---- per-camera intrinsics and board poses ------------------------------------------------
     cams: list[CameraModel] = []
     poses: list[dict[int, F64]] = []
     points: list[dict[int, F64]] = []
     mono: dict[str, CameraCalibration | None] = {}
+    refinement: dict[str, RefinementReport | None] = {}
     dropped: list[tuple[str, DroppedView]] = []
     objs: list[F64] = []
     for c, pts in enumerate((left_points, right_points)):
@@ -196,16 +156,23 @@ def calibrate_stereo(
             objs, imgs, _, drop = prepare_views(object_points, pts, vnames)
             dropped += [(name, d) for d in drop if d.reason != _UNSEEN]
             use = [i for i, u in enumerate(imgs) if u is not None]
-            cam_poses = _fixed_camera_poses(cam, objs, imgs, use, vnames, name, dropped)
+            cam_poses, rms = _fixed_camera_poses(cam, objs, imgs, use, vnames, name, dropped)
+            pts_used: dict[int, F64] = {i: u for i in cam_poses if (u := imgs[i]) is not None}
+            refinement[name] = None
+            if (cam_images := images[c]) is not None:
+                cam_poses, pts_used, refinement[name] = _refine_fixed(
+                    cam, cam_images, objs, pts_used, rms, vnames, name, dropped
+                )  # fmt: skip
             cams.append(cam)
             poses.append(cam_poses)
-            points.append({i: imgs[i] for i in cam_poses})  # type: ignore[misc]
+            points.append(pts_used)
             mono[name] = None
             continue
         try:
             res = calibrate_camera(
                 models[c], object_points, pts, sizes[c], initials[c], fix=fix, fov_deg=fov_deg, loss=loss,
-                min_views=min_views, view_names=vnames,
+                min_views=min_views, view_names=vnames, images=images[c], refine_rounds=refine_rounds,
+                refine_tol_px=refine_tol_px,
             )  # fmt: skip
         except CalibrationFailed as err:
             raise CalibrationFailed(f"{name} camera: {err}") from err
@@ -214,8 +181,9 @@ def calibrate_stereo(
         dropped += [(name, d) for d in res.dropped if imgs[d.index] is not None or d.reason != _UNSEEN]
         cams.append(res.camera)
         poses.append(dict(zip(res.views, res.T_cam_board, strict=True)))
-        points.append({i: imgs[i] for i in res.views})  # type: ignore[misc]
+        points.append({i: res.corners[i] for i in res.views})
         mono[name] = res
+        refinement[name] = res.refinement
 
     # ---- relative pose from common views ------------------------------------------------------
     common = sorted(set(poses[0]) & set(poses[1]))
@@ -227,14 +195,14 @@ def calibrate_stereo(
     candidates: list[list[F64]] = []
     flips: list[F64 | None] = []
     for i in common:
-        F = _half_turn(objs[i])
+        F = half_turn(objs[i])
         flips.append(F)
         T = poses[1][i] @ invert_transform(poses[0][i])
         cands = [T]
         if F is not None:
             cands.append(poses[1][i] @ F @ invert_transform(poses[0][i]))
         candidates.append(cands)
-    T_rl, choice = _consensus_pose(candidates)
+    T_rl, choice = consensus_pose(candidates)
     for i, k, F in zip(common, choice, flips, strict=True):
         if k == 1 and F is not None:
             # The right camera numbered this board's corners the other way round.
@@ -262,7 +230,9 @@ def calibrate_stereo(
         CameraBlock(cams[1], _free(cams[1], fix, fix_intrinsics), T_cam_ref=T_rl, pose_free=True),
     ]
     result = refine_bundle(blocks, T_left_board, obs, loss=loss)
-    return _stereo_result(result, views, vnames, common, names, obs, mono, dropped)
+    out = _stereo_result(result, views, vnames, common, names, obs, mono, dropped)
+    out.refinement = refinement
+    return out
 
 
 def _free(camera: CameraModel, fix: Iterable[str], fix_intrinsics: bool) -> NDArray[np.bool_]:
@@ -279,8 +249,8 @@ def _fixed_camera_poses(
     vnames: list[str],
     name: str,
     dropped: list[tuple[str, DroppedView]],
-) -> dict[int, F64]:
-    """Board poses under fixed intrinsics: ray PnP, then per-view refinement."""
+) -> tuple[dict[int, F64], float]:
+    """Board poses under fixed intrinsics (ray PnP, then per-view refinement) and their RMS."""
     U: dict[int, F64] = {i: u for i in use if (u := imgs[i]) is not None}
     finite = {i: np.isfinite(U[i]).all(axis=1) for i in U}
     found = board_poses(cam, [objs[i][finite[i]] for i in U], [U[i][finite[i]] for i in U])
@@ -291,13 +261,43 @@ def _fixed_camera_poses(
         else:
             poses[i] = T
     if not poses:
-        return poses
+        return poses, math.nan
     keys = sorted(poses)
     obs = [Observation(0, k, objs[i], U[i]) for k, i in enumerate(keys)]
     refined = refine_bundle(
         [CameraBlock(cam, np.zeros(len(cam.params), bool))], [poses[i] for i in keys], obs
     )
-    return dict(zip(keys, refined.T_ref_board, strict=True))
+    return dict(zip(keys, refined.T_ref_board, strict=True)), refined.rms
+
+
+def _refine_fixed(
+    cam: CameraModel,
+    images: Sequence[ImageSource | None],
+    objs: list[F64],
+    corners: dict[int, F64],
+    rms_before: float,
+    vnames: list[str],
+    name: str,
+    dropped: list[tuple[str, DroppedView]],
+) -> tuple[dict[int, F64], dict[int, F64], RefinementReport]:
+    """Corners refined with a fixed lens (one round: the lens does not change) and the board
+    poses on them; views left with too few corners are dropped."""
+    refined, rejected = refine_views(images, corners, cam, dict(enumerate(objs)), vnames)
+    imgs: list[F64 | None] = [refined.get(i) for i in range(len(objs))]
+    for i, u in refined.items():
+        if int(np.isfinite(u).all(axis=1).sum()) < MIN_CORNERS:
+            imgs[i] = None
+            dropped.append((name, DroppedView(i, vnames[i], "too few corners left after corner refinement")))
+    use = [i for i, u in enumerate(imgs) if u is not None]
+    poses, rms = _fixed_camera_poses(cam, objs, imgs, use, vnames, name, dropped)
+    shifts = np.concatenate([np.linalg.norm(refined[i] - corners[i], axis=1) for i in poses] or [np.zeros(0)])
+    d = shifts[np.isfinite(shifts)]
+    report = RefinementReport(
+        rms_before=rms_before, rms_after=rms, rounds=1, changes_px=(float(d.max()) if d.size else 0.0,),
+        converged=True, mean_shift_px=float(d.mean()) if d.size else 0.0, n_corners=int(d.size),
+        rejected=tuple(r for r in rejected if r.view in poses),
+    )  # fmt: skip
+    return poses, {i: refined[i] for i in poses}, report
 
 
 def _stereo_result(

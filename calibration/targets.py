@@ -1,6 +1,10 @@
 """Calibration targets: chessboard geometry, chessboard detection in images, and corner lists
 stored in OpenCV FileStorage XML (OpenCV's fisheye test set, the omnidir tutorial data).
 
+Detected corners are what ``cv2.findChessboardCornersSB`` finds; on a fisheye they are biased
+(~0.1 px, pulled inwards near the rim), which :mod:`calibration.corner_refine` removes with the
+lens model once a first calibration exists (``calibrate_camera(..., images=...)``).
+
 Shapes: object points (N, 3) float64 in the board frame (z = 0 for planar boards), image points
 (N, 2) float64 pixels (u, v) with (0, 0) the centre of the top-left pixel (OpenCV's convention
 for detected corners too).

@@ -2,7 +2,9 @@
 
 ``intrinsics`` writes a rig.yaml with one camera (identity pose); ``stereo`` writes the rig.yaml
 of a pair. Both detect the board in every image (progress bar), list the images they skip and
-why, calibrate from no guess, print a table of per-view errors and save a picture of the
+why, calibrate from no guess, refine the corners for the fisheye with the lens found and
+recalibrate (``--no-refine`` keeps the detector's corners; see calibration.corner_refine), print
+a table of per-view errors and the RMS before/after refinement, and save a picture of the
 residuals over the image.
 """
 
@@ -27,6 +29,7 @@ from rich.progress import (
 from rich.table import Table
 
 from calibration.calibrate import CameraCalibration, calibrate_camera
+from calibration.corner_refine import RefinementReport
 from calibration.formats import load_camera, save_rig
 from calibration.lm import LOSSES
 from calibration.models import MODELS, CameraModel
@@ -148,6 +151,34 @@ def _stereo_table(result: StereoCalibration) -> Table:
     return table
 
 
+def _sources(dets: Sequence[Detection], refine: bool) -> list[str | None] | None:
+    """Image files for corner refinement (None for images without a board), or None."""
+    return [d.source if d.ok else None for d in dets] if refine else None
+
+
+def _print_refinement(name: str, report: RefinementReport | None, refine: bool) -> None:
+    if not refine:
+        console.print(f"{name}: detector corners used as they are (--no-refine)", highlight=False)
+        return
+    if report is None:
+        return
+    out = len(report.rejected)
+    reasons = ", ".join(f"{n} {why}" for why, n in sorted(report.reasons().items()))
+    console.print(
+        f"{name}: corner refinement: RMS {report.rms_before:.4f} -> {report.rms_after:.4f} px, "
+        f"{report.rounds} round(s), corners moved {report.mean_shift_px:.3f} px on average, "
+        f"{out} of {report.n_corners + out} corners left out" + (f" ({reasons})" if out else ""),
+        highlight=False,
+        soft_wrap=True,
+    )
+    if not report.converged:
+        err_console.print(
+            f"[yellow]warning:[/yellow] {name}: corners still moved {report.changes_px[-1]:.2g} px "
+            f"in the last refinement round",
+            highlight=False,
+        )
+
+
 def _calibrating(message: str) -> Progress:
     progress = Progress(
         SpinnerColumn(), TextColumn(message), TimeElapsedColumn(), console=err_console, transient=True
@@ -192,6 +223,13 @@ def register(app: typer.Typer) -> None:
         residuals: Annotated[
             Path | None, typer.Option("--residuals", help="Residual picture (default OUT_residuals.png).")
         ] = None,
+        refine: Annotated[
+            bool,
+            typer.Option(
+                "--refine/--no-refine",
+                help="Refine the corners for the fisheye with the lens found, recalibrate.",
+            ),
+        ] = True,
         min_views: Annotated[int, typer.Option("--min-views", help="Fewest usable views accepted.")] = 3,
     ) -> None:
         """Calibrate one camera's lens from chessboard images (no initial guess needed)."""
@@ -202,11 +240,12 @@ def register(app: typer.Typer) -> None:
         dets = _detect(paths, spec, f"{len(paths)} images", subpix)
         size = _image_size(dets)
         guess = _load_intrinsics(initial, "--initial")
-        with _calibrating(f"calibrating {model} from {sum(d.ok for d in dets)} views"):
+        extra = " with corner refinement" if refine else ""
+        with _calibrating(f"calibrating {model} from {sum(d.ok for d in dets)} views{extra}"):
             result = calibrate_camera(
                 model, [spec.object_points()] * len(dets), [d.corners for d in dets], size, guess,
                 fix=_fix_list(fix), fov_deg=fov_deg, loss=loss, min_views=min_views,
-                view_names=[Path(d.source).name for d in dets],
+                view_names=[Path(d.source).name for d in dets], images=_sources(dets, refine),
             )  # fmt: skip
         camera = result.camera
         save_rig(Rig({name: camera}, {name: np.eye(4)}), out)
@@ -221,6 +260,7 @@ def register(app: typer.Typer) -> None:
             highlight=False,
         )
         console.print(f"  {_summary(camera, result.param_std)}", highlight=False, soft_wrap=True)
+        _print_refinement(name, result.refinement, refine)
         if not result.converged:
             err_console.print(f"[yellow]warning:[/yellow] {result.message}")
         console.print(f"wrote {out} and {picture}", highlight=False)
@@ -256,6 +296,13 @@ def register(app: typer.Typer) -> None:
         residuals: Annotated[
             Path | None, typer.Option("--residuals", help="Residual picture (default OUT_residuals.png).")
         ] = None,
+        refine: Annotated[
+            bool,
+            typer.Option(
+                "--refine/--no-refine",
+                help="Refine the corners for the fisheye with the lens found, recalibrate.",
+            ),
+        ] = True,
         min_views: Annotated[
             int, typer.Option("--min-views", help="Fewest usable views, per camera and common.")
         ] = 3,
@@ -274,12 +321,14 @@ def register(app: typer.Typer) -> None:
         pair_names = [
             f"{Path(a.source).name}|{Path(b.source).name}" for a, b in zip(ldets, rdets, strict=True)
         ]
-        with _calibrating(f"calibrating the pair ({n_both} views seen by both cameras)"):
+        extra = " with corner refinement" if refine else ""
+        with _calibrating(f"calibrating the pair ({n_both} views seen by both cameras){extra}"):
             result = calibrate_stereo(
                 model, [spec.object_points()] * len(ldets), [d.corners for d in ldets],
                 [d.corners for d in rdets], lsize, rsize, left_initial=linit, right_initial=rinit,
                 fix_intrinsics=fix_intrinsics, fov_deg=fov_deg, loss=loss, min_views=min_views,
-                min_common_views=min_views, view_names=pair_names,
+                min_common_views=min_views, view_names=pair_names, left_images=_sources(ldets, refine),
+                right_images=_sources(rdets, refine),
             )  # fmt: skip
         save_rig(result.rig, out)
         panels = [
@@ -304,6 +353,8 @@ def register(app: typer.Typer) -> None:
             + ")",
             highlight=False,
         )
+        for n in result.rig.names:
+            _print_refinement(n, result.refinement.get(n), refine)
         if not result.converged:
             err_console.print(f"[yellow]warning:[/yellow] {result.message}")
         console.print(f"wrote {out} and {picture}", highlight=False)

@@ -1,21 +1,37 @@
 """Extrinsics of a camera pair, including the 90°-divergent mount, against exact truth (rendered
-and projected boards with known mount poses) and against ``cv2.fisheye.stereoCalibrate``."""
+and projected boards with known mount poses) and against ``cv2.fisheye.stereoCalibrate``.
+
+Rendered pairs are 480x480, 4x4 supersampled; the right lens is a second copy of the left's
+make (``twin_lens``), so intrinsics cannot be swapped unnoticed."""
 
 from __future__ import annotations
 
+import functools
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 import pytest
 
+from calibration.calibrate import calibrate_camera
 from calibration.errors import CalibrationFailed
 from calibration.geometry import invert_transform, rotation_angle
 from calibration.models import CameraModel, create
-from calibration.stereo_calibrate import average_transforms, calibrate_stereo
+from calibration.stereo_calibrate import StereoCalibration, average_transforms, calibrate_stereo
 from calibration.targets import board_object_points, detect_chessboard, read_corner_lists
 from rig.sim import divergent_rig
-from tests.calibration.calibration_renders import BOARD, board_pose, render_board, true_corners, true_lenses
+from tests.calibration.calibration_renders import (
+    BOARD,
+    FINE_SUPERSAMPLE,
+    board_pose,
+    circle_views,
+    image_difference,
+    render_board,
+    true_corners,
+    true_lenses,
+    twin_lens,
+)
 from tests.conftest import shared_file
 
 X = board_object_points(*BOARD, 0.05)
@@ -37,22 +53,18 @@ WEDGE = [
 
 
 def views_of(
-    lens: CameraModel, angle_deg: float, pitch_deg: float, render: bool
+    lens: CameraModel, angle_deg: float, pitch_deg: float
 ) -> tuple[list[np.ndarray | None], list[np.ndarray | None], np.ndarray]:
-    """Corners of the wedge boards in each camera of a divergent rig (None where a camera does
-    not see the whole board), exact or detected in renders, and the true T_right_left."""
+    """Exact corners of the wedge boards in each camera of a divergent rig (None where a camera
+    does not see the whole board) and the true T_right_left."""
     rig = divergent_rig(lens, lens, 0.072, angle_deg, pitch_deg)
-    left, right = [], []
+    left: list[np.ndarray | None] = []
+    right: list[np.ndarray | None] = []
     for T_rig_board in WEDGE:
         for name, out in (("left", left), ("right", right)):
             T = invert_transform(rig.T_rig_cam[name]) @ T_rig_board
             _, ok = lens.project(X @ T[:3, :3].T + T[:3, 3])
-            if not ok.all():
-                out.append(None)
-            elif render:
-                out.append(detect_chessboard(render_board(lens, T), BOARD))
-            else:
-                out.append(true_corners(lens, T)[0])
+            out.append(true_corners(lens, T)[0] if ok.all() else None)
     return left, right, invert_transform(rig.T_rig_cam["right"]) @ rig.T_rig_cam["left"]
 
 
@@ -68,7 +80,7 @@ def common_count(left: list[np.ndarray | None], right: list[np.ndarray | None]) 
 
 @pytest.mark.parametrize(("model", "angle", "pitch"), [("kannala_brandt", 90, 0), ("double_sphere", 87, 2)])
 def test_divergent_pair_exact_from_no_guess(model: str, angle: float, pitch: float) -> None:
-    left, right, T_true = views_of(LENSES[model], angle, pitch, render=False)
+    left, right, T_true = views_of(LENSES[model], angle, pitch)
     assert common_count(left, right) >= 8
     result = calibrate_stereo(model, [X] * len(WEDGE), left, right, (480, 480))
     rot, trans = pose_errors(result.T_right_left, T_true)
@@ -87,7 +99,7 @@ def test_divergent_pair_exact_from_no_guess(model: str, angle: float, pitch: flo
 
 
 def test_corners_numbered_the_other_way_round_are_recognised() -> None:
-    left, right, T_true = views_of(LENSES["kannala_brandt"], 90, 0, render=False)
+    left, right, T_true = views_of(LENSES["kannala_brandt"], 90, 0)
     flipped = [
         i for i, (a, b) in enumerate(zip(left, right, strict=True)) if a is not None and b is not None
     ][:3]
@@ -102,7 +114,7 @@ def test_corners_numbered_the_other_way_round_are_recognised() -> None:
 
 
 def test_too_few_common_views_is_one_clear_error() -> None:
-    left, right, _ = views_of(LENSES["kannala_brandt"], 90, 0, render=False)
+    left, right, _ = views_of(LENSES["kannala_brandt"], 90, 0)
     both = [i for i, (a, b) in enumerate(zip(left, right, strict=True)) if a is not None and b is not None]
     for i in both[2:]:
         right[i] = None
@@ -126,33 +138,114 @@ def test_average_transforms_is_the_rotation_mean() -> None:
     np.testing.assert_allclose(mean[:3, :3] @ mean[:3, :3].T, np.eye(3), atol=1e-12)
 
 
+@dataclass(frozen=True)
+class RenderedPair:
+    """The wedge boards rendered (4x4 supersampled) in both cameras of a divergent rig whose
+    right lens is another copy of the left's make: images (None where a camera does not see the
+    whole board), SB detections, and the true T_right_left."""
+
+    images: dict[str, list[np.ndarray | None]]
+    corners: dict[str, list[np.ndarray | None]]
+    T_true: np.ndarray
+
+
+PAIR_LENSES = {"left": LENSES["kannala_brandt"], "right": twin_lens(LENSES["kannala_brandt"])}
+
+
+@functools.cache
+def rendered_pair(angle_deg: float, pitch_deg: float) -> RenderedPair:
+    rig = divergent_rig(PAIR_LENSES["left"], PAIR_LENSES["right"], 0.072, angle_deg, pitch_deg)
+    images: dict[str, list[np.ndarray | None]] = {"left": [], "right": []}
+    for T_rig_board in WEDGE:
+        for name, lens in PAIR_LENSES.items():
+            T = invert_transform(rig.T_rig_cam[name]) @ T_rig_board
+            _, ok = lens.project(X @ T[:3, :3].T + T[:3, 3])
+            images[name].append(render_board(lens, T, supersample=FINE_SUPERSAMPLE) if ok.all() else None)
+    corners = {
+        n: [None if im is None else detect_chessboard(im, BOARD) for im in ims] for n, ims in images.items()
+    }
+    return RenderedPair(images, corners, invert_transform(rig.T_rig_cam["right"]) @ rig.T_rig_cam["left"])
+
+
+@functools.cache
+def own_intrinsics(name: str) -> CameraModel:
+    """A camera's lens as a user gets it: calibrated (with corner refinement) from chessboard
+    images taken with that camera alone over its whole field (13 views, no true values)."""
+    lens = PAIR_LENSES[name]
+    images = [render_board(lens, T, supersample=FINE_SUPERSAMPLE) for T in circle_views()]
+    found = [detect_chessboard(im, BOARD) for im in images]
+    return calibrate_camera("kannala_brandt", [X] * len(images), found, (480, 480), images=images).camera
+
+
+def _stereo(pair: RenderedPair, refine: bool, **kw: object) -> tuple[float, float, StereoCalibration]:
+    images = {n: pair.images[n] if refine else None for n in ("left", "right")}
+    result = calibrate_stereo(
+        "kannala_brandt", [X] * len(WEDGE), pair.corners["left"], pair.corners["right"], (480, 480),
+        left_images=images["left"], right_images=images["right"], **kw,  # type: ignore[arg-type]
+    )  # fmt: skip
+    rot, trans = pose_errors(result.T_right_left, pair.T_true)
+    return rot, trans, result
+
+
+MOUNTS = [(90, 0), (87, 2)]
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize(("angle", "pitch"), [(90, 0), (87, 2)])
-def test_divergent_pair_on_renders(angle: float, pitch: float) -> None:
-    """Relative pose from rendered boards with the lenses known: the issue's 0.05° / 0.5 mm."""
-    lens = LENSES["kannala_brandt"]
-    left, right, T_true = views_of(lens, angle, pitch, render=True)
-    assert common_count(left, right) >= 8
-    result = calibrate_stereo("kannala_brandt", [X] * len(WEDGE), left, right, (480, 480),
-                              left_initial=lens, right_initial=lens, fix_intrinsics=True)  # fmt: skip
-    rot, trans = pose_errors(result.T_right_left, T_true)
-    assert rot <= 0.05 and trans <= 0.5e-3, (rot, trans)
-    assert result.rms < 0.1
-    assert max(result.max_angle_deg.values()) > 90.0
+@pytest.mark.parametrize(("angle", "pitch"), MOUNTS)
+def test_divergent_pair_with_intrinsics_from_each_cameras_own_images(angle: float, pitch: float) -> None:
+    """Issue #4's 0.05° / 0.5 mm, as a user gets there: each camera's lens calibrated from its
+    own images, then the pair from the wedge images (corners refined with those lenses), the
+    lenses held fixed or refined jointly."""
+    pair = rendered_pair(angle, pitch)
+    assert sum(a is not None and b is not None for a, b in zip(*pair.corners.values(), strict=True)) >= 8
+    lenses = {n: own_intrinsics(n) for n in ("left", "right")}
+    for n, lens in lenses.items():
+        assert image_difference(PAIR_LENSES[n], lens)[0] <= 0.1
+    given = {"left_initial": lenses["left"], "right_initial": lenses["right"]}
+    raw_rot, raw_trans, _ = _stereo(pair, False, fix_intrinsics=True, **given)
+    rot, trans, fixed = _stereo(pair, True, fix_intrinsics=True, **given)
+    joint_rot, joint_trans, joint = _stereo(pair, True, **given)
+    print(
+        f"\n{angle}°/{pitch}°, own intrinsics: detector corners {raw_rot:.4f}° {raw_trans * 1e3:.3f} mm; "
+        f"refined, lenses fixed {rot:.4f}° {trans * 1e3:.3f} mm; refined jointly {joint_rot:.4f}° "
+        f"{joint_trans * 1e3:.3f} mm"
+    )
+    assert rot <= 0.05 and trans <= 0.5e-3
+    assert joint_rot <= 0.05 and joint_trans <= 0.5e-3
+    for result in (fixed, joint):
+        assert result.rms < 0.03 and max(result.max_angle_deg.values()) > 90.0
+        assert all(r is not None and r.rms_after < r.rms_before for r in result.refinement.values())
+    assert fixed.cameras["left"] == lenses["left"]  # held, not re-estimated
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("angle", "pitch"), MOUNTS)
+def test_divergent_pair_on_renders_with_the_true_lenses(angle: float, pitch: float) -> None:
+    """The relative pose alone (true lenses given and held): what the corners allow."""
+    pair = rendered_pair(angle, pitch)
+    kw = {"left_initial": PAIR_LENSES["left"], "right_initial": PAIR_LENSES["right"], "fix_intrinsics": True}
+    raw_rot, raw_trans, _ = _stereo(pair, False, **kw)
+    rot, trans, result = _stereo(pair, True, **kw)
+    print(f"\n{angle}°/{pitch}°, true lenses: detector corners {raw_rot:.4f}° {raw_trans * 1e3:.3f} mm; "
+          f"refined {rot:.4f}° {trans * 1e3:.3f} mm")  # fmt: skip
+    assert rot <= 0.02 and trans <= 0.1e-3 and rot < raw_rot
+    assert result.rms < 0.03
     # The reported uncertainty is of the size of the actual error (not 10x off either way).
-    assert trans < 5 * result.translation_std_m and result.translation_std_m < 1e-3
+    assert trans < 5 * result.translation_std_m and result.translation_std_m < 0.2e-3
 
 
 @pytest.mark.slow
 def test_divergent_pair_on_renders_from_no_guess() -> None:
-    """Intrinsics and extrinsics together from the same renders, no guess at all. The rotation
-    is then limited by how well ~10 views pin each principal point (~0.1 px ≈ 0.05°)."""
-    lens = LENSES["kannala_brandt"]
-    left, right, T_true = views_of(lens, 87, 2, render=True)
-    result = calibrate_stereo("kannala_brandt", [X] * len(WEDGE), left, right, (480, 480))
-    rot, trans = pose_errors(result.T_right_left, T_true)
-    assert rot <= 0.15 and trans <= 1e-3, (rot, trans)
-    assert result.rms < 0.1
+    """Lenses and pose together from the wedge images alone (what `rig calibrate stereo` does
+    without intrinsics files), corners refined with each camera's lens as it is found."""
+    pair = rendered_pair(87, 2)
+    raw_rot, raw_trans, _ = _stereo(pair, False)
+    rot, trans, result = _stereo(pair, True)
+    print(f"\n87°/2°, no guess: detector corners {raw_rot:.4f}° {raw_trans * 1e3:.3f} mm; "
+          f"refined {rot:.4f}° {trans * 1e3:.3f} mm")  # fmt: skip
+    assert rot <= 0.05 and trans <= 0.5e-3, (rot, trans)
+    assert result.rms < 0.03
+    assert all(m is not None and m.refinement is not None for m in result.mono.values())
 
 
 def _jy() -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:

@@ -1,0 +1,80 @@
+"""Relative pose of a camera pair from per-view estimates: a robust consensus over the views
+(each possibly seen with its board's corners numbered the other way round) and the mean of
+rigid transforms.
+
+Shapes: transforms 4x4 (``T_right_left``), object points (N, 3).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["average_transforms", "consensus_pose", "half_turn"]
+
+F64 = NDArray[np.float64]
+
+# Two per-view relative poses agree when within these (robust consensus for the initial pose).
+_AGREE_DEG = 3.0
+_AGREE_FRACTION = 0.1  # of the median baseline
+
+
+def average_transforms(transforms: Sequence[F64]) -> F64:
+    """Mean of rigid transforms (4x4): chordal L2 mean of the rotations (SVD projection of the
+    summed matrices onto SO(3)) and mean translation."""
+    Rs = np.stack([T[:3, :3] for T in transforms])
+    U, _, Vt = np.linalg.svd(Rs.sum(axis=0))
+    R = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+    out = np.eye(4)
+    out[:3, :3] = R
+    out[:3, 3] = np.mean([T[:3, 3] for T in transforms], axis=0)
+    return out
+
+
+def _angle_deg(Ra: F64, Rb: F64) -> float:
+    c = (np.trace(Ra.T @ Rb) - 1.0) / 2.0
+    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+
+
+def half_turn(object_points: F64) -> F64 | None:
+    """Transform F (4x4) of the board onto itself by a half turn about its centre when the
+    reversed point order is that half turn (``X[::-1] == F · X``), else None."""
+    c = 0.5 * (object_points.min(axis=0) + object_points.max(axis=0))
+    F = np.eye(4)
+    F[:3, :3] = np.diag([-1.0, -1.0, 1.0])
+    F[:3, 3] = [2 * c[0], 2 * c[1], 0.0]
+    turned = object_points @ F[:3, :3].T + F[:3, 3]
+    scale = max(float(np.ptp(object_points, axis=0).max()), 1e-12)
+    if not np.allclose(object_points[:, 2], 0.0) or not np.allclose(
+        turned, object_points[::-1], atol=1e-9 * scale
+    ):
+        return None
+    return F
+
+
+def consensus_pose(candidates: list[list[F64]]) -> tuple[F64, list[int]]:
+    """Pick per view one of its candidate relative poses so that most views agree; returns the
+    averaged pose and the chosen candidate index per view (-1 = outlier)."""
+    flat = [(v, k, T) for v, cands in enumerate(candidates) for k, T in enumerate(cands)]
+    baseline = float(np.median([np.linalg.norm(T[:3, 3]) for _, _, T in flat]))
+    t_tol = max(_AGREE_FRACTION * baseline, 1e-9)
+    best: tuple[int, list[int]] = (-1, [])
+    for _, _, ref in flat:
+        choice = []
+        for cands in candidates:
+            ok = [
+                k
+                for k, T in enumerate(cands)
+                if _angle_deg(T[:3, :3], ref[:3, :3]) < _AGREE_DEG
+                and np.linalg.norm(T[:3, 3] - ref[:3, 3]) < t_tol
+            ]
+            choice.append(ok[0] if ok else -1)
+        support = sum(c >= 0 for c in choice)
+        if support > best[0]:
+            best = (support, choice)
+    choice = best[1]
+    chosen = [candidates[v][k] for v, k in enumerate(choice) if k >= 0]
+    return average_transforms(chosen), choice
