@@ -158,6 +158,8 @@ class Recording:
             raise RecordingError(f"seq must be >= 0, got {seq}")
         if not fields[3] or not fields[4]:
             raise RecordingError("left_file and right_file must not be empty")
+        if "\x00" in fields[3] or "\x00" in fields[4]:
+            raise RecordingError("left_file and right_file must not contain NUL characters")
         return PairRecord(seq, lts, rts, fields[3], fields[4])
 
     def __len__(self) -> int:
@@ -168,6 +170,8 @@ class Recording:
 
     def path(self, relative: str) -> Path:
         """Absolute path of a file named in the index; refuses paths leaving the recording."""
+        if "\x00" in relative:  # the OS cannot name it; pathlib would raise ValueError
+            raise RecordingError(f"{self.root / 'frames.csv'}: file {relative!r} is not a valid file name")
         root = self.root.resolve()
         p = (root / relative).resolve()
         if not p.is_relative_to(root):

@@ -62,7 +62,8 @@ class StereoParams(BaseModel):
     correlation_window_size: int = Field(7, ge=1, le=255, description="matching window (odd, px)")
     min_disparity: int = Field(0, ge=-2048, le=2048, description="smallest disparity searched (px)")
     disparity_range: int = Field(128, ge=16, le=4096, description="disparities searched (multiple of 16)")
-    uniqueness_ratio: float = Field(10.0, ge=0.0, le=100.0, description="best must beat 2nd by this %")
+    # OpenCV 5.0 SGBM_3WAY divides by zero (SIGFPE, the process dies) at a ratio of 100.
+    uniqueness_ratio: float = Field(10.0, ge=0.0, lt=99.5, description="best must beat 2nd by this %")
     texture_threshold: int = Field(10, ge=0, le=10000, description="BM: minimum window texture")
     speckle_size: int = Field(100, ge=0, le=10000, description="remove blobs smaller than this (0 = off)")
     speckle_range: int = Field(2, ge=0, le=64, description="max disparity step inside a blob (px)")
@@ -175,7 +176,10 @@ class StereoMatcher:
                 f"image width {left.shape[1]} leaves no column for disparity_range "
                 f"{self.params.disparity_range} + min_disparity {self.params.min_disparity}"
             )
-        out: NDArray[np.int16] = self._matcher.compute(left, right)
+        try:
+            out: NDArray[np.int16] = self._matcher.compute(left, right)
+        except cv2.error as err:
+            raise PipelineError(f"stereo matcher refused the pair: {' '.join(str(err).split())}") from err
         return out
 
     def match(self, left: U8, right: U8) -> DisparityResult:

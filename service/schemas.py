@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal, Optional
+from typing import Annotated, Any, Literal, Optional, get_args, get_origin
 
 from annotated_types import MultipleOf
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model, field_validator
@@ -189,6 +189,17 @@ def _reject_bool(value: Any) -> Any:
     return value
 
 
+def _json_integer(value: Any) -> Any:
+    # JSON Schema's "integer" is any number without a fraction: 7.0 is 7 (strict int refuses it).
+    value = _reject_bool(value)
+    return int(value) if isinstance(value, float) and value.is_integer() else value
+
+
+def _is_integer_field(annotation: Any) -> bool:
+    args = get_args(annotation) if get_origin(annotation) is Literal else ()
+    return annotation is int or (bool(args) and all(type(a) is int for a in args))
+
+
 # StereoParams checks these in a model validator; stated per field so the schema says it too.
 _ODD: JsonDict = {"not": {"multipleOf": 2}}
 _EXTRA_CONSTRAINTS: dict[str, list[Any]] = {
@@ -207,7 +218,7 @@ def _optional_fields(model: type[BaseModel]) -> dict[str, Any]:
         inner: Any = info.annotation
         metadata = [*info.metadata, *_EXTRA_CONSTRAINTS.get(name, [])]
         if inner is not bool:
-            metadata.append(BeforeValidator(_reject_bool))
+            metadata.append(BeforeValidator(_json_integer if _is_integer_field(inner) else _reject_bool))
         if metadata:
             inner = annotated[(inner, *metadata)]
         fields[name] = (optional[inner], Field(None, description=info.description))

@@ -4,19 +4,25 @@ body size limit.
 Every endpoint that changes state requires ``Authorization: Bearer <server.api_token>``; when no
 token is configured (allowed only on a loopback bind) those endpoints refuse everyone, so a page
 in a local browser cannot change anything behind the user's back. The token comparison is
-constant-time.
+constant-time. Routers holding such endpoints use :class:`TokenFirstRoute`, which checks the
+token of a POST/PUT/PATCH/DELETE before its body is read, so an unauthenticated client gets 401
+whatever it sends (never a validation error that describes the body).
 """
 
 from __future__ import annotations
 
 import hmac
 import json
-from typing import Annotated
+from collections.abc import Callable, Coroutine
+from typing import Annotated, Any
 
-from fastapi import Depends, HTTPException, Request
+from fastapi import Depends, HTTPException, Request, Response
+from fastapi.routing import APIRoute
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-__all__ = ["AuthDep", "BodySizeLimit", "require_token"]
+__all__ = ["STATE_CHANGING_METHODS", "AuthDep", "BodySizeLimit", "TokenFirstRoute", "require_token"]
+
+STATE_CHANGING_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 
 
 async def require_token(request: Request) -> None:
@@ -38,6 +44,22 @@ async def require_token(request: Request) -> None:
 
 
 AuthDep = Annotated[None, Depends(require_token)]
+
+
+class TokenFirstRoute(APIRoute):
+    """An APIRoute whose state-changing methods check the bearer token before anything else
+    (FastAPI parses and validates the body before it runs dependencies such as :data:`AuthDep`)."""
+
+    def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
+        handler = super().get_route_handler()
+        if not (self.methods or set()) & STATE_CHANGING_METHODS:
+            return handler
+
+        async def token_first(request: Request) -> Response:
+            await require_token(request)
+            return await handler(request)
+
+        return token_first
 
 
 class _TooLarge(HTTPException):

@@ -19,16 +19,21 @@ runtime fires before the next frame. What each fault does, exactly (the counters
 - ``rate`` (factor, frames | duration_s): keeps one frame in ``round(1/factor)`` of the next
   ``frames`` recorded frames (or of those scheduled within ``duration_s``); the others are lost.
 - ``drop`` (count): the next ``count`` frames are lost.
+
+Durations and clock offsets are at most ``MAX_FAULT_S`` (a day). The JSON schema states the
+validators' cross-field rules too (one trigger at most, ``offset_ms`` not 0, a rate fault with
+exactly one of ``frames``/``duration_s``), so API clients see them.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
 
 __all__ = [
+    "MAX_FAULT_S",
     "CorruptFault",
     "DisconnectFault",
     "DropFault",
@@ -42,8 +47,24 @@ __all__ = [
 ]
 
 
+#: Longest stall/disconnect/rate window and largest clock jump: beyond a day nothing is tested,
+#: and the nanosecond arithmetic stays finite.
+MAX_FAULT_S = 86_400.0
+
+
+def _fault_schema(schema: dict[str, Any], cls: type) -> None:
+    """State the validators' cross-field rules in the JSON schema too (API clients and
+    schemathesis read it): ``kind`` is the discriminator, so it is required there."""
+    required = schema.setdefault("required", [])
+    if "kind" not in required:
+        required.append("kind")
+    both = {"at_frame": {"type": "integer"}, "at_s": {"type": "number"}}
+    rules: list[dict[str, Any]] = [{"not": {"properties": both, "required": list(both)}}]
+    schema["allOf"] = rules + list(getattr(cls, "SCHEMA_RULES", []))
+
+
 class _Trigger(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, json_schema_extra=_fault_schema)
 
     at_frame: int | None = Field(None, ge=0, description="fire after this many delivered frames")
     at_s: float | None = Field(None, ge=0.0, description="fire this long after the first open")
@@ -57,12 +78,12 @@ class _Trigger(BaseModel):
 
 class StallFault(_Trigger):
     kind: Literal["stall"] = "stall"
-    duration_s: float = Field(gt=0.0)
+    duration_s: float = Field(gt=0.0, le=MAX_FAULT_S)
 
 
 class DisconnectFault(_Trigger):
     kind: Literal["disconnect"] = "disconnect"
-    duration_s: float = Field(gt=0.0)
+    duration_s: float = Field(gt=0.0, le=MAX_FAULT_S)
 
 
 class CorruptFault(_Trigger):
@@ -77,7 +98,9 @@ class TruncateFault(_Trigger):
 
 class TimestampJumpFault(_Trigger):
     kind: Literal["timestamp_jump"] = "timestamp_jump"
-    offset_ms: float
+    offset_ms: float = Field(
+        ge=-MAX_FAULT_S * 1e3, le=MAX_FAULT_S * 1e3, json_schema_extra={"not": {"const": 0}}
+    )
 
     @model_validator(mode="after")
     def _nonzero(self) -> TimestampJumpFault:
@@ -87,10 +110,21 @@ class TimestampJumpFault(_Trigger):
 
 
 class RateFault(_Trigger):
+    SCHEMA_RULES: ClassVar[list[dict[str, Any]]] = [
+        {
+            "oneOf": [
+                {"properties": {"frames": {"type": "integer"}}, "required": ["frames"]},
+                {"properties": {"duration_s": {"type": "number"}}, "required": ["duration_s"]},
+            ]
+        }
+    ]
+
     kind: Literal["rate"] = "rate"
     factor: float = Field(0.5, gt=0.0, lt=1.0, description="fraction of frames kept")
     frames: int | None = Field(None, ge=1, description="recorded frames the reduction applies to")
-    duration_s: float | None = Field(None, gt=0.0, description="or: scheduled time it applies to")
+    duration_s: float | None = Field(
+        None, gt=0.0, le=MAX_FAULT_S, description="or: scheduled time it applies to"
+    )
 
     @model_validator(mode="after")
     def _one_extent(self) -> RateFault:

@@ -9,8 +9,10 @@ It goes through the same protocol, supervisor and pairing as a V4L2 camera. Timi
   means something) and a ``seq`` that keeps increasing across loops.
 - The anchor comes from a :class:`~rig.capture.protocol.TimeBase`; two cameras replaying the
   same recording through one TimeBase share a clock, so their pairs line up exactly.
-- On (re)open a paced camera skips frames due more than ``CATCH_UP_S`` ago, and it never delivers
-  frames due during a stall or disconnect: like a real camera, it loses them (gaps in ``seq``).
+- A paced camera never delivers frames due during a stall or disconnect, nor frames due more than
+  ``CATCH_UP_S`` before it is read (after a reopen, or when the reading thread was starved of CPU):
+  like a real camera whose driver ring buffer overran, it loses them (gaps in ``seq``). So a
+  delivered frame is never older than ``CATCH_UP_S``, well inside the supervisor's clock check.
 """
 
 from __future__ import annotations
@@ -43,12 +45,15 @@ class FileCameraStats:
     """What the camera itself did, for cross-checking the supervisor's counters exactly.
 
     ``lost``: recorded frames skipped after the first delivered one (stall/disconnect windows,
-    ``rate``/``drop`` faults, catch-up after a reopen) — each shows up as a ``seq`` gap.
+    ``rate``/``drop`` faults, catch-up) — each shows up as a ``seq`` gap.
+    ``lost_late``: the part of ``lost`` skipped by catch-up (due more than ``CATCH_UP_S`` before
+    the read: a reopen after backoff, a starved reader); ``lost - lost_late`` is what faults cost.
     ``skipped_at_start``: frames skipped before the first delivery (no gap anyone can see).
     """
 
     delivered: int = 0
     lost: int = 0
+    lost_late: int = 0
     skipped_at_start: int = 0
     corrupted: int = 0
     truncated: int = 0
@@ -106,7 +111,6 @@ class FileCamera:
         self._open = False
         self._anchor_ns: int | None = None
         self._first_open_ns: int | None = None
-        self._resync_ns: int | None = None
         self._pos = 0
         self._stats = FileCameraStats()
 
@@ -138,8 +142,6 @@ class FileCamera:
             if self._anchor_ns is None:
                 self._anchor_ns = self._timebase.anchor_ns()
                 self._first_open_ns = now
-            if self._paced:
-                self._resync_ns = now - round(self.CATCH_UP_S * 1e9)
             self._plan.reset_clock()
             self._open = True
             self._stats = replace(self._stats, opens=self._stats.opens + 1)
@@ -173,6 +175,11 @@ class FileCamera:
                     if self._lost_to_outage(due):
                         self._skip()
                         continue
+                    if due < now - round(self.CATCH_UP_S * 1e9):
+                        # Delivering it would hand out a stale frame the supervisor rejects as
+                        # a clock jump (and reconnects): catch up instead, as a real camera would.
+                        self._skip(late=True)
+                        continue
                     if due > now:
                         wait_until = due
                 if wait_until is not None:
@@ -197,8 +204,11 @@ class FileCamera:
         with self._cond:
             now = self._clock()
             due = self._due_ns(self._pos) if self._open else None
-            # A stall/disconnect starts at the next frame's due time, so that frame is lost too.
-            self._plan.inject(f, max(now, due) if due is not None else now)
+            # A stall/disconnect starts at the due time of the next frame not yet delivered, so
+            # that frame is lost too and a window of D seconds loses ceil(D·fps) frames whether or
+            # not the reading thread is running late (a frame due long ago is skipped anyway).
+            late = due is not None and due < now - round(self.CATCH_UP_S * 1e9)
+            self._plan.inject(f, now if due is None or late else due)
             self._cond.notify_all()
 
     def stats(self) -> FileCameraStats:
@@ -231,15 +241,13 @@ class FileCamera:
 
     def _lost_to_outage(self, due: int) -> bool:
         end = self._plan.outage_end_ns()
-        if end is not None and due < end:
-            return True
-        return self._resync_ns is not None and due < self._resync_ns
+        return end is not None and due < end
 
-    def _skip(self) -> None:
+    def _skip(self, *, late: bool = False) -> None:
         self._pos += 1
         s = self._stats
         if s.delivered:
-            self._stats = replace(s, lost=s.lost + 1)
+            self._stats = replace(s, lost=s.lost + 1, lost_late=s.lost_late + late)
         else:
             self._stats = replace(s, skipped_at_start=s.skipped_at_start + 1)
 
@@ -257,7 +265,9 @@ class FileCamera:
         self._stats = replace(s, delivered=s.delivered + 1)
         source = str(self._rec.root / rel)
         try:
-            fmt: FrameFormat = format_of_path(rel)
+            # The index may name anything: refuse paths leaving the recording first, then judge
+            # the type by the full path so the message names the file.
+            fmt: FrameFormat = format_of_path(str(self._rec.path(rel)))
             data = self._rec.read_bytes(self._rec.pairs[i], self._cam)
         except (RecordingError, CorruptFrameError) as err:
             self._stats = replace(self._stats, unreadable=self._stats.unreadable + 1)

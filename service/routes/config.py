@@ -3,20 +3,22 @@
 from __future__ import annotations
 
 import cv2
+import numpy as np
 from fastapi import APIRouter, HTTPException
 from fastapi.encoders import jsonable_encoder
 from pydantic import ValidationError
 
-from rig.errors import ConfigError
-from rig.stereo import StereoParams
+from rig.errors import ConfigError, PipelineError
+from rig.pipeline import DepthPipeline
+from rig.stereo import StereoMatcher, StereoParams
 from service.deps import RuntimeDep
 from service.runtime import Runtime
 from service.schemas import BODY_ERRORS, ConfigModel, ConfigPatch, ServerPublicModel
-from service.security import AuthDep
+from service.security import AuthDep, TokenFirstRoute
 
 __all__ = ["config_model", "router"]
 
-router = APIRouter(tags=["config"])
+router = APIRouter(tags=["config"], route_class=TokenFirstRoute)
 
 
 def config_model(runtime: Runtime) -> ConfigModel:
@@ -40,6 +42,25 @@ def config_model(runtime: Runtime) -> ConfigModel:
     )
 
 
+def dry_run(pipeline: DepthPipeline, params: StereoParams) -> None:
+    """Run a matcher with ``params`` once on a blank pair of the VPC size: OpenCV checks some
+    limits (window vs. disparity range vs. image width) only when it matches, and a refused
+    configuration must be refused here, not fail every frame in the worker. Combinations that
+    crash OpenCV itself (a native crash takes the whole service down) are refused unrun."""
+    if (
+        params.stereo_algorithm == 1
+        and params.effective_mode == "3way"
+        and round(params.uniqueness_ratio) >= 100
+    ):
+        # OpenCV 5.0's SGBM_3WAY divides by (100 - uniquenessRatio): SIGFPE, the process dies.
+        raise ValueError(
+            "uniqueness_ratio 100 with sgbm_mode 3way crashes OpenCV (division by zero); use <= 99"
+        )
+    cam = pipeline.pair.camera
+    blank = np.zeros((cam.height, cam.width), dtype=np.uint8)
+    StereoMatcher(params).match(blank, blank)
+
+
 @router.get("/config", response_model=ConfigModel, summary="Effective configuration (no secrets)")
 def get_config(runtime: RuntimeDep) -> ConfigModel:
     return config_model(runtime)
@@ -57,6 +78,7 @@ def patch_config(patch: ConfigPatch, runtime: RuntimeDep, _auth: AuthDep) -> Con
     current = runtime.pipeline.stereo
     try:
         params = StereoParams.model_validate({**current.model_dump(), **changes})
+        dry_run(runtime.pipeline, params)
         runtime.pipeline.update_stereo(params)
     except ValidationError as err:
         detail = jsonable_encoder(err.errors(include_url=False, include_context=False))
@@ -65,6 +87,10 @@ def patch_config(patch: ConfigPatch, runtime: RuntimeDep, _auth: AuthDep) -> Con
         raise HTTPException(422, detail) from err
     except ConfigError as err:
         raise HTTPException(422, str(err)) from err
-    except (ValueError, OverflowError, cv2.error) as err:  # valid for pydantic, refused by OpenCV
-        raise HTTPException(422, f"stereo parameters refused by the matcher: {err}") from err
+    except (ValueError, OverflowError, cv2.error, PipelineError) as err:  # refused by OpenCV
+        width = runtime.pipeline.pair.camera.width
+        message = " ".join(str(err).split())
+        raise HTTPException(
+            422, f"stereo parameters refused by the matcher (VPC width {width} px): {message}"
+        ) from err
     return config_model(runtime)

@@ -12,11 +12,11 @@ from rig.capture.capture import CAMERA_NAMES
 from rig.errors import ConfigError
 from service.deps import RuntimeDep
 from service.schemas import BODY_ERRORS, ErrorModel, FaultRequest
-from service.security import AuthDep
+from service.security import AuthDep, TokenFirstRoute
 
 __all__ = ["router"]
 
-router = APIRouter(tags=["faults"])
+router = APIRouter(tags=["faults"], route_class=TokenFirstRoute)
 
 
 @router.post(

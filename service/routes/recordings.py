@@ -16,11 +16,11 @@ from service.deps import RuntimeDep
 from service.errors import RecordingConflict, RecordingNameError, RecordingNotFound
 from service.recordings import NAME_PATTERN, RecordingStatus
 from service.schemas import BODY_ERRORS, ErrorModel, RecordingInfo, RecordingStart
-from service.security import AuthDep
+from service.security import AuthDep, TokenFirstRoute
 
 __all__ = ["router"]
 
-router = APIRouter(tags=["recordings"])
+router = APIRouter(tags=["recordings"], route_class=TokenFirstRoute)
 
 # Documented with the pattern, checked by validate_name (422): FastAPI's parameter validation
 # uses pydantic's Rust regex engine, which has no lookahead.

@@ -72,7 +72,11 @@ def test_live_timestamps_follow_the_schedule_and_loop(rec: Path) -> None:
     }
     for c in cams.values():
         c.open()
-    left, right = read_n(cams["left"], 30), read_n(cams["right"], 30)
+    # Read both as their capture threads would, in step (a camera read late loses frames).
+    left, right = [], []
+    for _ in range(30):
+        left += read_n(cams["left"], 1)
+        right += read_n(cams["right"], 1)
     anchor = base.anchor_ns()
     span = 12 * PERIOD_NS  # one loop: the left column spans 11 periods, plus one
     for k, (lf, rf) in enumerate(zip(left, right, strict=True)):
