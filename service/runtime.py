@@ -165,7 +165,8 @@ class Runtime:
 
     def health(self) -> HealthReport:
         """``down``: no camera delivers, the worker or the capture is not running; ``degraded``:
-        one camera out, no depth yet or depth older than ``server.stale_after_s``; else ``ok``."""
+        one camera out, no depth yet, depth older than ``server.stale_after_s`` or the active
+        recording has stopped writing; else ``ok``."""
         cap = self.capture.health()
         worker = self.worker.stats()
         reasons: list[str] = []
@@ -186,6 +187,10 @@ class Runtime:
             and worker.last_error_age_ms < stale_ms
         ):
             reasons.append(f"depth worker error: {worker.last_error}")
+        recording = self.recordings.active
+        if recording is not None and recording.error is not None:
+            # The operator asked for this recording and it has stopped writing (e.g. disk full).
+            reasons.append(f"recording {recording.name} stopped writing: {recording.error}")
         down = not cap.running or not worker.alive or not any(c.connected for c in cap.cameras.values())
         if not cap.running:
             reasons.append("capture not running")
@@ -197,5 +202,5 @@ class Runtime:
             capture=cap,
             worker=worker,
             host=host_info(self.settings.server.recordings_dir),
-            recording=self.recordings.active,
+            recording=recording,
         )

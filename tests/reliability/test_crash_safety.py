@@ -209,12 +209,15 @@ def test_full_disk_under_the_running_service(
             wait_for(lambda: client.recordings()[0].error is not None, 60, "the disk to fill")
             failing = client.recordings()[0]
             assert failing.active and "disk full" in (failing.error or "")
-            # The service itself carries on: healthy, depth keeps coming.
+            # The service carries on (depth keeps coming) but says the recording has stopped.
             seq = client.depth().seq
             wait_for(lambda: client.depth().seq > seq, 10, "depth after the disk filled")
-            assert client.health().status == "ok"
+            health = client.health()
+            assert health.status == "degraded"
+            assert any("fills-the-disk" in r and "disk full" in r for r in health.reasons)
             done = client.stop_recording("fills-the-disk")
             assert not done.active and "disk full" in (done.error or "")
+            wait_for(lambda: client.health().status == "ok", 10, "health ok once the recording is stopped")
         rec = Recording(done.path)
         assert len(rec) == done.pairs >= 1 and not rec.truncated_tail
         for pair in rec.pairs:
