@@ -8,15 +8,21 @@ File ``<key>.lut``::
 
     b"ODFCLUT\\n"                      8-byte magic
     uint32 little-endian               length of the header
-    header JSON (utf-8)                version, key, height, width, payload_bytes, payload_sha256,
-                                       valid_fraction, build_ms, created, summary
+    header JSON (utf-8), space-padded  version, key, height, width, payload_bytes, payload_crc32,
+                                       valid_fraction, build_ms, created, summary; padded so the
+                                       payload starts at a multiple of 64 bytes
     payload                            map_x f32 (H,W) | map_y f32 (H,W) | map1 i16 (H,W,2) |
                                        map2 u16 (H,W) | valid u8 (H,W)
 
 A file with the wrong magic, version, key or shape, a short or long payload, or a payload whose
-checksum differs is never trusted: it is logged, deleted and rebuilt. Files are written to a
+CRC-32 differs is never trusted: it is logged, deleted and rebuilt. Files are written to a
 temporary name in the cache directory, flushed and fsynced, then renamed over the final name, so
 a crash mid-write never leaves a truncated ``.lut`` behind.
+
+Loading is one read into an aligned buffer, a CRC-32 over the payload (zlib: ~6 GB/s, against
+~1.8 GB/s for sha256; it catches every burst error up to 32 bits and all but 2⁻³² of random
+damage — enough for disk corruption, which is what it guards against) and array views into that
+buffer: no copies (~1 ms for a 640×480 table).
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ import os
 import struct
 import tempfile
 import time
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -51,11 +58,13 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-LUT_FORMAT_VERSION = 1
+LUT_FORMAT_VERSION = 2
 CACHE_ENV = "RIG_CACHE_DIR"
 MAGIC = b"ODFCLUT\n"
 SUFFIX = ".lut"
 _LEN = struct.Struct("<I")
+# The payload starts at a multiple of this (array views stay aligned for numpy and OpenCV).
+_ALIGN = 64
 # R_cam_vpc is rounded to this many decimals in the key: 1e-12 rad moves a pixel by ~1e-9 px.
 _R_DECIMALS = 12
 
@@ -164,20 +173,20 @@ class LutCache:
         logged, deleted and reported as absent so the caller rebuilds it."""
         path = self.path(key)
         try:
-            data = path.read_bytes()
+            data = _read_file(path)
         except FileNotFoundError:
             return None
         except OSError as err:
             log.warning("LUT cache file %s unreadable (%s); rebuilding", path, err)
             return None
         try:
-            header, payload = _parse(data)
+            header, offset = _parse(data)
             if header.get("key") != key:
                 raise _CorruptFile(f"holds key {str(header.get('key'))[:12]}…, expected {key[:12]}…")
             h, w = int(header["height"]), int(header["width"])
             if shape is not None and (h, w) != tuple(shape):
                 raise _CorruptFile(f"holds a {w}x{h} table, expected {shape[1]}x{shape[0]}")
-            return _decode(payload, h, w)
+            return _decode(data, offset, h, w)
         except (_CorruptFile, KeyError, TypeError, ValueError) as err:
             log.warning("LUT cache file %s is corrupt or stale (%s); rebuilding", path, err)
             path.unlink(missing_ok=True)
@@ -194,20 +203,23 @@ class LutCache:
             np.ascontiguousarray(lut.map2, dtype="<u2"),
             np.ascontiguousarray(lut.valid, dtype="u1"),
         ]
-        payload = b"".join(p.tobytes() for p in parts)
+        crc = 0
+        for part in parts:
+            crc = zlib.crc32(part.data.cast("B"), crc)
         header = {
             "version": LUT_FORMAT_VERSION,
             "key": key,
             "height": h,
             "width": w,
-            "payload_bytes": len(payload),
-            "payload_sha256": hashlib.sha256(payload).hexdigest(),
+            "payload_bytes": sum(p.nbytes for p in parts),
+            "payload_crc32": crc,
             "valid_fraction": lut.valid_fraction,
             "build_ms": round(build_ms, 3),
             "created": time.time(),
             "summary": summary,
         }
         head = json.dumps(header, sort_keys=True).encode()
+        head += b" " * (-(len(MAGIC) + _LEN.size + len(head)) % _ALIGN)
         self.directory.mkdir(parents=True, exist_ok=True)
         final = self.path(key)
         fd, tmp_name = tempfile.mkstemp(prefix=f".{key[:16]}.", suffix=".tmp", dir=self.directory)
@@ -216,7 +228,8 @@ class LutCache:
                 f.write(MAGIC)
                 f.write(_LEN.pack(len(head)))
                 f.write(head)
-                f.write(payload)
+                for part in parts:
+                    f.write(part.data.cast("B"))
                 f.flush()
                 os.fsync(f.fileno())
             os.replace(tmp_name, final)
@@ -235,7 +248,7 @@ class LutCache:
         for path in self.directory.glob(f"*{SUFFIX}"):
             try:
                 stat = path.stat()
-                data = path.read_bytes()
+                data = _read_file(path)
             except OSError as err:
                 out.append(CacheEntry(path, 0, 0.0, path.stem, "", None, False, str(err)))
                 continue
@@ -277,48 +290,64 @@ class LutCache:
         return n
 
 
-def _parse(data: bytes) -> tuple[dict[str, Any], memoryview]:
-    """Check magic, header, version, payload length and checksum; (header, payload)."""
-    if len(data) < len(MAGIC) + _LEN.size or not data.startswith(MAGIC):
-        raise _CorruptFile("not a LUT file (bad magic)")
-    (n,) = _LEN.unpack_from(data, len(MAGIC))
+def _read_file(path: Path) -> NDArray[np.uint8]:
+    """The whole file in one fresh (aligned, writable) buffer."""
+    with open(path, "rb", buffering=0) as f:
+        size = os.fstat(f.fileno()).st_size
+        buf = np.empty(size, dtype=np.uint8)
+        view = buf.data
+        got = 0
+        while got < size:
+            n = f.readinto(view[got:])
+            if not n:
+                break  # the file shrank while we read: the length check reports it
+            got += n
+    return buf[:got]
+
+
+def _parse(data: NDArray[np.uint8]) -> tuple[dict[str, Any], int]:
+    """Check magic, header, version, payload length and checksum; (header, payload offset)."""
+    raw = data.data
     start = len(MAGIC) + _LEN.size
-    if start + n > len(data):
+    if len(raw) < start or bytes(raw[: len(MAGIC)]) != MAGIC:
+        raise _CorruptFile("not a LUT file (bad magic)")
+    (n,) = _LEN.unpack_from(raw, len(MAGIC))
+    if start + n > len(raw):
         raise _CorruptFile("header cut short")
     try:
-        header = json.loads(data[start : start + n].decode())
+        header = json.loads(bytes(raw[start : start + n]).decode())
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise _CorruptFile(f"unreadable header ({err})") from err
     if not isinstance(header, dict):
         raise _CorruptFile("header is not a JSON object")
     if header.get("version") != LUT_FORMAT_VERSION:
         raise _CorruptFile(f"format version {header.get('version')!r}, expected {LUT_FORMAT_VERSION}")
-    payload = memoryview(data)[start + n :]
+    offset = start + n
     h, w = int(header["height"]), int(header["width"])
     expected = _payload_bytes(h, w)
-    if len(payload) != expected or header.get("payload_bytes") != expected:
-        raise _CorruptFile(f"payload is {len(payload)} bytes, expected {expected} (truncated?)")
-    if hashlib.sha256(payload).hexdigest() != header.get("payload_sha256"):
+    if len(raw) - offset != expected or header.get("payload_bytes") != expected:
+        raise _CorruptFile(f"payload is {len(raw) - offset} bytes, expected {expected} (truncated?)")
+    if zlib.crc32(raw[offset:]) != header.get("payload_crc32"):
         raise _CorruptFile("payload checksum mismatch")
-    return header, payload
+    return header, offset
 
 
-def _decode(payload: memoryview, h: int, w: int) -> Lut:
+def _decode(data: NDArray[np.uint8], offset: int, h: int, w: int) -> Lut:
+    """Array views into ``data`` (the buffer outlives nothing: the views keep it alive)."""
     arrays: dict[str, NDArray[Any]] = {}
-    offset = 0
     for name, dt, shape in _payload_layout(h, w):
-        count = int(np.prod(shape))
-        # Copy: the table outlives the file buffer and must be writable/aligned for OpenCV.
-        arrays[name] = np.frombuffer(payload, dtype=dt, count=count, offset=offset).reshape(shape).copy()
-        offset += count * dt.itemsize
-    valid = arrays["valid"].astype(bool)
-    if not valid.any():
+        nbytes = dt.itemsize * int(np.prod(shape))
+        arrays[name] = data[offset : offset + nbytes].view(dt).reshape(shape)
+        offset += nbytes
+    valid = arrays["valid"] != 0
+    count = int(np.count_nonzero(valid))
+    if count == 0:
         raise _CorruptFile("table has no valid pixel")
     return Lut(
-        arrays["map_x"].astype(np.float32, copy=False),
-        arrays["map_y"].astype(np.float32, copy=False),
-        arrays["map1"].astype(np.int16, copy=False),
-        arrays["map2"].astype(np.uint16, copy=False),
+        arrays["map_x"].view(np.float32),
+        arrays["map_y"].view(np.float32),
+        arrays["map1"].view(np.int16),
+        arrays["map2"].view(np.uint16),
         valid,
-        float(np.count_nonzero(valid)) / valid.size,
+        count / valid.size,
     )

@@ -32,7 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from rig.errors import PipelineError
 
-__all__ = ["SGBM_MODES", "DisparityResult", "StereoMatcher", "StereoParams"]
+__all__ = ["SGBM_MODES", "DisparityResult", "StereoMatcher", "StereoParams", "create_opencv_matcher"]
 
 U8 = NDArray[np.uint8]
 F32 = NDArray[np.float32]
@@ -123,6 +123,36 @@ class DisparityResult:
     valid: NDArray[np.bool_]
 
 
+def create_opencv_matcher(p: StereoParams) -> Any:
+    """The bare OpenCV matcher (``cv2.StereoBM`` or ``cv2.StereoSGBM``) configured by ``p``."""
+    if p.stereo_algorithm == 0:
+        bm = cv2.StereoBM.create(numDisparities=p.disparity_range, blockSize=p.correlation_window_size)
+        bm.setMinDisparity(p.min_disparity)
+        bm.setPreFilterType(cv2.STEREO_BM_PREFILTER_NORMALIZED_RESPONSE)
+        bm.setPreFilterSize(p.prefilter_size)
+        bm.setPreFilterCap(p.prefilter_cap)
+        bm.setTextureThreshold(p.texture_threshold)
+        bm.setUniquenessRatio(round(p.uniqueness_ratio))
+        bm.setSpeckleWindowSize(p.speckle_size)
+        bm.setSpeckleRange(p.speckle_range)
+        bm.setDisp12MaxDiff(p.disp12_max_diff)
+        return bm
+    p1, p2 = p.penalties()
+    return cv2.StereoSGBM.create(
+        minDisparity=p.min_disparity,
+        numDisparities=p.disparity_range,
+        blockSize=p.correlation_window_size,
+        P1=p1,
+        P2=p2,
+        disp12MaxDiff=p.disp12_max_diff,
+        preFilterCap=p.prefilter_cap,
+        uniquenessRatio=round(p.uniqueness_ratio),
+        speckleWindowSize=p.speckle_size,
+        speckleRange=p.speckle_range,
+        mode=SGBM_MODES[p.effective_mode],
+    )
+
+
 class StereoMatcher:
     """OpenCV matcher built from :class:`StereoParams`; ``match`` runs it (and the LR check).
 
@@ -132,37 +162,8 @@ class StereoMatcher:
 
     def __init__(self, params: StereoParams | None = None) -> None:
         self.params = params or StereoParams()
-        self._matcher = self._create()
+        self._matcher = create_opencv_matcher(self.params)
         self._right_matcher: Any = None
-
-    def _create(self) -> Any:
-        p = self.params
-        if p.stereo_algorithm == 0:
-            bm = cv2.StereoBM.create(numDisparities=p.disparity_range, blockSize=p.correlation_window_size)
-            bm.setMinDisparity(p.min_disparity)
-            bm.setPreFilterType(cv2.STEREO_BM_PREFILTER_NORMALIZED_RESPONSE)
-            bm.setPreFilterSize(p.prefilter_size)
-            bm.setPreFilterCap(p.prefilter_cap)
-            bm.setTextureThreshold(p.texture_threshold)
-            bm.setUniquenessRatio(round(p.uniqueness_ratio))
-            bm.setSpeckleWindowSize(p.speckle_size)
-            bm.setSpeckleRange(p.speckle_range)
-            bm.setDisp12MaxDiff(p.disp12_max_diff)
-            return bm
-        p1, p2 = p.penalties()
-        return cv2.StereoSGBM.create(
-            minDisparity=p.min_disparity,
-            numDisparities=p.disparity_range,
-            blockSize=p.correlation_window_size,
-            P1=p1,
-            P2=p2,
-            disp12MaxDiff=p.disp12_max_diff,
-            preFilterCap=p.prefilter_cap,
-            uniquenessRatio=round(p.uniqueness_ratio),
-            speckleWindowSize=p.speckle_size,
-            speckleRange=p.speckle_range,
-            mode=SGBM_MODES[p.effective_mode],
-        )
 
     def raw(self, left: U8, right: U8) -> NDArray[np.int16]:
         """OpenCV's fixed-point disparity (H, W) int16 in 1/16 px."""

@@ -23,7 +23,15 @@ from numpy.typing import ArrayLike, NDArray
 
 from calibration.errors import ModelError
 
-__all__ = ["MODELS", "CameraModel", "Mask", "create", "register", "smallest_positive_root"]
+__all__ = [
+    "MODELS",
+    "CameraModel",
+    "Mask",
+    "create",
+    "pixels_from_ratio",
+    "register",
+    "smallest_positive_root",
+]
 
 F64 = NDArray[np.float64]
 Mask = NDArray[np.bool_]
@@ -106,6 +114,16 @@ class CameraModel(ABC):
     @abstractmethod
     def _project(self, points: F64) -> tuple[F64, Mask]:
         """Project (N, 3) points; mask False outside the model's own domain."""
+
+    # Set by models whose _project_components mask already holds the field-angle limit.
+    _components_check_field: ClassVar[bool] = False
+
+    def _project_components(self, x: F64, y: F64, z: F64) -> tuple[F64, F64, Mask]:
+        """Hook of :meth:`project_xyz`: ``_project`` on coordinate arrays of any one shape.
+        Models override it with the same formula written on the components (no stacking, few
+        temporaries) and let ``_project`` call it. Outputs must be new arrays."""
+        pix, ok = self._project(np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1))
+        return pix[:, 0].reshape(x.shape), pix[:, 1].reshape(x.shape), ok.reshape(x.shape)
 
     @abstractmethod
     def _unproject(self, pixels: F64) -> tuple[F64, Mask]:
@@ -205,6 +223,42 @@ class CameraModel(ABC):
         if in_image:
             valid &= self.in_image(pix)
         return np.where(np.isfinite(pix), pix, 0.0), valid
+
+    def project_xyz(self, x: ArrayLike, y: ArrayLike, z: ArrayLike) -> tuple[F64, F64, Mask]:
+        """``project(stack([x, y, z]))`` for coordinate arrays of one shape (any), returned as
+        (u, v, valid) of that shape: the hot path of lookup-table builds (no (N, 3) stacking,
+        the field limit as ``z >= |p| cos(max_theta)`` instead of an arccos per point).
+
+        Valid exactly where :meth:`project` says valid (in-image), up to round-off at the very
+        edge of the field or image. Unlike :meth:`project`, invalid entries may hold NaN.
+        """
+        xa, ya, za = (np.asarray(a, dtype=np.float64) for a in (x, y, z))
+        if not (xa.shape == ya.shape == za.shape):
+            raise ModelError(f"x, y, z must have one shape, got {xa.shape}, {ya.shape}, {za.shape}")
+        with np.errstate(all="ignore"):
+            u, v, ok = self._project_components(xa, ya, za)
+            if not self._components_check_field:
+                ok &= self._within_field(xa, ya, za)
+        lo, w, h = -0.5 - _EDGE_SLACK, self.width - 0.5 + _EDGE_SLACK, self.height - 0.5 + _EDGE_SLACK
+        # Comparisons are False for NaN and fail for inf: these bounds also reject non-finite.
+        ok &= u >= lo
+        ok &= u <= w
+        ok &= v >= lo
+        ok &= v <= h
+        return u, v, ok
+
+    def _within_field(self, x: F64, y: F64, z: F64) -> Mask:
+        """Non-zero points within ``max_theta`` of the axis (the checks :meth:`project` adds)."""
+        n2 = x * x
+        n2 += y * y
+        n2 += z * z
+        limit = self.max_theta * (1.0 + _THETA_SLACK)
+        if limit >= math.pi:
+            out: Mask = n2 > 0.0
+            return out
+        ok = z >= math.cos(limit) * np.sqrt(n2, out=n2)
+        ok &= n2 > 0.0
+        return ok
 
     def unproject(self, pixels: ArrayLike, *, in_image: bool = True) -> tuple[F64, Mask]:
         """Pixels (N, 2) -> unit rays (N, 3), valid (N,).
@@ -319,6 +373,19 @@ def create(name: str, width: int, height: int, **params: Any) -> CameraModel:
         raise ModelError(f"unknown camera model {name!r}; known: {', '.join(sorted(MODELS))}") from None
     fov = params.pop("fov_deg", None)
     return cls(width, height, fov, **params)
+
+
+def pixels_from_ratio(
+    x: F64, y: F64, den: F64, fx: float, fy: float, cx: float, cy: float
+) -> tuple[F64, F64]:
+    """``(fx·x/den + cx, fy·y/den + cy)`` for arrays of one shape, with two temporaries."""
+    u = x * fx
+    u /= den
+    u += cx
+    v = y * fy
+    v /= den
+    v += cy
+    return u, v
 
 
 def smallest_positive_root(coeffs_ascending: Sequence[float]) -> float:

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calibration.errors import ModelError
-from calibration.models.base import CameraModel, Mask, register
+from calibration.models.base import CameraModel, Mask, pixels_from_ratio, register
 
 __all__ = ["DoubleSphereModel"]
 
@@ -59,15 +59,28 @@ class DoubleSphereModel(CameraModel):
         return theta
 
     def _project(self, points: F64) -> tuple[F64, Mask]:
-        x, y, z = points[:, 0], points[:, 1], points[:, 2]
-        r2 = x * x + y * y
-        d1 = np.sqrt(r2 + z * z)
-        k = self.xi * d1 + z
-        d2 = np.sqrt(r2 + k * k)
-        den = self.alpha * d2 + (1.0 - self.alpha) * k
-        ok = (z > -self.w2 * d1) & (den > 0.0)
-        den = np.where(ok, den, 1.0)
-        return np.stack([self.fx * x / den + self.cx, self.fy * y / den + self.cy], axis=1), ok
+        u, v, ok = self._project_components(points[:, 0], points[:, 1], points[:, 2])
+        return np.stack([u, v], axis=1), ok
+
+    def _project_components(self, x: F64, y: F64, z: F64) -> tuple[F64, F64, Mask]:
+        r2 = x * x
+        r2 += y * y
+        d1 = z * z
+        d1 += r2
+        np.sqrt(d1, out=d1)
+        k = self.xi * d1
+        k += z
+        d2 = k * k
+        d2 += r2
+        np.sqrt(d2, out=d2)
+        den = d2
+        den *= self.alpha
+        den += (1.0 - self.alpha) * k
+        ok = z > -self.w2 * d1
+        ok &= den > 0.0
+        # inf/garbage where den <= 0: masked by ok
+        u, v = pixels_from_ratio(x, y, den, self.fx, self.fy, self.cx, self.cy)
+        return u, v, ok
 
     def _unproject_normalised(self, mx: F64, my: F64) -> tuple[F64, Mask]:
         a, xi = self.alpha, self.xi

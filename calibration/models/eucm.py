@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calibration.errors import ModelError
-from calibration.models.base import CameraModel, Mask, register
+from calibration.models.base import CameraModel, Mask, pixels_from_ratio, register
 
 __all__ = ["EucmModel"]
 
@@ -58,12 +58,23 @@ class EucmModel(CameraModel):
         return theta
 
     def _project(self, points: F64) -> tuple[F64, Mask]:
-        x, y, z = points[:, 0], points[:, 1], points[:, 2]
-        d = np.sqrt(self.beta * (x * x + y * y) + z * z)
-        den = self.alpha * d + (1.0 - self.alpha) * z
-        ok = (z > -self.w * d) & (den > 0.0)
-        den = np.where(ok, den, 1.0)
-        return np.stack([self.fx * x / den + self.cx, self.fy * y / den + self.cy], axis=1), ok
+        u, v, ok = self._project_components(points[:, 0], points[:, 1], points[:, 2])
+        return np.stack([u, v], axis=1), ok
+
+    def _project_components(self, x: F64, y: F64, z: F64) -> tuple[F64, F64, Mask]:
+        d = x * x
+        d += y * y
+        d *= self.beta
+        d += z * z
+        np.sqrt(d, out=d)
+        ok = z > -self.w * d
+        den = d
+        den *= self.alpha
+        den += (1.0 - self.alpha) * z
+        ok &= den > 0.0
+        # inf/garbage where den <= 0: masked by ok
+        u, v = pixels_from_ratio(x, y, den, self.fx, self.fy, self.cx, self.cy)
+        return u, v, ok
 
     def _unproject_normalised(self, mx: F64, my: F64) -> tuple[F64, Mask]:
         a, b = self.alpha, self.beta

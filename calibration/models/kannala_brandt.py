@@ -42,14 +42,27 @@ class KannalaBrandtModel(RadialThetaModel):
         return min(math.sqrt(s), math.pi)
 
     def radius(self, theta: F64) -> F64:
+        # θ(1 + t(k1 + t(k2 + t(k3 + t·k4)))), t = θ², Horner in place (two temporaries).
         k1, k2, k3, k4 = self.k
         t2 = theta * theta
-        return theta * (1.0 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4))))
+        acc = t2 * k4
+        for k in (k3, k2, k1):
+            acc += k
+            acc *= t2
+        acc += 1.0
+        acc *= theta
+        return acc
 
     def radius_derivative(self, theta: F64) -> F64:
         k1, k2, k3, k4 = self.k
         t2 = theta * theta
-        return 1.0 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+        acc = t2 * 9
+        acc *= k4
+        for k in (7 * k3, 5 * k2, 3 * k1):
+            acc += k
+            acc *= t2
+        acc += 1.0
+        return acc
 
     def theta_from_radius(self, rd: F64) -> tuple[F64, Mask]:
         """Safeguarded Newton on [0, max_theta]: falls back to bisection when a step leaves

@@ -36,6 +36,7 @@ from calibration.models.radtan import RadTan
 __all__ = ["MeiModel"]
 
 F64 = NDArray[np.float64]
+_TINY = 1e-300
 
 
 @register
@@ -76,18 +77,31 @@ class MeiModel(CameraModel):
         return theta
 
     def _project(self, points: F64) -> tuple[F64, Mask]:
-        norm = np.linalg.norm(points, axis=1)
-        safe = np.where(norm > 0.0, norm, 1.0)
-        xs, ys, zs = points[:, 0] / safe, points[:, 1] / safe, points[:, 2] / safe
-        den = zs + self.xi
-        ok = (zs >= self.zs_min) & (den > 0.0)
-        den = np.where(ok, den, 1.0)
-        mx, my = xs / den, ys / den
-        ok &= self.distortion.in_domain(mx, my)
-        xd, yd = self.distortion.distort(mx, my)
-        u = self.fx * xd + self.s * yd + self.cx
-        v = self.fy * yd + self.cy
+        u, v, ok = self._project_components(points[:, 0], points[:, 1], points[:, 2])
         return np.stack([u, v], axis=1), ok
+
+    def _project_components(self, x: F64, y: F64, z: F64) -> tuple[F64, F64, Mask]:
+        norm = x * x
+        norm += y * y
+        norm += z * z
+        np.sqrt(norm, out=norm)
+        np.maximum(norm, _TINY, out=norm)  # the zero point is invalid (base class) but finite
+        zs = z / norm
+        ok = zs >= self.zs_min
+        den = zs
+        den += self.xi
+        ok &= den > 0.0
+        den *= norm  # m = (x, y) / |P| / (Zs + ξ)
+        mx = x / den
+        my = np.divide(y, den, out=den)
+        xd, yd, in_domain = self.distortion.distort_in_domain(mx, my)
+        ok &= in_domain
+        u = xd * self.fx
+        u += self.s * yd
+        u += self.cx
+        yd *= self.fy
+        yd += self.cy
+        return u, yd, ok
 
     def _unproject(self, pixels: F64) -> tuple[F64, Mask]:
         yd = (pixels[:, 1] - self.cy) / self.fy

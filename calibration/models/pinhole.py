@@ -45,13 +45,21 @@ class PinholeModel(CameraModel):
         return math.atan(self.distortion.r_max) if math.isfinite(self.distortion.r_max) else math.pi / 2
 
     def _project(self, points: F64) -> tuple[F64, Mask]:
-        z = points[:, 2]
+        u, v, ok = self._project_components(points[:, 0], points[:, 1], points[:, 2])
+        return np.stack([u, v], axis=1), ok
+
+    def _project_components(self, x: F64, y: F64, z: F64) -> tuple[F64, F64, Mask]:
         ok = z > 0.0
         zs = np.where(ok, z, 1.0)
-        x, y = points[:, 0] / zs, points[:, 1] / zs
-        ok &= self.distortion.in_domain(x, y)
-        xd, yd = self.distortion.distort(x, y)
-        return np.stack([self.fx * xd + self.cx, self.fy * yd + self.cy], axis=1), ok
+        xn = x / zs
+        yn = np.divide(y, zs, out=zs)
+        xd, yd, in_domain = self.distortion.distort_in_domain(xn, yn)
+        ok &= in_domain
+        xd *= self.fx
+        xd += self.cx
+        yd *= self.fy
+        yd += self.cy
+        return xd, yd, ok
 
     def _unproject(self, pixels: F64) -> tuple[F64, Mask]:
         xd = (pixels[:, 0] - self.cx) / self.fx

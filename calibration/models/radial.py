@@ -9,11 +9,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calibration.errors import ModelError
-from calibration.models.base import CameraModel, Mask
+from calibration.models.base import _THETA_SLACK, CameraModel, Mask
 
 __all__ = ["RadialThetaModel"]
 
 F64 = NDArray[np.float64]
+_TINY = 1e-300
 
 
 class RadialThetaModel(CameraModel):
@@ -33,15 +34,32 @@ class RadialThetaModel(CameraModel):
     def theta_from_radius(self, rd: F64) -> tuple[F64, Mask]:
         """Inverse of g on [0, max_theta]: (θ, ok) for normalised radii (N,)."""
 
+    _components_check_field = True
+
     def _project(self, points: F64) -> tuple[F64, Mask]:
-        x, y, z = points[:, 0], points[:, 1], points[:, 2]
-        r = np.hypot(x, y)
+        u, v, ok = self._project_components(points[:, 0], points[:, 1], points[:, 2])
+        return np.stack([u, v], axis=1), ok
+
+    def _project_components(self, x: F64, y: F64, z: F64) -> tuple[F64, F64, Mask]:
+        # Written in place: a LUT build runs this on every VPC pixel (rig.lut).
+        r = x * x
+        r += y * y
+        np.sqrt(r, out=r)  # not np.hypot: ~8x slower, and no overflow is possible here
         theta = np.arctan2(r, z)
+        ok = theta <= self.max_theta * (1.0 + _THETA_SLACK)
         # On the axis the direction x/r is undefined but irrelevant in front; behind, it is a
         # single point with no image.
-        ok = (r > 0.0) | (z > 0.0)
-        scale = np.divide(self.radius(theta), r, out=np.zeros_like(r), where=r > 0.0)
-        return np.stack([self.fx * scale * x + self.cx, self.fy * scale * y + self.cy], axis=1), ok
+        ok &= (r > 0.0) | (z > 0.0)
+        scale = self.radius(theta)
+        # g(0) = 0: on the axis scale = 0/tiny = 0 puts the point on the principal point.
+        scale /= np.maximum(r, _TINY, out=r)
+        u = x * scale
+        u *= self.fx
+        u += self.cx
+        scale *= y
+        scale *= self.fy
+        scale += self.cy
+        return u, scale, ok
 
     def _unproject(self, pixels: F64) -> tuple[F64, Mask]:
         mx = (pixels[:, 0] - self.cx) / self.fx

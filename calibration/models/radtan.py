@@ -48,9 +48,56 @@ class RadTan:
 
     def in_domain(self, x: F64, y: F64) -> NDArray[np.bool_]:
         """Undistorted points where the distortion is one-to-one (radius below ``r_max``)."""
-        r = np.hypot(x, y)
+        r = np.sqrt(x * x + y * y)  # not np.hypot: ~8x slower, and no overflow is possible here
         dxx, dxy, dyx, dyy = self.jacobian(x, y)
         return (r < self.r_max) & (dxx * dyy - dxy * dyx > 0.0)
+
+    def distort_in_domain(self, x: F64, y: F64) -> tuple[F64, F64, NDArray[np.bool_]]:
+        """``distort(x, y)`` and ``in_domain(x, y)`` in one pass (shared terms, few temporaries):
+        the projection hot path of the Mei and pinhole models."""
+        if self.is_identity:
+            return x.copy(), y.copy(), np.ones(x.shape, dtype=bool)
+        k1, k2, p1, p2 = self.k1, self.k2, self.p1, self.p2
+        xx = x * x
+        yy = y * y
+        xy = x * y
+        r2 = xx + yy
+        ok = r2 < self.r_max * self.r_max if np.isfinite(self.r_max) else np.ones(x.shape, dtype=bool)
+        radial = r2 * k2
+        radial += k1  # k1 + k2 r²
+        g = r2 * (4.0 * k2)
+        g += 2.0 * k1  # d(radial)/d(r²) · 2
+        radial *= r2
+        radial += 1.0
+        # Jacobian (see jacobian()): dxx, dyy, and cross = dxy = dyx.
+        cross = xy * g
+        cross += (2.0 * p1) * x
+        cross += (2.0 * p2) * y
+        dxx = xx * g
+        dxx += radial
+        dxx += (2.0 * p1) * y
+        dxx += (6.0 * p2) * x
+        dyy = yy * g
+        dyy += radial
+        dyy += (6.0 * p1) * y
+        dyy += (2.0 * p2) * x
+        dxx *= dyy
+        cross *= cross
+        ok &= dxx > cross
+        # distort(): x·radial + 2p1·xy + p2(r² + 2x²), y·radial + 2p2·xy + p1(r² + 2y²).
+        xd = x * radial
+        xd += (2.0 * p1) * xy
+        xx *= 2.0
+        xx += r2
+        xx *= p2
+        xd += xx
+        yd = y * radial
+        yd += (2.0 * p2) * xy
+        yy *= 2.0
+        yy += r2
+        yy *= p1
+        yd += yy
+        return xd, yd, ok
 
     def undistort(
         self, xd: F64, yd: F64, tol: float = 1e-14, max_iter: int = 50

@@ -1,0 +1,154 @@
+"""Resident memory of ``rig serve --demo`` over time (issue #8, item 4).
+
+Starts the real service in a child process (``rig serve --demo``, or ``--recording REC``), waits
+for its first depth frame, then samples its RSS (``/proc/PID/status`` VmRSS) every
+``--interval`` seconds for ``--seconds`` (default 600) while a light client uses the API like
+the dashboard does (``/depth``, ``/depth/colorized`` and ``/health`` in turn, ``--client-rate``
+requests per second; 0 = none). Reports the peak, the RSS at the start and the end of the
+measured window, and the growth as least-squares slopes (MiB/min): over the window after the
+first ``--settle`` seconds, and over the second half of the run. The service keeps freed memory
+for reuse (:func:`rig.pipeline.tune_allocator`), so RSS climbs to its working set during the
+first minutes and then must stay flat: a leak shows as a slope in the second half.
+
+Run: ``.venv/bin/python -m bench.memory`` (``--seconds 60`` to shorten, ``--quick`` for seconds).
+"""
+
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+from rich.table import Table
+
+from bench.common import add_common_arguments, console, finish, machine_info, print_machine
+from bench.service_proc import ServiceProcess, serve_args_for
+
+__all__ = ["main", "slope_mb_per_min"]
+
+ENDPOINTS = ("/depth", "/depth/colorized", "/health")
+
+
+def slope_mb_per_min(times_s: list[float], rss_mb: list[float]) -> float:
+    """Least-squares slope of RSS over time, MiB per minute (0 for fewer than 2 samples)."""
+    if len(times_s) < 2:
+        return 0.0
+    t = np.asarray(times_s, dtype=np.float64)
+    y = np.asarray(rss_mb, dtype=np.float64)
+    a = np.vstack([t, np.ones_like(t)]).T
+    (k, _), *_ = np.linalg.lstsq(a, y, rcond=None)
+    return float(k) * 60.0
+
+
+def _client(url: str, rate: float, stop: threading.Event, counts: dict[str, int]) -> None:
+    with httpx.Client(base_url=url, timeout=10.0) as client:
+        k = 0
+        while not stop.is_set():
+            endpoint = ENDPOINTS[k % len(ENDPOINTS)]
+            k += 1
+            try:
+                ok = client.get(endpoint).status_code == 200
+            except httpx.HTTPError:
+                ok = False
+            counts["ok" if ok else "failed"] += 1
+            stop.wait(1.0 / rate)
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(prog="python -m bench.memory", description=__doc__.split("\n\n")[0])
+    add_common_arguments(parser)
+    parser.add_argument("--seconds", type=float, default=None, help="measured time (default 600)")
+    parser.add_argument("--interval", type=float, default=None, help="seconds between samples (default 5)")
+    parser.add_argument(
+        "--settle", type=float, default=None, help="seconds left out of the slope (default 60)"
+    )
+    parser.add_argument("--client-rate", type=float, default=2.0, help="API requests per second (0 = none)")
+    parser.add_argument("--recording", type=Path, default=None, help="serve a recording instead of --demo")
+    args = parser.parse_args(argv)
+    seconds = args.seconds or (4.0 if args.quick else 600.0)
+    interval = args.interval or (0.5 if args.quick else 5.0)
+    settle = args.settle if args.settle is not None else (1.0 if args.quick else min(60.0, seconds / 5))
+    info = machine_info()
+    print_machine(info, "RSS of rig serve over time")
+    serve_args = serve_args_for(args.quick, args.recording)
+    console.print(
+        f"service: rig serve {' '.join(serve_args)}; {seconds:g} s, a sample every {interval:g} s, "
+        f"client {args.client_rate:g} req/s over {', '.join(ENDPOINTS)}"
+    )
+    samples: list[tuple[float, float]] = []
+    counts = {"ok": 0, "failed": 0}
+    with ServiceProcess([*serve_args, "--log-level", "warning"]) as svc:
+        ready_s = svc.wait_ready(900.0)
+        stop = threading.Event()
+        client = None
+        if args.client_rate > 0:
+            client = threading.Thread(
+                target=_client,
+                args=(svc.url, args.client_rate, stop, counts),
+                name="bench-client",
+                daemon=True,
+            )
+            client.start()
+        t0 = time.monotonic()
+        try:
+            while True:
+                now = time.monotonic() - t0
+                samples.append((now, svc.rss_mb()))
+                if now >= seconds:
+                    break
+                time.sleep(min(interval, max(0.0, seconds - now)))
+            health = httpx.get(svc.url + "/health", timeout=10.0).json()
+        finally:
+            stop.set()
+            if client is not None:
+                client.join(15.0)
+    times = [t for t, _ in samples]
+    rss = [r for _, r in samples]
+    window = [(t, r) for t, r in samples if t >= settle]
+    slope = slope_mb_per_min([t for t, _ in window], [r for _, r in window])
+    half = [(t, r) for t, r in samples if t >= times[-1] / 2]
+    slope_half = slope_mb_per_min([t for t, _ in half], [r for _, r in half])
+    peak = max(rss)
+    table = Table(title=f"RSS of rig serve (ready after {ready_s:.1f} s)")
+    for col in ("minute", "RSS MiB (min / max)"):
+        table.add_column(col, justify="right")
+    minute = 0
+    while minute * 60 <= times[-1]:
+        inside = [r for t, r in samples if minute * 60 <= t < (minute + 1) * 60]
+        if inside:
+            table.add_row(str(minute), f"{min(inside):.1f} / {max(inside):.1f}")
+        minute += 1
+    console.print(
+        f"peak {peak:.1f} MiB, start {rss[0]:.1f} MiB, end {rss[-1]:.1f} MiB, growth {slope:+.3f} MiB/min "
+        f"after the first {settle:g} s, {slope_half:+.3f} MiB/min over the second half; worker processed "
+        f"{health['worker']['frames_processed']} frames ({health['worker']['fps']:.1f} fps at the end); "
+        f"client requests ok {counts['ok']}, failed {counts['failed']}. Target: ≤ 300 MiB, no growth."
+    )
+    return finish(
+        "memory",
+        info,
+        {
+            "serve_args": serve_args,
+            "seconds": seconds,
+            "ready_s": ready_s,
+            "peak_mb": peak,
+            "start_mb": rss[0],
+            "end_mb": rss[-1],
+            "slope_mb_per_min": slope,
+            "slope_second_half_mb_per_min": slope_half,
+            "settle_s": settle,
+            "client_requests": counts,
+            "frames_processed": health["worker"]["frames_processed"],
+            "samples": samples,
+        },
+        args.json,
+        table,
+    )
+
+
+if __name__ == "__main__":
+    main()

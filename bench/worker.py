@@ -1,0 +1,394 @@
+"""Worker path against the OpenCV floor (issue #8, item 1).
+
+Input: a recording of 1280×960 MJPEG fisheye frames (:mod:`bench.recordings`, built once).
+
+**Floor** — a tight Python loop over the same JPEG bytes in memory doing only the bare OpenCV
+calls the depth needs: ``cv2.imdecode`` ×2 (the flags the capture uses), ``cv2.remap`` ×2 with
+the pipeline's own fixed-point maps, ``cv2.cvtColor`` ×2 to gray when the frames are colour, and
+``compute`` of a ``cv2.StereoSGBM`` built with the same parameters (checked to give the identical
+disparity as the pipeline's matcher). Per-frame time = one iteration; throughput = frames / time.
+
+**Ours** — the service itself minus HTTP: :meth:`service.runtime.Runtime.build` on settings whose
+cameras are file cameras replaying the recording (``FileCamera`` → ``StereoCapture`` →
+``DepthWorker`` → ``DepthPipeline`` with its default stages: subpixel refinement, confidence,
+5×5 median). Throughput: unpaced replay (``pace: fast`` with back-pressure, one pair buffered),
+pairs published per second after a warm-up. Latency: pair arrival (the later frame's host time,
+before decoding) → depth published, per frame, with the cameras paced at 60 % of the measured
+throughput so that no pair waits behind another (the latency of a frame, not of a queue).
+
+Each repeat runs the floor, ours unpaced and ours paced back to back (one load for all three);
+ratios are taken per repeat and the median is reported.
+Run: ``.venv/bin/python -m bench.worker`` (``--quick`` for a run of seconds).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import tempfile
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from rich.table import Table
+
+from bench.common import (
+    add_common_arguments,
+    console,
+    finish,
+    machine_info,
+    median,
+    print_machine,
+    summary,
+)
+from bench.recordings import MjpegSpec, ensure_mjpeg_recording, load_jpeg_pairs
+from calibration import load_rig
+from rig.capture.config import CaptureConfig, FileCameraConfig, PairingConfig, SupervisorConfig
+from rig.pipeline import DepthPipeline
+from rig.stereo import StereoMatcher, StereoParams, create_opencv_matcher
+from rig.vpc import VpcConfig
+from service.runtime import Runtime
+from service.settings import CalibrationSettings, ServerSettings, Settings
+
+__all__ = ["FloorRun", "WorkerRun", "floor_matcher", "main", "run_floor", "run_worker"]
+
+FULL_SIZES = ((320, 240), (640, 480), (1280, 960))
+FULL_DISPARITIES = (64, 128)
+LATENCY_PACE_FRACTION = 0.6
+
+
+@dataclass(frozen=True)
+class FloorRun:
+    frame_ms: list[float]
+    fps: float
+    cpu_ms: float  # process CPU time per frame (all threads)
+
+
+@dataclass(frozen=True)
+class WorkerRun:
+    fps: float
+    frames: int
+    cpu_ms: float  # process CPU time per published frame (all threads, capture included)
+    latency_ms: list[float]
+    stage_ms: dict[str, float]
+    errors: int
+
+
+def floor_matcher(params: StereoParams) -> Any:
+    """A bare ``cv2.StereoSGBM`` with ``params`` (the same constructor :class:`StereoMatcher` uses)."""
+    if params.stereo_algorithm != 1:
+        raise SystemExit("the floor is written for SGBM (stereo_algorithm 1)")
+    return create_opencv_matcher(params)
+
+
+def run_floor(
+    pairs: list[tuple[bytes, bytes]], pipeline: DepthPipeline, sgbm: Any, frames: int, flags: int
+) -> FloorRun:
+    """The bare OpenCV loop (see module doc) over ``frames`` pairs (cycling through ``pairs``)."""
+    left_lut, right_lut = (pipeline.luts[n] for n in pipeline.names)
+    lm1, lm2, rm1, rm2 = left_lut.map1, left_lut.map2, right_lut.map1, right_lut.map2
+    bufs = [(np.frombuffer(a, np.uint8), np.frombuffer(b, np.uint8)) for a, b in pairs]
+    decode: Any = cv2.imdecode  # typed loosely: the floor is the bare calls, no checks
+    remap: Any = cv2.remap
+    times: list[float] = []
+    c_start, t_start = time.process_time(), time.perf_counter()
+    for i in range(frames):
+        bl, br = bufs[i % len(bufs)]
+        t0 = time.perf_counter()
+        left = decode(bl, flags)
+        right = decode(br, flags)
+        lv = remap(left, lm1, lm2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        rv = remap(right, rm1, rm2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        if lv.ndim == 3:
+            lv = cv2.cvtColor(lv, cv2.COLOR_BGR2GRAY)
+            rv = cv2.cvtColor(rv, cv2.COLOR_BGR2GRAY)
+        sgbm.compute(lv, rv)
+        times.append((time.perf_counter() - t0) * 1e3)
+    total = time.perf_counter() - t_start
+    cpu = time.process_time() - c_start
+    return FloorRun(times, frames / total, cpu * 1e3 / frames)
+
+
+def check_floor_matcher(pairs: list[tuple[bytes, bytes]], pipeline: DepthPipeline, sgbm: Any) -> None:
+    """The floor's matcher gives exactly the pipeline's raw disparity on the first pair."""
+    left = _decode(pairs[0][0])
+    right = _decode(pairs[0][1])
+    lv, rv = pipeline.remap(left, right)
+    if lv.ndim == 3:
+        lv = np.asarray(cv2.cvtColor(lv, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
+        rv = np.asarray(cv2.cvtColor(rv, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
+    ours = StereoMatcher(pipeline.stereo).raw(lv, rv)
+    bare = sgbm.compute(lv, rv)
+    if not np.array_equal(ours, bare):
+        raise SystemExit("the floor's matcher differs from the pipeline's: not the same parameters")
+
+
+def _decode(data: bytes) -> NDArray[np.uint8]:
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise SystemExit("a benchmark frame does not decode")
+    return np.asarray(img, dtype=np.uint8)
+
+
+def bench_settings(
+    recording: Path,
+    vpc: VpcConfig,
+    stereo: StereoParams,
+    lut_dir: Path,
+    scratch: Path,
+    *,
+    pace: str | float,
+    decode_in_capture: bool,
+) -> Settings:
+    fast = pace == "fast"
+    cams = {
+        "kind": "file",
+        "recording": recording,
+        "pace": pace,
+        "loop": True,
+        "timestamps": "recorded" if fast else "live",
+    }
+    capture = CaptureConfig(
+        left=FileCameraConfig.model_validate({**cams, "camera": "left"}),
+        right=FileCameraConfig.model_validate({**cams, "camera": "right"}),
+        # Unpaced: the cameras wait for the worker (nothing dropped, one pair ready in advance).
+        pairing=PairingConfig(backpressure=True, pair_buffer=1) if fast else PairingConfig(),
+        # A camera waiting under back-pressure delivers nothing: not a stall for the watchdog.
+        supervisor=SupervisorConfig(decode=decode_in_capture, watchdog_s=120.0, reconnect_after_s=240.0)
+        if fast
+        else SupervisorConfig(decode=decode_in_capture),
+    )
+    return Settings(
+        server=ServerSettings(recordings_dir=scratch / "recordings"),
+        cameras=capture,
+        calibration=CalibrationSettings(path=recording / "calibration.yaml"),
+        vpc=vpc,
+        stereo=stereo,
+        cache_dir=lut_dir,
+    )
+
+
+def run_worker(settings: Settings, seconds: float, warmup_s: float) -> WorkerRun:
+    """The service's runtime on ``settings`` for ``warmup_s`` + ``seconds``: published pairs per
+    second, and the arrival → publication latency of the results seen after the warm-up."""
+    runtime = Runtime.build(settings)
+    latencies: list[float] = []
+    measuring = threading.Event()
+    done = threading.Event()
+
+    def watch() -> None:  # a client of the result store, like /stream
+        index = 0
+        while not done.is_set():
+            result = runtime.store.wait_newer(index, 0.2)
+            if result is None:
+                continue
+            index = result.index
+            if measuring.is_set():
+                latencies.append(result.latency_ms)
+
+    watcher = threading.Thread(target=watch, name="bench-watch", daemon=True)
+    runtime.start()
+    watcher.start()
+    try:
+        time.sleep(warmup_s)
+        measuring.set()
+        s0, t0, c0 = runtime.worker.stats(), time.monotonic(), time.process_time()
+        time.sleep(seconds)
+        s1, t1, c1 = runtime.worker.stats(), time.monotonic(), time.process_time()
+    finally:
+        done.set()
+        runtime.stop()
+        watcher.join(2.0)
+    frames = s1.frames_processed - s0.frames_processed
+    cpu_ms = (c1 - c0) * 1e3 / frames if frames else math.nan
+    return WorkerRun(frames / (t1 - t0), frames, cpu_ms, latencies, dict(s1.stage_ms), s1.errors)
+
+
+def _configs(quick: bool) -> list[tuple[int, int, int]]:
+    if quick:
+        return [(160, 120, 32)]
+    return [(w, h, d) for (w, h) in FULL_SIZES for d in FULL_DISPARITIES]
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(prog="python -m bench.worker", description=__doc__.split("\n\n")[0])
+    add_common_arguments(parser)
+    parser.add_argument("--seconds", type=float, default=None, help="measured time per worker run")
+    parser.add_argument(
+        "--decode",
+        choices=("capture", "worker"),
+        default="capture",
+        help="where frames are decoded: the camera threads (service default for cameras) or the "
+        "worker's prepare stage (what the demo does)",
+    )
+    parser.add_argument("--gray", action="store_true", help="gray JPEG frames instead of colour 4:2:2")
+    parser.add_argument(
+        "--sizes", default=None, help="VPC sizes and disparities, e.g. 640x480/128,320x240/64"
+    )
+    args = parser.parse_args(argv)
+    quick = args.quick
+    repeat = args.repeat or (1 if quick else 3)
+    seconds = args.seconds or (1.0 if quick else 4.0)
+    warmup = 0.5 if quick else 1.5
+    info = machine_info()
+    print_machine(info, "worker path vs the bare OpenCV floor")
+    spec = (
+        MjpegSpec(frames=4, views=1, scale=0.25, color=not args.gray)
+        if quick
+        else MjpegSpec(color=not args.gray)
+    )
+    recording = ensure_mjpeg_recording(spec)
+    pairs = load_jpeg_pairs(recording)
+    rig = load_rig(recording / "calibration.yaml")
+    flags = cv2.IMREAD_UNCHANGED  # what rig.capture.frame.Frame.image decodes with
+    configs = _configs(quick)
+    if args.sizes:
+        configs = []
+        for item in args.sizes.split(","):
+            size, disp = item.split("/")
+            w, h = (int(v) for v in size.lower().split("x"))
+            configs.append((w, h, int(disp)))
+    kind = "colour 4:2:2" if spec.color else "gray"
+    console.print(
+        f"input: {recording} ({len(pairs)} pairs, {kind} JPEG q{spec.quality}, "
+        f"{sum(len(a) + len(b) for a, b in pairs) / len(pairs) / 2 / 1024:.0f} KiB/frame); decode in "
+        f"{args.decode}; {repeat} run(s) per figure, {seconds:g} s each"
+    )
+    table = Table(title="per pair: floor (bare OpenCV) vs ours (service worker, default stages)")
+    for col in (
+        "VPC",
+        "disp",
+        "floor ms",
+        "floor fps",
+        "ours fps",
+        "throughput ×",
+        "ours latency ms p50 (p95)",
+        "latency ×",
+        "CPU ms/frame floor / ours",
+        "ours stages ms (mean)",
+    ):
+        table.add_column(col, justify="right")
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="rig-bench-worker-") as tmp_name:
+        tmp = Path(tmp_name)
+        for w, h, disp in configs:
+            vpc = VpcConfig(width=w, height=h)
+            stereo = StereoParams(disparity_range=disp)
+            pipeline = DepthPipeline(rig, vpc, stereo, cache_dir=tmp / "lut")
+            sgbm = floor_matcher(stereo)
+            check_floor_matcher(pairs, pipeline, sgbm)
+            # Size the floor run to about the worker run's duration.
+            probe = run_floor(pairs, pipeline, sgbm, 3, flags)
+            n_floor = max(5, int(seconds * probe.fps))
+            floors: list[FloorRun] = []
+            ours: list[WorkerRun] = []
+            fast = bench_settings(
+                recording,
+                vpc,
+                stereo,
+                tmp / "lut",
+                tmp,
+                pace="fast",
+                decode_in_capture=args.decode == "capture",
+            )
+            lat_runs: list[WorkerRun] = []
+            lat_ratios: list[float] = []
+            pace = 0.0
+            for _ in range(repeat):
+                # Floor, ours unpaced, ours paced back to back: each repeat shares one load.
+                floor = run_floor(pairs, pipeline, sgbm, n_floor, flags)
+                fast_run = run_worker(fast, seconds, warmup)
+                pace = round(max(1.0, LATENCY_PACE_FRACTION * fast_run.fps), 2)
+                paced = bench_settings(
+                    recording,
+                    vpc,
+                    stereo,
+                    tmp / "lut",
+                    tmp,
+                    pace=pace,
+                    decode_in_capture=args.decode == "capture",
+                )
+                lat_run = run_worker(paced, seconds, warmup)
+                floors.append(floor)
+                ours.append(fast_run)
+                lat_runs.append(lat_run)
+                if lat_run.latency_ms:
+                    lat_ratios.append(median(lat_run.latency_ms) / median(floor.frame_ms))
+            ours_fps = median(r.fps for r in ours)
+            floor_ms = median(median(f.frame_ms) for f in floors)
+            floor_fps = median(f.fps for f in floors)
+            thr_ratio = median(o.fps / f.fps for o, f in zip(ours, floors, strict=True))
+            lat = [x for r in lat_runs for x in r.latency_ms]
+            lat_s = summary(lat)
+            lat_ratio = median(lat_ratios)
+            stages = {k: median(r.stage_ms.get(k, math.nan) for r in lat_runs) for k in lat_runs[0].stage_ms}
+            floor_cpu = median(f.cpu_ms for f in floors)
+            ours_cpu = median(o.cpu_ms for o in ours)
+            errors = sum(r.errors for r in ours + lat_runs)
+            row = {
+                "vpc": [w, h],
+                "disparities": disp,
+                "floor_ms_per_frame": floor_ms,
+                "floor_fps": floor_fps,
+                "ours_fps": ours_fps,
+                "throughput_ratio": thr_ratio,
+                "latency_pace_fps_last": pace,
+                "ours_latency_ms": lat_s,
+                "latency_ratio": lat_ratio,
+                "ours_stage_ms": stages,
+                "floor_cpu_ms_per_frame": floor_cpu,
+                "ours_cpu_ms_per_frame": ours_cpu,
+                "worker_errors": errors,
+                "runs": {
+                    "floor_fps": [f.fps for f in floors],
+                    "floor_ms": [median(f.frame_ms) for f in floors],
+                    "ours_fps": [o.fps for o in ours],
+                    "throughput_ratio": [o.fps / f.fps for o, f in zip(ours, floors, strict=True)],
+                    "latency_ratio": lat_ratios,
+                },
+            }
+            rows.append(row)
+            stage_text = " ".join(
+                f"{k[:3]} {v:.1f}" for k, v in stages.items() if k != "total" and not math.isnan(v)
+            )
+            table.add_row(
+                f"{w}×{h}",
+                str(disp),
+                f"{floor_ms:.1f}",
+                f"{floor_fps:.1f}",
+                f"{ours_fps:.1f}",
+                f"{thr_ratio:.2f}",
+                f"{lat_s['p50']:.1f} ({lat_s['p95']:.1f})",
+                f"{lat_ratio:.2f}",
+                f"{floor_cpu:.1f} / {ours_cpu:.1f}",
+                stage_text,
+            )
+            if errors:
+                console.print(f"[red]warning:[/red] the worker reported {errors} failed frame(s) at {w}×{h}")
+    console.print(
+        "throughput × = ours fps / floor fps (target ≥ 1.0, aim 1.3); latency × = ours p50 latency "
+        "(arrival → published, unsaturated) / floor ms per frame (target ≤ 1.2)"
+    )
+    return finish(
+        "worker",
+        info,
+        {
+            "recording": str(recording),
+            "spec": spec.__dict__,
+            "decode": args.decode,
+            "repeat": repeat,
+            "seconds": seconds,
+            "rows": rows,
+        },
+        args.json,
+        table,
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,96 @@
+"""A quick run of every benchmark, only to keep the scripts working (DESIGN §9: benchmarks are
+not tests). Nothing here asserts a time: only that each script runs end to end, measures what it
+says (positive rates, no failed frames or requests) and writes its JSON document."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench import api_load, lut_build, memory, startup, worker
+from calibration.models import MODELS, KannalaBrandtModel
+from rig.sim import get_preset
+
+
+def _written(path: Path, doc: dict) -> dict:
+    on_disk = json.loads(path.read_text())
+    assert on_disk["benchmark"] == doc["benchmark"]
+    for key in ("cpu", "cpus", "load_avg", "numpy", "opencv"):
+        assert key in on_disk["machine"], key
+    return on_disk
+
+
+def test_worker_bench_compares_the_service_worker_with_the_floor(bench_env: Path, tmp_path: Path) -> None:
+    doc = _written(tmp_path / "w.json", worker.main(["--quick", "--json", str(tmp_path / "w.json")]))
+    (row,) = doc["rows"]
+    assert row["vpc"] == [160, 120] and row["disparities"] == 32
+    assert row["floor_fps"] > 0 and row["ours_fps"] > 0 and row["floor_ms_per_frame"] > 0
+    assert row["worker_errors"] == 0
+    assert row["ours_latency_ms"]["n"] > 0 and row["ours_latency_ms"]["p50"] > 0
+    assert math.isfinite(row["throughput_ratio"]) and math.isfinite(row["latency_ratio"])
+    assert set(row["ours_stage_ms"]) >= {"decode", "remap", "match", "refine", "total"}
+
+
+def test_lut_bench_times_every_model_and_the_cache(bench_env: Path, tmp_path: Path) -> None:
+    doc = _written(tmp_path / "l.json", lut_build.main(["--quick", "--json", str(tmp_path / "l.json")]))
+    rows = {r["model"]: r for r in doc["rows"]}
+    assert set(rows) == set(MODELS)
+    for name, r in rows.items():
+        assert r["opencv_ms"] > 0 and r["cold_ms"] > 0 and r["warm_ms"] > 0, name
+        assert 0.0 < r["valid_fraction"] <= 1.0, name
+        assert len(r["runs"]["cold"]["wall"]) == doc["repeat"]
+
+
+def test_lut_bench_fits_every_model_to_the_prototype_lens() -> None:
+    lens = get_preset("prototype").rig.cameras["left"]
+    assert isinstance(lens, KannalaBrandtModel)
+    models = lut_build.fitted_models(lens)
+    assert set(models) == set(MODELS)
+    # Each fit reproduces the lens within a few pixels over 60° (pinhole) or 95° (the others).
+    for name, model in models.items():
+        field = math.radians(55.0 if name == "pinhole" else 90.0)
+        theta = np.linspace(0.05, field, 40)
+        rays = np.stack([np.sin(theta), np.zeros_like(theta), np.cos(theta)], axis=1)
+        want, ok_ref = lens.project(rays)
+        got, ok = model.project(rays)
+        assert ok.all() and ok_ref.all(), name
+        assert np.abs(got - want).max() < 5.0, name
+
+
+@pytest.mark.slow
+def test_api_load_bench_serves_every_client(bench_env: Path, tmp_path: Path) -> None:
+    doc = _written(tmp_path / "a.json", api_load.main(["--quick", "--json", str(tmp_path / "a.json")]))
+    loaded = [p for p in doc["phases"] if p["clients"] > 0]
+    assert {(p["clients"], p["endpoint"]) for p in loaded} == {
+        (n, e) for n in (1, 4) for e in ("/depth", "/health")
+    }
+    for p in loaded:
+        assert p["requests"] > 0 and p["errors"] == 0, p
+        assert p["latency_ms"]["p99"] >= p["latency_ms"]["p50"] > 0
+    assert doc["idle_fps"] > 0
+
+
+@pytest.mark.slow
+def test_memory_bench_samples_the_service(bench_env: Path, tmp_path: Path) -> None:
+    doc = _written(tmp_path / "m.json", memory.main(["--quick", "--json", str(tmp_path / "m.json")]))
+    assert len(doc["samples"]) >= 3
+    assert doc["peak_mb"] >= doc["start_mb"] > 10
+    assert doc["frames_processed"] > 0 and doc["client_requests"]["failed"] == 0
+    assert math.isfinite(doc["slope_mb_per_min"])
+
+
+def test_memory_slope_is_least_squares() -> None:
+    assert memory.slope_mb_per_min([0.0, 60.0, 120.0], [100.0, 101.0, 102.0]) == pytest.approx(1.0)
+    assert memory.slope_mb_per_min([0.0, 30.0], [50.0, 50.0]) == pytest.approx(0.0)
+    assert memory.slope_mb_per_min([5.0], [50.0]) == 0.0
+
+
+@pytest.mark.slow
+def test_startup_bench_times_warm_and_cold_starts(bench_env: Path, tmp_path: Path) -> None:
+    doc = _written(tmp_path / "s.json", startup.main(["--quick", "--json", str(tmp_path / "s.json")]))
+    assert set(doc["median_s"]) == {"imports", "warm", "cold LUTs"}
+    assert all(v > 0 for v in doc["median_s"].values())
