@@ -16,6 +16,10 @@ pairs published per second after a warm-up. Latency: pair arrival (the later fra
 before decoding) → depth published, per frame, with the cameras paced at 60 % of the measured
 throughput so that no pair waits behind another (the latency of a frame, not of a queue).
 
+``--stages floor`` runs ours with only the floor's work (plain SGBM: no refinement, confidence or
+median), which isolates what the service's threads and glue cost or gain; the default stages add
+the refinement that takes SGBM's ~0.2 px pixel-locking error to ~0.03 px.
+
 Each repeat runs the floor, ours unpaced and ours paced back to back (one load for all three);
 ratios are taken per repeat and the median is reported.
 Run: ``.venv/bin/python -m bench.worker`` (``--quick`` for a run of seconds).
@@ -60,6 +64,11 @@ __all__ = ["FloorRun", "WorkerRun", "floor_matcher", "main", "run_floor", "run_w
 FULL_SIZES = ((320, 240), (640, 480), (1280, 960))
 FULL_DISPARITIES = (64, 128)
 LATENCY_PACE_FRACTION = 0.6
+# Stereo parameters of ``--stages``: the service's defaults, or none of our stages after the matcher.
+STAGES: dict[str, dict[str, Any]] = {
+    "default": {},
+    "floor": {"subpixel": False, "confidence": False, "median": 0},
+}
 
 
 @dataclass(frozen=True)
@@ -228,6 +237,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     )
     parser.add_argument("--gray", action="store_true", help="gray JPEG frames instead of colour 4:2:2")
     parser.add_argument(
+        "--stages",
+        choices=("default", "floor"),
+        default="default",
+        help="ours with the service's default stages (subpixel refinement, confidence, 5×5 median) or "
+        "with only the floor's work (plain SGBM: the pipelining and glue overhead alone)",
+    )
+    parser.add_argument(
         "--sizes", default=None, help="VPC sizes and disparities, e.g. 640x480/128,320x240/64"
     )
     args = parser.parse_args(argv)
@@ -259,7 +275,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         f"{sum(len(a) + len(b) for a, b in pairs) / len(pairs) / 2 / 1024:.0f} KiB/frame); decode in "
         f"{args.decode}; {repeat} run(s) per figure, {seconds:g} s each"
     )
-    table = Table(title="per pair: floor (bare OpenCV) vs ours (service worker, default stages)")
+    table = Table(title=f"per pair: floor (bare OpenCV) vs ours (service worker, {args.stages} stages)")
     for col in (
         "VPC",
         "disp",
@@ -278,7 +294,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         tmp = Path(tmp_name)
         for w, h, disp in configs:
             vpc = VpcConfig(width=w, height=h)
-            stereo = StereoParams(disparity_range=disp)
+            stereo = StereoParams(disparity_range=disp, **STAGES[args.stages])
             pipeline = DepthPipeline(rig, vpc, stereo, cache_dir=tmp / "lut")
             sgbm = floor_matcher(stereo)
             check_floor_matcher(pairs, pipeline, sgbm)
@@ -381,6 +397,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "recording": str(recording),
             "spec": spec.__dict__,
             "decode": args.decode,
+            "stages": args.stages,
             "repeat": repeat,
             "seconds": seconds,
             "rows": rows,

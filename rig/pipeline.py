@@ -18,9 +18,11 @@ from __future__ import annotations
 
 import ctypes
 import logging
+import os
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -89,6 +91,22 @@ def tune_allocator() -> bool:
         _allocator_tuned = done
         log.debug("malloc tuned for reuse of large temporaries: %s", done)
         return done
+
+
+_refine_pool: ThreadPoolExecutor | None = None
+_REFINE_THREADS = min(4, os.cpu_count() or 1)
+
+
+def refine_pool() -> ThreadPoolExecutor | None:
+    """The process's threads for banded refinement (:func:`rig.subpixel.refine_disparity`);
+    None on a single core. Shared by all pipelines: the finish stage is serialised anyway."""
+    global _refine_pool
+    if _REFINE_THREADS < 2:
+        return None
+    with _allocator_lock:
+        if _refine_pool is None:
+            _refine_pool = ThreadPoolExecutor(_REFINE_THREADS, thread_name_prefix="rig-refine")
+        return _refine_pool
 
 
 @dataclass
@@ -281,8 +299,17 @@ class DepthPipeline:
             t2 = time.perf_counter()
             sigma = None
             if p.subpixel or p.confidence:
+                # In bands across the cores: this stage is on every frame's critical path.
                 ref = refine_disparity(
-                    gl, gr, disparity, valid, p.subpixel_window, apply=p.subpixel, want_sigma=p.confidence
+                    gl,
+                    gr,
+                    disparity,
+                    valid,
+                    p.subpixel_window,
+                    apply=p.subpixel,
+                    want_sigma=p.confidence,
+                    pool=refine_pool(),
+                    bands=2 * _REFINE_THREADS,
                 )
                 disparity, sigma = ref.disparity, ref.sigma
             t3 = time.perf_counter()

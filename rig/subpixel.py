@@ -26,6 +26,7 @@ least-squares prediction of the disparity's standard deviation ``σ_d = sqrt(Σ_
 from __future__ import annotations
 
 import functools
+from concurrent.futures import Executor
 from dataclasses import dataclass
 
 import cv2
@@ -96,6 +97,8 @@ def refine_disparity(
     *,
     apply: bool = True,
     want_sigma: bool = False,
+    pool: Executor | None = None,
+    bands: int = 1,
 ) -> Refinement:
     """Refined disparity for gray VPC images ``left``/``right`` (H, W) uint8 and the matcher's
     ``disparity`` (H, W) float32 (NaN where ``valid`` is False).
@@ -104,15 +107,63 @@ def refine_disparity(
     refinement). Pixels whose refined value moved more than :data:`MAX_STEP_PX` keep the
     matcher's value and get σ = inf. Cost: two 5-tap filters, two nearest remaps and two box
     filters (three more with σ), all float32.
+
+    With a ``pool``, the two images are normalised in parallel and the rest runs as ``bands``
+    horizontal bands (each with ``window // 2`` rows of margin, so every row sees the same
+    neighbourhood as in one pass; only the box filters' summation order differs, ~1e-7 px):
+    on a multi-core CPU this cuts the stage's latency, not its CPU time.
     """
     h, w = left.shape
-    xs, ys = _grid(h, w)
-    L = _normalise(left)
-    R = _normalise(right)
+    if pool is None:
+        L, R = _normalise(left), _normalise(right)
+    else:
+        right_future = pool.submit(_normalise, right)
+        L = _normalise(left)
+        R = right_future.result()
     gL = _x_derivative(L)
     gR = _x_derivative(R)
+    d_clean: F32 = np.asarray(cv2.patchNaNs(disparity.copy(), 0.0), dtype=np.float32)  # NaN -> 0
+    step = -(-h // max(1, bands))
+    if pool is None or step >= h:
+        best, sigma = _refine_rows(L, R, gL, gR, d_clean, valid, window, apply, want_sigma)
+    else:
+        best = np.empty((h, w), dtype=np.float32)
+        sigma = np.empty((h, w), dtype=np.float32) if want_sigma else None
+        margin = window // 2
+
+        def band(r0: int) -> None:
+            r1 = min(h, r0 + step)
+            a, b = max(0, r0 - margin), min(h, r1 + margin)
+            rows = slice(a, b)
+            got, sig = _refine_rows(
+                L[rows], R[rows], gL[rows], gR[rows], d_clean[rows], valid[rows], window, apply, want_sigma
+            )
+            best[r0:r1] = got[r0 - a : r1 - a]
+            if sigma is not None and sig is not None:
+                sigma[r0:r1] = sig[r0 - a : r1 - a]
+
+        for future in [pool.submit(band, r0) for r0 in range(0, h, step)]:
+            future.result()
+    out = np.where(valid, best, np.float32(np.nan)).astype(np.float32) if apply else disparity
+    return Refinement(out, sigma)
+
+
+def _refine_rows(
+    L: F32,
+    R: F32,
+    gL: F32,
+    gR: F32,
+    d_clean: F32,
+    valid: NDArray[np.bool_],
+    window: int,
+    apply: bool,
+    want_sigma: bool,
+) -> tuple[F32, F32 | None]:
+    """The disparity-dependent part of :func:`refine_disparity` on rows of normalised images:
+    (refined disparity or the matcher's where not trusted, σ or None)."""
+    h, w = L.shape
+    xs, ys = _grid(h, w)
     vf = valid.astype(np.float32)
-    d_clean = cv2.patchNaNs(disparity.copy(), 0.0)  # NaN -> 0 without a masked pass
     d0 = np.rint(d_clean)
     # Integer gather R(x - d0) and ∂R(x - d0) through remap (nearest: exact on integer maps).
     map_x = xs - d0
@@ -127,17 +178,16 @@ def refine_disparity(
         refined = _box(g * a, window) / sum_g2
         ok = (np.abs(refined - d_clean) <= MAX_STEP_PX) & valid
     best = np.where(ok, refined, d_clean)
-    out = np.where(valid, best, np.float32(np.nan)).astype(np.float32) if apply else disparity
-    sigma: F32 | None = None
-    if want_sigma:
-        # Residual of each pixel under its own disparity (small numbers: float32 is enough).
-        d_used = best if apply else d_clean
-        r = e - (d_used - d0) * g
-        n = _box(vf, window)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            sig = np.sqrt(_box(r * r, window) / np.maximum(n - 1.0, 1.0) / sum_g2)
-        sigma = np.where(ok & (n >= 3) & np.isfinite(sig), sig, np.float32(np.inf)).astype(np.float32)
-    return Refinement(out, sigma)
+    if not want_sigma:
+        return best, None
+    # Residual of each pixel under its own disparity (small numbers: float32 is enough).
+    d_used = best if apply else d_clean
+    r = e - (d_used - d0) * g
+    n = _box(vf, window)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sig = np.sqrt(_box(r * r, window) / np.maximum(n - 1.0, 1.0) / sum_g2)
+    sigma = np.where(ok & (n >= 3) & np.isfinite(sig), sig, np.float32(np.inf)).astype(np.float32)
+    return best, sigma
 
 
 def confidence_from_sigma(sigma: F32, sigma0: float) -> F32:

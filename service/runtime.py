@@ -10,10 +10,12 @@ capture threads.
 from __future__ import annotations
 
 import logging
+import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 from calibration import load_rig
 from calibration.rig import Rig
@@ -22,6 +24,7 @@ from rig.capture.config import CaptureConfig, FileCameraConfig
 from rig.capture.health import CaptureHealth
 from rig.pipeline import DepthPipeline
 from rig.recording import Recording
+from service.encoders import depth_png, disparity_png, npy_bytes
 from service.errors import SettingsError
 from service.host import HostInfo, host_info
 from service.metrics import MetricsSnapshot, ServiceMetrics
@@ -69,6 +72,7 @@ def _check_sizes(settings_cams: CaptureConfig, capture: StereoCapture, rig: Rig)
 
 
 HealthStatus = Literal["ok", "degraded", "down"]
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -103,12 +107,26 @@ class Runtime:
             settings.server.recordings_dir, queue_size=settings.server.recording_queue, rig=rig
         )
         self.metrics = ServiceMetrics(self.metrics_snapshot)
+        scale = settings.server.depth_scale_m
         self.worker = DepthWorker(
-            capture, pipeline, self.store, on_pair=self.recordings.offer, on_result=self.metrics.observe
+            capture,
+            pipeline,
+            self.store,
+            on_pair=self.recordings.offer,
+            on_result=self.metrics.observe,
+            # Keys and bodies as the /depth and /disparity routes cache them.
+            prefetch={
+                "depth_png": lambda r: depth_png(r.frame.depth, scale),
+                "depth_npy": lambda r: npy_bytes(r.frame.depth),
+                "disparity_png": lambda r: disparity_png(r.frame.disparity),
+                "disparity_npy": lambda r: npy_bytes(r.frame.disparity),
+            },
         )
         self.started_ns = time.monotonic_ns()
         self.calibration_doc: Any = None  # /calibration's response, made on first request
         self._running = False
+        self._health_lock = threading.Lock()
+        self._health_memo: tuple[float, object, Any] | None = None
 
     @classmethod
     def build(cls, settings: Settings) -> Runtime:
@@ -162,6 +180,30 @@ class Runtime:
             encodes=self.store.counter.snapshot(),
             recording=self.recordings.active,
         )
+
+    def health_snapshot(self, render: Callable[[HealthReport], _T], max_age_s: float) -> _T:
+        """``render(self.health())``, shared by callers within ``max_age_s`` and built by one of
+        them at a time: under many clients ``/health`` costs one build per interval, not one per
+        request (each build holds the GIL the depth worker needs). Starting or stopping a
+        recording shows at once (it is part of the memo's key); camera faults show within
+        ``max_age_s``."""
+        with self._health_lock:
+            value = self.fresh_health_snapshot(max_age_s)
+            if value is None:
+                value = render(self.health())
+                self._health_memo = (time.monotonic(), self._health_key(), value)
+            return value
+
+    def fresh_health_snapshot(self, max_age_s: float) -> Any:
+        """The last :meth:`health_snapshot` if it is still fresh (no I/O, never blocks), else None."""
+        memo = self._health_memo
+        if memo is not None and time.monotonic() - memo[0] <= max_age_s and memo[1] == self._health_key():
+            return memo[2]
+        return None
+
+    def _health_key(self) -> object:
+        active = self.recordings.active
+        return None if active is None else (active.name, active.error)
 
     def health(self) -> HealthReport:
         """``down``: no camera delivers, the worker or the capture is not running; ``degraded``:

@@ -104,6 +104,9 @@ class ServerSettings(BaseModel):
     )
     recording_queue: int = Field(64, ge=1, le=10_000, description="pairs waiting for the recording writer")
     stale_after_s: float = Field(2.0, gt=0.0, description="no depth frame for this long → degraded")
+    health_max_age_s: float = Field(
+        0.1, ge=0.0, le=1.0, description="/health document shared by requests within this age (0 = none)"
+    )
     fault_injection: bool = Field(False, description="expose POST /cameras/{name}/faults (file cameras)")
 
     @field_validator("api_token", mode="before")

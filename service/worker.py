@@ -18,6 +18,7 @@ and the worker goes on.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import threading
@@ -330,7 +331,6 @@ class DepthWorker:
         self._publish(pair, frame, timings)
 
     def _publish(self, pair: FramePair, frame: DepthFrame, timings: dict[str, float]) -> None:
-        now = time.monotonic_ns()
         arrived = max(pair.left.host_ns, pair.right.host_ns)
         with self._lock:
             self._processed += 1
@@ -340,10 +340,17 @@ class DepthWorker:
             frame=frame,
             left=pair.left,
             right=pair.right,
-            published_ns=now,
-            latency_ms=(now - arrived) / 1e6,
+            published_ns=0,
+            latency_ms=0.0,
             cache=self.store.new_cache(),
         )
+        # Encode what clients polled on the previous frame *before* this one becomes visible: a
+        # poll then always finds its bytes ready (no request waits on the encode, none takes a
+        # thread hop), for the price of that encode's time in every client's frame age.
+        self._prefetch_for(result)
+        now = time.monotonic_ns()
+        result = dataclasses.replace(result, published_ns=now, latency_ms=(now - arrived) / 1e6)
+        self._previous = result
         self.store.publish(result)
         with self._lock:
             self._recent.append((now, timings, result.latency_ms))
@@ -351,10 +358,9 @@ class DepthWorker:
             self._last_published_ns = now
         if self._on_result is not None:
             self._on_result(result, timings)
-        self._prefetch_for(result)
 
     def _prefetch_for(self, result: FrameResult) -> None:
-        previous, self._previous = self._previous, result
+        previous = self._previous
         if previous is None:
             return
         for key, produce in self._prefetch.items():

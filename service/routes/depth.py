@@ -10,10 +10,9 @@ from service.deps import ResultDep, RuntimeDep, SettingsDep, binary_response_doc
 from service.encoders import (
     DISPARITY_PNG_SCALE,
     colorize_depth,
-    depth_to_png16,
-    disparity_to_png16,
+    depth_png,
+    disparity_png,
     encode_jpeg,
-    encode_png,
     npy_bytes,
     ply_bytes,
 )
@@ -51,7 +50,7 @@ async def get_depth(
     if format == "npy":
         body = await cached_body(result, "depth_npy", lambda: npy_bytes(depth))
         return Response(body, media_type=NPY, headers=frame_headers(result, **{"X-Depth-Scale": "1"}))
-    body = await cached_body(result, "depth_png", lambda: encode_png(depth_to_png16(depth, scale)))
+    body = await cached_body(result, "depth_png", lambda: depth_png(depth, scale))
     return Response(
         body, media_type="image/png", headers=frame_headers(result, **{"X-Depth-Scale": f"{scale:g}"})
     )
@@ -75,7 +74,7 @@ async def get_disparity(
     if format == "npy":
         body = await cached_body(result, "disparity_npy", lambda: npy_bytes(disp))
         return Response(body, media_type=NPY, headers=frame_headers(result, **{"X-Disparity-Scale": "1"}))
-    body = await cached_body(result, "disparity_png", lambda: encode_png(disparity_to_png16(disp)))
+    body = await cached_body(result, "disparity_png", lambda: disparity_png(disp))
     headers = frame_headers(result, **{"X-Disparity-Scale": f"{DISPARITY_PNG_SCALE:g}"})
     return Response(body, media_type="image/png", headers=headers)
 

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
-from service.deps import RuntimeDep
+from service.deps import RuntimeDep, SettingsDep
 from service.runtime import HealthReport
 from service.schemas import (
     CameraHealthModel,
@@ -57,9 +58,20 @@ def health_model(report: HealthReport) -> HealthModel:
     summary="Service health: 200 ok/degraded, 503 down",
     responses={503: {"model": HealthModel, "description": "down: no camera delivers or the worker stopped"}},
 )
-def get_health(runtime: RuntimeDep) -> JSONResponse:
-    model = health_model(runtime.health())
-    return JSONResponse(model.model_dump(mode="json"), status_code=503 if model.status == "down" else 200)
+async def get_health(runtime: RuntimeDep, settings: SettingsDep) -> Response:
+    max_age = settings.server.health_max_age_s
+    # A fresh shared document is answered on the event loop; building one reads the host's
+    # state (file systems, sensors), which may block, so that runs in a thread.
+    snapshot = runtime.fresh_health_snapshot(max_age)
+    if snapshot is None:
+        snapshot = await run_in_threadpool(runtime.health_snapshot, _render, max_age)
+    body, status = snapshot
+    return Response(body, status_code=status, media_type="application/json")
+
+
+def _render(report: HealthReport) -> tuple[bytes, int]:
+    model = health_model(report)
+    return model.model_dump_json().encode(), 503 if model.status == "down" else 200
 
 
 @router.get(

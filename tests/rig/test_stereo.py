@@ -6,6 +6,8 @@ band-limited texture with no resampling at all, so the true disparity is d every
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import pytest
 from numpy.typing import NDArray
@@ -185,6 +187,25 @@ def test_refinement_without_apply_keeps_the_matchers_values() -> None:
     ref = refine_disparity(left, right, raw.disparity, raw.valid, 15, apply=False, want_sigma=True)
     assert np.array_equal(ref.disparity, raw.disparity, equal_nan=True)
     assert ref.sigma is not None and np.isfinite(ref.sigma[ROI][raw.valid[ROI]]).mean() > 0.9
+
+
+@pytest.mark.parametrize("bands", [2, 3, 4, 7])
+def test_banded_refinement_is_the_single_pass(bands: int) -> None:
+    left, right = shifted_pair(17.35, noise=3.0, seed=5)
+    raw = StereoMatcher(StereoParams(disparity_range=64)).match(left, right)
+    whole = refine_disparity(left, right, raw.disparity, raw.valid, 15, want_sigma=True)
+    with ThreadPoolExecutor(2) as pool:
+        banded = refine_disparity(
+            left, right, raw.disparity, raw.valid, 15, want_sigma=True, pool=pool, bands=bands
+        )
+    # Every row sees the same neighbourhood: only the box filters' summation order differs.
+    assert np.array_equal(np.isnan(whole.disparity), np.isnan(banded.disparity))
+    assert np.nanmax(np.abs(whole.disparity - banded.disparity)) < 1e-4
+    assert whole.sigma is not None and banded.sigma is not None
+    finite = np.isfinite(whole.sigma)
+    assert np.array_equal(finite, np.isfinite(banded.sigma))
+    rel = np.abs(whole.sigma[finite] - banded.sigma[finite]) / whole.sigma[finite]
+    assert np.median(rel) < 1e-3 and rel.max() < 0.1  # float32 running sums: round-off only
 
 
 def test_lr_check_through_the_matcher_removes_inconsistent_pixels() -> None:
