@@ -186,6 +186,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--max-requests", type=int, default=2000, help="most requests per client and phase")
     parser.add_argument("--demo", action="store_true", help="serve the built-in demo instead of MJPEG frames")
     parser.add_argument(
+        "--png-compression", type=int, default=None, help="server.png_compression (default: the service's)"
+    )
+    parser.add_argument(
         "--recording", type=Path, default=None, help="serve this recording (default: bench's)"
     )
     args = parser.parse_args(argv)
@@ -203,6 +206,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         recording = args.recording or ensure_mjpeg_recording(MjpegSpec())
         serve_args = ["--recording", str(recording)]
         source = str(recording)
+    if args.png_compression is not None:
+        if args.quick:
+            raise SystemExit("--png-compression is for full runs (--quick brings its own config)")
+        config = bench_cache_dir() / f"api-load-png{args.png_compression}.yaml"
+        config.parent.mkdir(parents=True, exist_ok=True)
+        config.write_text(f"server: {{png_compression: {args.png_compression}}}\n")
+        serve_args += ["--config", str(config)]
     env = {"RIG_CACHE_DIR": str(bench_cache_dir() / "lut")}
     console.print(
         f"service: rig serve {' '.join(serve_args)} ({source}); clients: {counts}, "

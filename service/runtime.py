@@ -107,7 +107,7 @@ class Runtime:
             settings.server.recordings_dir, queue_size=settings.server.recording_queue, rig=rig
         )
         self.metrics = ServiceMetrics(self.metrics_snapshot)
-        scale = settings.server.depth_scale_m
+        scale, level = settings.server.depth_scale_m, settings.server.png_compression
         self.worker = DepthWorker(
             capture,
             pipeline,
@@ -116,9 +116,9 @@ class Runtime:
             on_result=self.metrics.observe,
             # Keys and bodies as the /depth and /disparity routes cache them.
             prefetch={
-                "depth_png": lambda r: depth_png(r.frame.depth, scale),
+                "depth_png": lambda r: depth_png(r.frame.depth, scale, level),
                 "depth_npy": lambda r: npy_bytes(r.frame.depth),
-                "disparity_png": lambda r: disparity_png(r.frame.disparity),
+                "disparity_png": lambda r: disparity_png(r.frame.disparity, level),
                 "disparity_npy": lambda r: npy_bytes(r.frame.disparity),
             },
         )

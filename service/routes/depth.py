@@ -50,7 +50,9 @@ async def get_depth(
     if format == "npy":
         body = await cached_body(result, "depth_npy", lambda: npy_bytes(depth))
         return Response(body, media_type=NPY, headers=frame_headers(result, **{"X-Depth-Scale": "1"}))
-    body = await cached_body(result, "depth_png", lambda: depth_png(depth, scale))
+    body = await cached_body(
+        result, "depth_png", lambda: depth_png(depth, scale, settings.server.png_compression)
+    )
     return Response(
         body, media_type="image/png", headers=frame_headers(result, **{"X-Depth-Scale": f"{scale:g}"})
     )
@@ -68,13 +70,16 @@ async def get_depth(
 )
 async def get_disparity(
     result: ResultDep,
+    settings: SettingsDep,
     format: Annotated[ArrayFormat, Query(description="png (16-bit, 1/16 px) or npy (float32 px)")] = "png",
 ) -> Response:
     disp = result.frame.disparity
     if format == "npy":
         body = await cached_body(result, "disparity_npy", lambda: npy_bytes(disp))
         return Response(body, media_type=NPY, headers=frame_headers(result, **{"X-Disparity-Scale": "1"}))
-    body = await cached_body(result, "disparity_png", lambda: disparity_png(disp))
+    body = await cached_body(
+        result, "disparity_png", lambda: disparity_png(disp, settings.server.png_compression)
+    )
     headers = frame_headers(result, **{"X-Disparity-Scale": f"{DISPARITY_PNG_SCALE:g}"})
     return Response(body, media_type="image/png", headers=headers)
 

@@ -3,9 +3,11 @@ limit, faults → /health, readiness before the first frame, CORS on, 0.1 mm dep
 
 from __future__ import annotations
 
+import io
 import threading
 from collections.abc import Callable, Iterator
 
+import cv2
 import httpx
 import numpy as np
 import pytest
@@ -14,6 +16,7 @@ from calibration import load_rig
 from rig.capture.faults import DisconnectFault
 from rig.recording import Recording
 from service.client import RigClient
+from service.encoders import depth_to_png16
 from service.errors import ApiError
 from tests.service.conftest import TOKEN, LiveServer, SmallRecording, wait_for
 from tests.service.test_api import metric_values, same_frame
@@ -232,6 +235,22 @@ def test_tenth_millimetre_depth_scale(start_server: StartServer) -> None:
     fits[ok] = npy.depth[ok] <= 6.55345  # 16 bits of 0.1 mm reach 6.5535 m
     assert fits.any() and np.array_equal(fits, np.isfinite(png.depth))
     assert np.abs(png.depth[fits] - npy.depth[fits]).max() <= 0.00005 + 1e-6
+
+
+def test_stored_png_bodies_when_configured(start_server: StartServer) -> None:
+    live = start_server(png_compression=0)
+    w, h = live.runtime.pipeline.pair.camera.width, live.runtime.pipeline.pair.camera.height
+    with httpx.Client(base_url=live.base_url) as client:
+        for _ in range(30):
+            png, npy = client.get("/depth"), client.get("/depth", params={"format": "npy"})
+            if png.headers["X-Frame-Seq"] == npy.headers["X-Frame-Seq"]:
+                break
+        else:
+            raise AssertionError("could not fetch two responses of one frame")
+    assert len(png.content) > w * h * 2  # stored: every 16-bit pixel, no deflate
+    units = cv2.imdecode(np.frombuffer(png.content, np.uint8), cv2.IMREAD_UNCHANGED)
+    depth = np.load(io.BytesIO(npy.content))
+    assert np.array_equal(units, depth_to_png16(depth, 0.001))
 
 
 def test_each_response_is_encoded_once_per_frame(start_server: StartServer) -> None:

@@ -29,6 +29,21 @@ def test_depth_png16_mm_and_tenth_mm() -> None:
     assert back.dtype == np.uint16 and np.array_equal(back, tenth)
 
 
+def test_png_is_lossless_at_every_compression_level() -> None:
+    rng = np.random.default_rng(4)
+    yy, xx = np.mgrid[0:120, 0:160]
+    depth = (2000 + 900 * np.sin(xx / 20) + 300 * yy / 120 + rng.normal(0, 3, xx.shape)).astype(np.uint16)
+    depth[rng.random(depth.shape) < 0.05] = 0
+    sizes = {}
+    for level in (0, 1, 6, 9):
+        body = encode_png(depth, level)
+        back = cv2.imdecode(np.frombuffer(body, np.uint8), cv2.IMREAD_UNCHANGED)
+        assert back.dtype == np.uint16 and np.array_equal(back, depth), level
+        sizes[level] = len(body)
+    assert sizes[0] > depth.nbytes  # stored: the raw rows plus PNG framing
+    assert max(sizes[1], sizes[6], sizes[9]) < 0.7 * sizes[0]
+
+
 def test_disparity_png16_sixteenth_pixels() -> None:
     disp = np.array([[1.0, 2.5625, np.nan, 0.0]], dtype=np.float32)
     assert disparity_to_png16(disp).tolist() == [[16, 41, 0, 0]]
