@@ -16,9 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from calibration.geometry import invert_transform, make_transform, rot_x, rot_y, rot_z
+from calibration.geometry import invert_transform
 from calibration.models import CameraModel, create
 from calibration.targets import detect_chessboard
+from rig.evaluate.renders import board_pose as evaluate_board_pose
 from rig.sim import chessboard_corners, chessboard_scene, render
 
 F64 = NDArray[np.float64]
@@ -76,27 +77,8 @@ def board_pose(
     spin_deg: float = 0.0,
     square_m: float = 0.05,
 ) -> F64:
-    """``T_cam_board`` of a board whose centre lies ``distance_m`` along the direction at
-    ``theta_deg`` off the optical axis (azimuth ``phi_deg``), facing the camera, then tilted
-    about its own x/y axes and spun about its normal."""
-    th, ph = math.radians(theta_deg), math.radians(phi_deg)
-    d = np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)])
-    # Board z (into the board) along d: rotate z onto d.
-    axis = np.cross([0.0, 0.0, 1.0], d)
-    s = float(np.linalg.norm(axis))
-    R_face = np.eye(3)
-    if s > 1e-12:
-        k = axis / s
-        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-        R_face = np.eye(3) + math.sin(th) * K + (1 - math.cos(th)) * K @ K
-    R = (
-        R_face
-        @ rot_x(math.radians(tilt_deg[0]))
-        @ rot_y(math.radians(tilt_deg[1]))
-        @ rot_z(math.radians(spin_deg))
-    )
-    centre = chessboard_corners(*BOARD, square_m).mean(axis=0)
-    return make_transform(R, d * distance_m - R @ centre)
+    """``T_cam_board`` of the :data:`BOARD` (see :func:`rig.evaluate.renders.board_pose`)."""
+    return evaluate_board_pose(BOARD, square_m, theta_deg, phi_deg, distance_m, tilt_deg, spin_deg)
 
 
 def circle_views(rim_theta_deg: float = 72.0, distance_m: float = 0.6) -> list[F64]:

@@ -3,13 +3,9 @@ HTTP, SIGINT/SIGTERM shut down gracefully, and ``--demo`` works from an empty ca
 
 from __future__ import annotations
 
-import os
-import re
-import selectors
 import signal
 import socket
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -17,36 +13,17 @@ from pathlib import Path
 import httpx
 import pytest
 
+import tests.reliability.common as reliability
+from tests.reliability.common import Served, assert_one_line_error, start_serve
 from tests.service.conftest import SmallRecording
-
-RIG = Path(sys.executable).with_name("rig")
-URL_RE = re.compile(r"depth service: (http://127\.0\.0\.1:\d+/)")
 
 
 def clean_env(tmp: Path, **extra: str) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("RIG_")}
-    env.update(
-        PYTHONUNBUFFERED="1",
-        XDG_CACHE_HOME=str(tmp / "cache"),
-        XDG_DATA_HOME=str(tmp / "data"),
-        RIG_SERVER__RECORDINGS_DIR=str(tmp / "recordings"),
-        COLUMNS="200",
-        **extra,
-    )
-    return env
+    return reliability.clean_env(tmp, RIG_SERVER__RECORDINGS_DIR=str(tmp / "recordings"), **extra)
 
 
-def run_rig(args: list[str], env: dict[str, str], timeout: float = 60) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([str(RIG), *args], env=env, capture_output=True, text=True, timeout=timeout)
-
-
-def assert_one_line_error(result: subprocess.CompletedProcess[str], *needles: str) -> None:
-    assert result.returncode == 2, result
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len(lines) == 1, result.stderr
-    assert lines[0].startswith("error:") and "Traceback" not in result.stderr
-    for needle in needles:
-        assert needle in lines[0], (needle, lines[0])
+def run_rig(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    return reliability.run_rig(args, env, timeout=60)
 
 
 def test_non_loopback_without_token_refused(tmp_path: Path) -> None:
@@ -97,42 +74,6 @@ def _empty_config(tmp: Path) -> Path:
     return cfg
 
 
-class Served:
-    def __init__(self, proc: subprocess.Popen[str], url: str, output: list[str]) -> None:
-        self.proc = proc
-        self.url = url
-        self.output = output
-
-
-def start_serve(args: list[str], env: dict[str, str], timeout: float) -> Served:
-    proc = subprocess.Popen(
-        [str(RIG), "serve", "--port", "0", *args],
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    assert proc.stdout is not None
-    sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)
-    output: list[str] = []
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if not sel.select(timeout=1.0):
-            if proc.poll() is not None:
-                break
-            continue
-        line = proc.stdout.readline()
-        if not line:
-            break
-        output.append(line)
-        m = URL_RE.search(line)
-        if m:
-            return Served(proc, m.group(1), output)
-    proc.kill()
-    raise AssertionError("rig serve printed no URL:\n" + "".join(output))
-
-
 def wait_healthy(url: str, timeout: float) -> dict[str, object]:
     deadline = time.monotonic() + timeout
     last: object = None
@@ -152,8 +93,9 @@ def wait_healthy(url: str, timeout: float) -> dict[str, object]:
 def served_recording(tmp_path: Path, small_recording: SmallRecording) -> Iterator[Served]:
     env = clean_env(tmp_path, RIG_VPC__WIDTH="320", RIG_VPC__HEIGHT="240", RIG_STEREO__DISPARITY_RANGE="64")
     served = start_serve(
-        ["--recording", str(small_recording.loop), "--log-level", "warning"], env, timeout=90
+        ["--port", "0", "--recording", str(small_recording.loop), "--log-level", "warning"], env, timeout=90
     )
+    assert served.host == "127.0.0.1"  # loopback unless configured
     yield served
     if served.proc.poll() is None:
         served.proc.kill()
@@ -185,7 +127,8 @@ def test_serve_recording_then_graceful_stop(served_recording: Served, stop_signa
 @pytest.mark.timeout(900)
 def test_serve_demo_from_an_empty_cache(tmp_path: Path) -> None:
     env = clean_env(tmp_path)
-    served = start_serve(["--demo", "--log-level", "warning"], env, timeout=800)
+    served = start_serve(["--port", "0", "--demo", "--log-level", "warning"], env, timeout=800)
+    assert served.host == "127.0.0.1"  # loopback unless configured
     try:
         assert (tmp_path / "cache" / "odfc-rig" / "demo").is_dir()  # rendered into the user cache dir
         health = wait_healthy(served.url, 120)
