@@ -10,14 +10,19 @@ import os
 from pathlib import Path
 from typing import Any
 
-__all__ = ["install", "limited_open"]
+__all__ = ["Budget", "install", "limited_open"]
 
 
-class _Budget:
-    def __init__(self, remaining: int) -> None:
+class Budget:
+    """Bytes left on the fake disk, shared by every file it wraps; None = unlimited (a test may
+    set ``remaining`` when the disk should fill)."""
+
+    def __init__(self, remaining: int | None = None) -> None:
         self.remaining = remaining
 
     def take(self, n: int) -> int:
+        if self.remaining is None:
+            return n
         if self.remaining <= 0:
             raise OSError(errno.ENOSPC, "No space left on device")
         k = min(n, self.remaining)
@@ -29,7 +34,7 @@ class _LimitedFile:
     """A real file whose writes draw on the budget: an unbuffered file returns a short count
     (the caller retries and gets ENOSPC), a buffered one writes what fits, then raises."""
 
-    def __init__(self, f: Any, budget: _Budget) -> None:
+    def __init__(self, f: Any, budget: Budget) -> None:
         self._f, self._budget = f, budget
 
     def write(self, data: bytes | memoryview) -> int:
@@ -53,10 +58,11 @@ class _LimitedFile:
         self._f.close()
 
 
-def limited_open(root: str | Path, budget_bytes: int) -> Any:
-    """An ``open`` whose files opened for writing under ``root`` share ``budget_bytes``."""
+def limited_open(root: str | Path, budget: Budget | int) -> Any:
+    """An ``open`` whose files opened for writing under ``root`` share ``budget`` (bytes)."""
     base = os.path.realpath(root)
-    budget = _Budget(budget_bytes)
+    if isinstance(budget, int):
+        budget = Budget(budget)
     real_open = builtins.open
 
     def opener(file: Any, mode: str = "r", *args: Any, **kw: Any) -> Any:

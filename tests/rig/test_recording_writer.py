@@ -3,74 +3,22 @@ what was indexed stays readable and nothing half-written is left behind."""
 
 from __future__ import annotations
 
-import builtins
-import errno
-import io
 from pathlib import Path
-from typing import Any
 
 import pytest
 
 import rig.recording
 from rig.errors import DiskFullError, RecordingError
 from rig.recording import Recording, RecordingWriter
+from tests.reliability.fake_disk import Budget, limited_open
 from tests.rig.capture_fixtures import encode, frame_image
 
 
-class Disk:
-    """A byte budget shared by every file the writer opens; None = unlimited."""
-
-    def __init__(self) -> None:
-        self.remaining: int | None = None
-
-    def take(self, n: int) -> int:
-        if self.remaining is None:
-            return n
-        if self.remaining <= 0:
-            raise OSError(errno.ENOSPC, "No space left on device")
-        k = min(n, self.remaining)
-        self.remaining -= k
-        return k
-
-
-class LimitedFile:
-    """Wraps a real file: writes beyond the budget are cut short like the kernel does (a short
-    write on unbuffered files, then ENOSPC), buffered files raise after the partial write."""
-
-    def __init__(self, f: Any, disk: Disk) -> None:
-        self._f, self._disk = f, disk
-
-    def write(self, data: bytes | memoryview) -> int:
-        data = bytes(data)
-        k = self._disk.take(len(data))
-        self._f.write(data[:k])
-        if k < len(data):
-            if isinstance(self._f, io.FileIO):
-                return k
-            self._f.flush()
-            raise OSError(errno.ENOSPC, "No space left on device")
-        return k
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._f, name)
-
-    def __enter__(self) -> LimitedFile:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._f.close()
-
-
 @pytest.fixture
-def disk(monkeypatch: pytest.MonkeyPatch) -> Disk:
-    d = Disk()
-    real_open = builtins.open
-
-    def limited_open(file: Any, mode: str = "r", *args: Any, **kw: Any) -> Any:
-        f = real_open(file, mode, *args, **kw)
-        return LimitedFile(f, d) if ("w" in mode or "a" in mode) else f
-
-    monkeypatch.setattr(rig.recording, "open", limited_open, raising=False)
+def disk(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Budget:
+    """Every file the writer opens under ``tmp_path`` draws on one budget (unlimited until set)."""
+    d = Budget()
+    monkeypatch.setattr(rig.recording, "open", limited_open(tmp_path, d), raising=False)
     return d
 
 
@@ -96,7 +44,7 @@ def assert_intact(root: Path, n: int) -> None:
     assert sorted(f.name for f in (root / "right").iterdir()) == [f"{k:06d}.jpg" for k in range(n)]
 
 
-def test_disk_full_while_writing_a_frame(tmp_path: Path, disk: Disk) -> None:
+def test_disk_full_while_writing_a_frame(tmp_path: Path, disk: Budget) -> None:
     w = RecordingWriter(tmp_path / "rec")
     for k in range(3):
         write(w, k)
@@ -107,7 +55,7 @@ def test_disk_full_while_writing_a_frame(tmp_path: Path, disk: Disk) -> None:
     assert_intact(tmp_path / "rec", 3)
 
 
-def test_disk_full_in_the_middle_of_an_index_row(tmp_path: Path, disk: Disk) -> None:
+def test_disk_full_in_the_middle_of_an_index_row(tmp_path: Path, disk: Budget) -> None:
     w = RecordingWriter(tmp_path / "rec")
     for k in range(2):
         write(w, k)
