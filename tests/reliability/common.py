@@ -20,7 +20,7 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from rig.recording import Recording, RecordingWriter
 from service.settings import Settings, load_settings
-from tests.service.conftest import FAST_SUPERVISOR, SMALL_SPEC, TOKEN
+from tests.service.conftest import FAST_SUPERVISOR, REPLAY_FPS, TOKEN, service_overrides
 
 __all__ = [
     "AUTH",
@@ -41,8 +41,6 @@ __all__ = [
 
 RIG = Path(sys.executable).with_name("rig")
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
-#: 10 fps keeps the arithmetic of lost frames simple (one frame per 100 ms) and the CPU share low.
-REPLAY_FPS = 10.0
 JPEG_QUALITY = 90
 
 
@@ -105,36 +103,6 @@ def jpeg_copy(source: Path, out: Path, quality: int = JPEG_QUALITY) -> Path:
     if src.calibration_path is not None:
         shutil.copyfile(src.calibration_path, out / "calibration.yaml")
     return out
-
-
-def service_overrides(
-    recording: Path,
-    tmp: Path,
-    lut_cache: Path,
-    *,
-    fps: float = REPLAY_FPS,
-    supervisor: dict[str, Any] | None = None,
-    **server: Any,
-) -> dict[str, Any]:
-    """The settings document of a service replaying ``recording`` (looping, live timestamps) with
-    a token, fault injection on, the small VPC, and recordings under ``tmp/recordings``."""
-    camera = {"kind": "file", "recording": str(recording), "pace": fps, "loop": True, "timestamps": "live"}
-    return {
-        "server": {
-            "recordings_dir": str(tmp / "recordings"),
-            "api_token": TOKEN,
-            "fault_injection": True,
-            **server,
-        },
-        "cameras": {
-            "left": {**camera, "camera": "left"},
-            "right": {**camera, "camera": "right"},
-            "supervisor": supervisor if supervisor is not None else FAST_SUPERVISOR,
-        },
-        "vpc": SMALL_SPEC.vpc.model_dump(),
-        "stereo": {"disparity_range": 64},
-        "cache_dir": str(lut_cache),
-    }
 
 
 def write_serve_config(path: Path, recording: Path, tmp: Path, lut_cache: Path, **kw: Any) -> Path:

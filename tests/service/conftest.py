@@ -50,22 +50,27 @@ def lut_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tmp_path_factory.mktemp("lut-cache")
 
 
-def small_settings(
-    rec: SmallRecording,
+def service_overrides(
+    recording: Path,
     tmp: Path,
     lut_cache: Path,
+    *,
+    fps: float = REPLAY_FPS,
+    supervisor: dict[str, Any] | None = None,
     camera_faults: list[dict[str, Any]] | None = None,
     **server: Any,
-) -> Settings:
+) -> dict[str, Any]:
+    """The settings document of a service replaying ``recording`` (looping, live timestamps) with
+    a token, fault injection on, the small VPC, and recordings under ``tmp/recordings``."""
     camera = {
         "kind": "file",
-        "recording": str(rec.loop),
-        "pace": REPLAY_FPS,
+        "recording": str(recording),
+        "pace": fps,
         "loop": True,
         "timestamps": "live",
         "faults": camera_faults or [],
     }
-    overrides = {
+    return {
         "server": {
             "recordings_dir": str(tmp / "recordings"),
             "api_token": TOKEN,
@@ -75,13 +80,24 @@ def small_settings(
         "cameras": {
             "left": {**camera, "camera": "left"},
             "right": {**camera, "camera": "right"},
-            "supervisor": FAST_SUPERVISOR,
+            "supervisor": supervisor if supervisor is not None else FAST_SUPERVISOR,
         },
         "vpc": SMALL_SPEC.vpc.model_dump(),
         "stereo": {"disparity_range": 64},
         "cache_dir": str(lut_cache),
     }
-    return load_settings(None, overrides)
+
+
+def small_settings(
+    rec: SmallRecording,
+    tmp: Path,
+    lut_cache: Path,
+    camera_faults: list[dict[str, Any]] | None = None,
+    **server: Any,
+) -> Settings:
+    return load_settings(
+        None, service_overrides(rec.loop, tmp, lut_cache, camera_faults=camera_faults, **server)
+    )
 
 
 class LiveServer:
