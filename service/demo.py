@@ -46,6 +46,7 @@ __all__ = [
     "demo_overrides",
     "ensure_demo_recording",
     "render_demo",
+    "replay_overrides",
 ]
 
 DEMO_VERSION = 1
@@ -208,13 +209,13 @@ def _render_with_bar(spec: DemoSpec, out: Path, console: Console) -> None:
         render_demo(spec, out, step)
 
 
-def demo_overrides(loop_recording: Path, fps: float = DEMO_FPS) -> dict[str, Any]:
-    """Settings overrides that replay ``loop_recording`` with file cameras (looping, live
-    timestamps) and use its calibration."""
+def replay_overrides(recording: Path, calibration: Path, pace: float | str) -> dict[str, Any]:
+    """Settings overrides: file cameras replaying ``recording`` at ``pace`` (fps or
+    ``"recorded"``), looping with live timestamps, and ``calibration`` for the rig."""
     camera = {
         "kind": "file",
-        "recording": str(loop_recording),
-        "pace": fps,
+        "recording": str(recording),
+        "pace": pace,
         "loop": True,
         "timestamps": "live",
     }
@@ -222,8 +223,13 @@ def demo_overrides(loop_recording: Path, fps: float = DEMO_FPS) -> dict[str, Any
         "cameras": {
             "left": {**camera, "camera": "left"},
             "right": {**camera, "camera": "right"},
-            # Decode only the pairs the worker takes, not all 2 x 30 frames/s in the camera threads.
+            # Decode only the pairs the worker takes, not every frame in the camera threads.
             "supervisor": {"decode": False},
         },
-        "calibration": {"path": str(loop_recording / "calibration.yaml")},
+        "calibration": {"path": str(calibration)},
     }
+
+
+def demo_overrides(loop_recording: Path, fps: float = DEMO_FPS) -> dict[str, Any]:
+    """:func:`replay_overrides` of the demo recording with its own calibration."""
+    return replay_overrides(loop_recording, loop_recording / "calibration.yaml", fps)

@@ -24,7 +24,7 @@ from rig.cli.common import console, err_console, fail
 from rig.errors import RecordingError
 from rig.recording import Recording
 from service.app import create_app
-from service.demo import demo_overrides, ensure_demo_recording
+from service.demo import demo_overrides, ensure_demo_recording, replay_overrides
 from service.runtime import Runtime
 from service.settings import Settings, load_settings
 
@@ -52,21 +52,7 @@ def recording_overrides(recording: Path, calibration: Path | None) -> dict[str, 
     calib = calibration or rec.calibration_path
     if calib is None:
         fail(f"--recording {recording}: it has no calibration.yaml; give --calibration FILE")
-    camera = {
-        "kind": "file",
-        "recording": str(rec.root),
-        "pace": "recorded",
-        "loop": True,
-        "timestamps": "live",
-    }
-    return {
-        "cameras": {
-            "left": {**camera, "camera": "left"},
-            "right": {**camera, "camera": "right"},
-            "supervisor": {"decode": False},  # the worker decodes the pairs it takes
-        },
-        "calibration": {"path": str(calib)},
-    }
+    return replay_overrides(rec.root, calib, "recorded")
 
 
 def serve_settings(
