@@ -187,13 +187,31 @@ def _calibrating(message: str) -> Progress:
     return progress
 
 
+# Options both commands take (typer reads them from the Annotated metadata).
+BoardOpt = Annotated[str, typer.Option("--board", help="Inner corners COLSxROWS, e.g. 9x6.")]
+SquareOpt = Annotated[float, typer.Option("--square", help="Square size in metres.")]
+ModelOpt = Annotated[str, typer.Option("--model", help=_MODEL_HELP)]
+FovOpt = Annotated[float | None, typer.Option("--fov-deg", help="Lens field of view to store (deg).")]
+LossOpt = Annotated[str, typer.Option("--loss", help="linear, huber or soft_l1 (robust, 1 px scale).")]
+SubpixOpt = Annotated[int, typer.Option("--subpix", help="Re-refine corners: cornerSubPix half-window px.")]
+ResidualsOpt = Annotated[
+    Path | None, typer.Option("--residuals", help="Residual picture (default OUT_residuals.png).")
+]
+RefineOpt = Annotated[
+    bool,
+    typer.Option(
+        "--refine/--no-refine", help="Refine the corners for the fisheye with the lens found, recalibrate."
+    ),
+]
+
+
 def register(app: typer.Typer) -> None:
     cal = typer.Typer(help="Calibrate cameras and the rig from chessboard images.", no_args_is_help=True)
 
     @cal.command("intrinsics")
     def intrinsics(
-        board: Annotated[str, typer.Option("--board", help="Inner corners COLSxROWS, e.g. 9x6.")],
-        square: Annotated[float, typer.Option("--square", help="Square size in metres.")],
+        board: BoardOpt,
+        square: SquareOpt,
         out: Annotated[Path, typer.Option("--out", help="rig.yaml to write (one camera, identity pose).")],
         images: Annotated[
             list[str] | None,
@@ -203,33 +221,19 @@ def register(app: typer.Typer) -> None:
             list[str] | None,
             typer.Argument(metavar="IMAGES", help="More image files (an unquoted glob lands here)."),
         ] = None,
-        model: Annotated[str, typer.Option("--model", help=_MODEL_HELP)] = "kannala_brandt",
+        model: ModelOpt = "kannala_brandt",
         name: Annotated[str, typer.Option("--name", help="Camera name in the file.")] = "cam0",
-        fov_deg: Annotated[
-            float | None, typer.Option("--fov-deg", help="Lens field of view to store (deg).")
-        ] = None,
+        fov_deg: FovOpt = None,
         initial: Annotated[
             Path | None, typer.Option("--initial", help="Optional starting guess (any calibration file).")
         ] = None,
         fix: Annotated[
             str, typer.Option("--fix", help="Parameters held at their start value, comma-separated.")
         ] = "",
-        loss: Annotated[
-            str, typer.Option("--loss", help="linear, huber or soft_l1 (robust, 1 px scale).")
-        ] = "linear",
-        subpix: Annotated[
-            int, typer.Option("--subpix", help="Re-refine corners: cornerSubPix half-window px.")
-        ] = 0,
-        residuals: Annotated[
-            Path | None, typer.Option("--residuals", help="Residual picture (default OUT_residuals.png).")
-        ] = None,
-        refine: Annotated[
-            bool,
-            typer.Option(
-                "--refine/--no-refine",
-                help="Refine the corners for the fisheye with the lens found, recalibrate.",
-            ),
-        ] = True,
+        loss: LossOpt = "linear",
+        subpix: SubpixOpt = 0,
+        residuals: ResidualsOpt = None,
+        refine: RefineOpt = True,
         min_views: Annotated[int, typer.Option("--min-views", help="Fewest usable views accepted.")] = 3,
     ) -> None:
         """Calibrate one camera's lens from chessboard images (no initial guess needed)."""
@@ -271,10 +275,10 @@ def register(app: typer.Typer) -> None:
         right: Annotated[
             str, typer.Option("--right", help="Glob of right camera images, same count and order.")
         ],
-        board: Annotated[str, typer.Option("--board", help="Inner corners COLSxROWS, e.g. 9x6.")],
-        square: Annotated[float, typer.Option("--square", help="Square size in metres.")],
+        board: BoardOpt,
+        square: SquareOpt,
         out: Annotated[Path, typer.Option("--out", help="rig.yaml to write.")],
-        model: Annotated[str, typer.Option("--model", help=_MODEL_HELP)] = "kannala_brandt",
+        model: ModelOpt = "kannala_brandt",
         left_intrinsics: Annotated[
             Path | None, typer.Option("--left-intrinsics", help="Start from (or fix) this calibration file.")
         ] = None,
@@ -284,25 +288,11 @@ def register(app: typer.Typer) -> None:
         fix_intrinsics: Annotated[
             bool, typer.Option("--fix-intrinsics", help="Refine only the poses.")
         ] = False,
-        fov_deg: Annotated[
-            float | None, typer.Option("--fov-deg", help="Lens field of view to store (deg).")
-        ] = None,
-        loss: Annotated[
-            str, typer.Option("--loss", help="linear, huber or soft_l1 (robust, 1 px scale).")
-        ] = "linear",
-        subpix: Annotated[
-            int, typer.Option("--subpix", help="Re-refine corners: cornerSubPix half-window px.")
-        ] = 0,
-        residuals: Annotated[
-            Path | None, typer.Option("--residuals", help="Residual picture (default OUT_residuals.png).")
-        ] = None,
-        refine: Annotated[
-            bool,
-            typer.Option(
-                "--refine/--no-refine",
-                help="Refine the corners for the fisheye with the lens found, recalibrate.",
-            ),
-        ] = True,
+        fov_deg: FovOpt = None,
+        loss: LossOpt = "linear",
+        subpix: SubpixOpt = 0,
+        residuals: ResidualsOpt = None,
+        refine: RefineOpt = True,
         min_views: Annotated[
             int, typer.Option("--min-views", help="Fewest usable views, per camera and common.")
         ] = 3,
