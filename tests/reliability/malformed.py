@@ -18,7 +18,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 import yaml
 from hypothesis import strategies as st
@@ -35,6 +34,7 @@ from tests.calibration.test_formats_samples import (
     kalibr_doc,
     opencv_fisheye_entries,
     rig_doc,
+    write_filestorage,
 )
 
 __all__ = [
@@ -228,23 +228,18 @@ def _paths_fs(entries: dict[str, Any], prefix: Path_ = ()) -> list[Path_]:
     return out
 
 
-def write_filestorage(path: Path, entries: dict[str, Any]) -> None:
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
-
-    def put(key: str, value: Any) -> None:
-        if isinstance(value, dict):
-            fs.startWriteStruct(key, cv2.FileNode_MAP)
-            for k, v in value.items():
-                put(k, v)
-            fs.endWriteStruct()
-        elif isinstance(value, bool):
-            fs.write(key, int(value))
-        elif isinstance(value, (int, float, str, np.ndarray)):
-            fs.write(key, value)
-
+def _storable(entries: dict[str, Any]) -> dict[str, Any]:
+    """What cv2.FileStorage can hold of a mutated document: maps, numbers (bools as ints),
+    strings and arrays; other values (None, lists) are left out."""
+    out: dict[str, Any] = {}
     for k, v in entries.items():
-        put(k, v)
-    fs.release()
+        if isinstance(v, dict):
+            out[k] = _storable(v)
+        elif isinstance(v, bool):
+            out[k] = int(v)
+        elif isinstance(v, (int, float, str, np.ndarray)):
+            out[k] = v
+    return out
 
 
 # ----- OCamCalib text lines -----------------------------------------------------------------------
@@ -296,7 +291,7 @@ def malformed_calibration(draw: st.DrawFn, name: str, into: Path) -> Path:
     elif sample.kind == "text":
         path.write_text("\n".join(content) + "\n")
     else:
-        write_filestorage(path, content)
+        write_filestorage(path, _storable(content))
     return path
 
 
