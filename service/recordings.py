@@ -175,7 +175,7 @@ class RecordingManager:
             active.thread.start()
             self._active = active
             log.info("recording %s started in %s", name, path)
-            return self._status_active(active)
+            return self._status_of(active)
 
     def offer(self, pair: FramePair) -> None:
         """Queue a pair for the running recording (if any); never blocks, counts drops."""
@@ -226,35 +226,26 @@ class RecordingManager:
         log.info(
             "recording %s stopped: %d pairs, %d dropped", active.name, active.writer.count, active.dropped
         )
-        return RecordingStatus(
-            name=active.name,
-            path=str(active.path),
-            active=False,
-            pairs=active.writer.count,
-            bytes=_dir_bytes(active.path),
-            dropped=active.dropped,
-            started_at=active.started_at,
-            stopped_at=stopped,
-            error=active.error,
-        )
+        return self._status_of(active, stopped_at=stopped)
 
-    def _status_active(self, active: _Active) -> RecordingStatus:
+    def _status_of(self, active: _Active, stopped_at: str | None = None) -> RecordingStatus:
+        """The status of ``active``: still running, or just stopped at ``stopped_at``."""
         return RecordingStatus(
             name=active.name,
             path=str(active.path),
-            active=True,
+            active=stopped_at is None,
             pairs=active.writer.count,
             bytes=_dir_bytes(active.path),
             dropped=active.dropped,
             started_at=active.started_at,
-            stopped_at=None,
+            stopped_at=stopped_at,
             error=active.error,
         )
 
     @property
     def active(self) -> RecordingStatus | None:
         active = self._active
-        return None if active is None else self._status_active(active)
+        return None if active is None else self._status_of(active)
 
     def list(self) -> list[RecordingStatus]:
         """Every recording directory under ``root`` (those with a recording.json), by name."""
@@ -264,7 +255,7 @@ class RecordingManager:
             return out
         for path in sorted(p for p in self.root.iterdir() if (p / "recording.json").is_file()):
             if active is not None and path.name == active.name:
-                out.append(self._status_active(active))
+                out.append(self._status_of(active))
                 continue
             try:
                 doc = json.loads((path / "recording.json").read_text(encoding="utf-8"))
