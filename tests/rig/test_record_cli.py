@@ -17,8 +17,9 @@ from typer.testing import CliRunner
 
 from rig.recording import Recording
 from service.cli import build_app
+from tests.reliability.fake_disk import Budget
 from tests.rig.capture_fixtures import write_recording
-from tests.rig.test_recording_writer import Disk, disk  # noqa: F401 - fixture
+from tests.rig.test_recording_writer import disk  # noqa: F401 - fixture
 
 RIG = str(Path(sys.executable).parent / "rig")
 
@@ -134,7 +135,7 @@ def test_seconds_limit_and_source_metadata(tmp_path: Path) -> None:
 
 def test_full_disk_stops_with_one_line_and_keeps_what_was_written(
     tmp_path: Path,
-    disk: Disk,  # noqa: F811
+    disk: Budget,  # noqa: F811
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     src = write_recording(tmp_path / "src", 20)
