@@ -31,13 +31,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calibration.rig import Rig
+from rig.bands import run_in_bands
 from rig.depth import depth_points, disparity_to_depth
 from rig.errors import ConfigError, PipelineError
 from rig.filters import TemporalFilter, median_filter, visible_in_right
 from rig.lut import Lut
 from rig.lut_cache import CachedLut, LutCache
 from rig.stereo import StereoMatcher, StereoParams
-from rig.subpixel import confidence_from_sigma, refine_disparity
+from rig.subpixel import confidence_from_sigma, refine_rows, refinement_inputs
 from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
 
 __all__ = ["DepthFrame", "DepthPipeline", "MatchedPair", "RectifiedPair", "tune_allocator"]
@@ -152,6 +153,30 @@ class MatchedPair:
     disparity: F32
     valid: NDArray[np.bool_]
     match_ms: float
+
+
+@dataclass
+class _FinishOutputs:
+    """The finish stage's output arrays (H, W), filled band by band."""
+
+    disparity: F32
+    valid: NDArray[np.bool_]
+    sigma: F32 | None
+    confidence: F32 | None
+    depth: F32
+
+    @classmethod
+    def empty(cls, shape: tuple[int, ...], *, with_sigma: bool) -> _FinishOutputs:
+        def f32() -> F32:
+            return np.empty(shape, dtype=np.float32)
+
+        return cls(
+            f32(),
+            np.empty(shape, dtype=bool),
+            f32() if with_sigma else None,
+            f32() if with_sigma else None,
+            f32(),
+        )
 
 
 def _gray(img: U8) -> U8:
@@ -290,63 +315,103 @@ class DepthPipeline:
     def finish(self, matched: MatchedPair, seq: int = 0, ts_ns: int = 0) -> DepthFrame:
         """Stage 3 of :meth:`process`: refinement, filters, confidence and depth with the
         parameters of the matcher that made ``matched``. Call in frame order (the temporal
-        filter's history); callers are serialised."""
+        filter's history); callers are serialised.
+
+        Everything but the temporal filter is row-local, so it runs in horizontal bands across
+        the cores (:func:`rig.bands.run_in_bands`, margins so every row sees what one pass would
+        see): this stage is on every frame's critical path. A stage's time is its longest band's.
+        """
         with self._finish_lock:
             p = matched.matcher.params
             rect = matched.rectified
-            gl, gr = rect.left_gray, rect.right_gray
             disparity, valid = matched.disparity, matched.valid
-            t2 = time.perf_counter()
-            sigma = None
-            if p.subpixel or p.confidence:
-                # In bands across the cores: this stage is on every frame's critical path.
-                ref = refine_disparity(
-                    gl,
-                    gr,
-                    disparity,
-                    valid,
-                    p.subpixel_window,
-                    apply=p.subpixel,
-                    want_sigma=p.confidence,
-                    pool=refine_pool(),
-                    bands=2 * _REFINE_THREADS,
-                )
-                disparity, sigma = ref.disparity, ref.sigma
-            t3 = time.perf_counter()
-            if p.median:
-                disparity, valid = median_filter(disparity, valid, p.median)
+            h = disparity.shape[0]
+            pool = refine_pool()
+            t0 = time.perf_counter()
+            refine = p.subpixel or p.confidence
+            inputs = refinement_inputs(rect.left_gray, rect.right_gray, disparity, pool) if refine else None
+            prep_ms = (time.perf_counter() - t0) * 1e3
+            temporal = p.temporal_alpha > 0.0
             if matched.matcher is not self._temporal_owner:
                 # New parameters: history made under the old ones is not averaged in.
                 self._temporal = TemporalFilter(p.temporal_alpha, p.temporal_reset)
                 self._temporal_owner = matched.matcher
-            if p.temporal_alpha > 0.0:
-                disparity = self._temporal(disparity, valid)
-            confidence = None
-            if sigma is not None:
-                confidence = confidence_from_sigma(sigma, p.confidence_sigma)
-                confidence[~valid] = 0.0
-            t4 = time.perf_counter()
-            depth = disparity_to_depth(disparity, self.pair.fx, self.baseline_m)
-            # d <= 0 has no depth: invalid everywhere, so the arrays agree pixel for pixel.
-            gone = valid & ~np.isfinite(depth)
-            if gone.any():
-                valid &= ~gone
-                disparity[gone] = np.nan
-                if confidence is not None:
-                    confidence[gone] = 0.0
-            t5 = time.perf_counter()
-        timings = {
-            "remap": rect.remap_ms,
-            "match": matched.match_ms,
-            "refine": (t3 - t2) * 1e3,
-            "filters": (t4 - t3) * 1e3,
-            "depth": (t5 - t4) * 1e3,
-        }
+            out = _FinishOutputs.empty(disparity.shape, with_sigma=p.confidence)
+            band_ms: list[dict[str, float]] = []
+
+            def band(a: int, b: int, r0: int, r1: int) -> None:
+                rows, keep = slice(a, b), slice(r0 - a, r1 - a)
+                b0 = time.perf_counter()
+                d, v, sigma = disparity[rows], valid[rows], None
+                if inputs is not None:
+                    ref = refine_rows(
+                        inputs.rows(rows),
+                        d,
+                        v,
+                        p.subpixel_window,
+                        apply=p.subpixel,
+                        want_sigma=p.confidence,
+                    )
+                    d, sigma = ref.disparity, ref.sigma
+                b1 = time.perf_counter()
+                if p.median:
+                    d, v = median_filter(d, v, p.median)
+                out.disparity[r0:r1] = d[keep]
+                out.valid[r0:r1] = v[keep]
+                if out.sigma is not None and sigma is not None:
+                    out.sigma[r0:r1] = sigma[keep]
+                b2 = time.perf_counter()
+                times = {"refine": (b1 - b0) * 1e3, "filters": (b2 - b1) * 1e3}
+                if not temporal:
+                    times.update(self._depth_rows(out, r0, r1, p))
+                band_ms.append(times)
+
+            margin = (p.subpixel_window // 2 if refine else 0) + p.median // 2
+            run_in_bands(band, h, _REFINE_THREADS, margin, pool)
+            stage = {k: max(t.get(k, 0.0) for t in band_ms) for k in ("refine", "filters", "depth")}
+            stage["refine"] += prep_ms
+            if temporal:
+                t3 = time.perf_counter()
+                out.disparity = self._temporal(out.disparity, out.valid)
+                stage["filters"] += (time.perf_counter() - t3) * 1e3
+                for key, ms in self._depth_rows(out, 0, h, p).items():
+                    stage[key] += ms
+        timings = {"remap": rect.remap_ms, "match": matched.match_ms, **stage}
         # Processing time, not wall time: pipelined stages may wait between each other.
         timings["total"] = sum(timings.values())
         return DepthFrame(
-            seq, ts_ns, depth, disparity, valid, confidence, rect.left_vpc, rect.right_vpc, timings
+            seq,
+            ts_ns,
+            out.depth,
+            out.disparity,
+            out.valid,
+            out.confidence,
+            rect.left_vpc,
+            rect.right_vpc,
+            timings,
         )
+
+    def _depth_rows(self, out: _FinishOutputs, r0: int, r1: int, p: StereoParams) -> dict[str, float]:
+        """Confidence and depth of rows ``[r0, r1)`` of ``out`` (in place); their times."""
+        t0 = time.perf_counter()
+        disparity, valid = out.disparity[r0:r1], out.valid[r0:r1]
+        confidence = None
+        if out.sigma is not None:
+            confidence = confidence_from_sigma(out.sigma[r0:r1], p.confidence_sigma)
+            confidence[~valid] = 0.0
+        t1 = time.perf_counter()
+        depth = disparity_to_depth(disparity, self.pair.fx, self.baseline_m)
+        # d <= 0 has no depth: invalid everywhere, so the arrays agree pixel for pixel.
+        gone = valid & ~np.isfinite(depth)
+        if gone.any():
+            valid &= ~gone
+            disparity[gone] = np.nan
+            if confidence is not None:
+                confidence[gone] = 0.0
+        out.depth[r0:r1] = depth
+        if out.confidence is not None and confidence is not None:
+            out.confidence[r0:r1] = confidence
+        return {"filters": (t1 - t0) * 1e3, "depth": (time.perf_counter() - t1) * 1e3}
 
     def process(self, left: U8, right: U8, seq: int = 0, ts_ns: int = 0) -> DepthFrame:
         """Depth for one fisheye pair (see :class:`DepthFrame`): :meth:`rectify`, :meth:`match`

@@ -33,7 +33,16 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["Refinement", "confidence_from_sigma", "refine_disparity"]
+from rig.bands import run_in_bands
+
+__all__ = [
+    "Refinement",
+    "RefinementInputs",
+    "confidence_from_sigma",
+    "refine_disparity",
+    "refine_rows",
+    "refinement_inputs",
+]
 
 U8 = NDArray[np.uint8]
 F32 = NDArray[np.float32]
@@ -74,18 +83,77 @@ def _grid(h: int, w: int) -> tuple[F32, F32]:
 def _normalise(img: U8) -> F32:
     """Local contrast normalisation ``(I − μ) / sqrt(σ² + ε²)`` over :data:`NORM_WINDOW`: the two
     cameras' gain and offset differences (exposure, vignetting at different field angles) would
-    otherwise leak into the intensity residual and bias the step."""
+    otherwise leak into the intensity residual and bias the step. Means straight from the uint8
+    image (OpenCV sums integers), the rest in place: this runs on every frame."""
     k = (NORM_WINDOW, NORM_WINDOW)
-    v = img.astype(np.float32)
-    mu = np.asarray(cv2.blur(v, k), dtype=np.float32)
-    var = np.asarray(cv2.blur(v * v, k), dtype=np.float32) - mu * mu
-    var = np.maximum(var, np.float32(0.0)) + np.float32(NORM_EPS**2)
-    return ((v - mu) / np.sqrt(var)).astype(np.float32, copy=False)
+    mu = np.asarray(cv2.boxFilter(img, cv2.CV_32F, k), dtype=np.float32)
+    scale = np.asarray(cv2.sqrBoxFilter(img, cv2.CV_32F, k), dtype=np.float32)
+    scale -= mu * mu
+    np.maximum(scale, np.float32(0.0), out=scale)
+    scale += np.float32(NORM_EPS**2)
+    np.sqrt(scale, out=scale)
+    out = img.astype(np.float32)
+    out -= mu
+    out /= scale
+    return out
 
 
 def _box(x: F32, window: int) -> F32:
     out = cv2.boxFilter(x, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
     return np.asarray(out, dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class RefinementInputs:
+    """What the refinement needs of one frame beyond the disparity's rows: the normalised images
+    ``L``/``R``, their x-derivatives ``gL``/``gR`` and the matcher's disparity with NaN → 0, all
+    (H, W) float32. Made once per frame by :func:`refinement_inputs`; rows of it are refined by
+    :func:`refine_rows` (in bands, by the pipeline)."""
+
+    L: F32
+    R: F32
+    gL: F32
+    gR: F32
+    d_clean: F32
+
+    def rows(self, rows: slice) -> RefinementInputs:
+        """The same inputs for a slice of rows (views)."""
+        return RefinementInputs(self.L[rows], self.R[rows], self.gL[rows], self.gR[rows], self.d_clean[rows])
+
+
+def refinement_inputs(left: U8, right: U8, disparity: F32, pool: Executor | None = None) -> RefinementInputs:
+    """:class:`RefinementInputs` for gray VPC images (H, W) uint8 and the matcher's disparity;
+    with a ``pool`` the two images are normalised in parallel."""
+    if pool is None:
+        L, R = _normalise(left), _normalise(right)
+    else:
+        right_future = pool.submit(_normalise, right)
+        L = _normalise(left)
+        R = right_future.result()
+    d_clean: F32 = np.asarray(cv2.patchNaNs(disparity.copy(), 0.0), dtype=np.float32)  # NaN -> 0
+    return RefinementInputs(L, R, _x_derivative(L), _x_derivative(R), d_clean)
+
+
+def refine_rows(
+    inputs: RefinementInputs,
+    disparity: F32,
+    valid: NDArray[np.bool_],
+    window: int,
+    *,
+    apply: bool = True,
+    want_sigma: bool = False,
+) -> Refinement:
+    """:func:`refine_disparity` of the rows ``disparity``/``valid`` (the matcher's, (n, W)) are
+    of; ``inputs`` are the frame's, sliced to the same rows by the caller. Rows within
+    ``window // 2`` of a cut that is not the image border see a truncated window: give a margin
+    (:func:`rig.bands.run_in_bands`)."""
+    best, sigma = _refine_rows(
+        inputs.L, inputs.R, inputs.gL, inputs.gR, inputs.d_clean, valid, window, apply, want_sigma
+    )
+    if not apply:
+        return Refinement(disparity, sigma)
+    best[~valid] = np.nan
+    return Refinement(best, sigma)
 
 
 def refine_disparity(
@@ -114,37 +182,22 @@ def refine_disparity(
     on a multi-core CPU this cuts the stage's latency, not its CPU time.
     """
     h, w = left.shape
-    if pool is None:
-        L, R = _normalise(left), _normalise(right)
-    else:
-        right_future = pool.submit(_normalise, right)
-        L = _normalise(left)
-        R = right_future.result()
-    gL = _x_derivative(L)
-    gR = _x_derivative(R)
-    d_clean: F32 = np.asarray(cv2.patchNaNs(disparity.copy(), 0.0), dtype=np.float32)  # NaN -> 0
-    step = -(-h // max(1, bands))
-    if pool is None or step >= h:
-        best, sigma = _refine_rows(L, R, gL, gR, d_clean, valid, window, apply, want_sigma)
-    else:
-        best = np.empty((h, w), dtype=np.float32)
-        sigma = np.empty((h, w), dtype=np.float32) if want_sigma else None
-        margin = window // 2
+    inputs = refinement_inputs(left, right, disparity, pool)
+    out = np.empty((h, w), dtype=np.float32) if apply else disparity
+    sigma = np.empty((h, w), dtype=np.float32) if want_sigma else None
 
-        def band(r0: int) -> None:
-            r1 = min(h, r0 + step)
-            a, b = max(0, r0 - margin), min(h, r1 + margin)
-            rows = slice(a, b)
-            got, sig = _refine_rows(
-                L[rows], R[rows], gL[rows], gR[rows], d_clean[rows], valid[rows], window, apply, want_sigma
-            )
-            best[r0:r1] = got[r0 - a : r1 - a]
-            if sigma is not None and sig is not None:
-                sigma[r0:r1] = sig[r0 - a : r1 - a]
+    def band(a: int, b: int, r0: int, r1: int) -> None:
+        rows = slice(a, b)
+        part = refine_rows(
+            inputs.rows(rows), disparity[rows], valid[rows], window, apply=apply, want_sigma=want_sigma
+        )
+        keep = slice(r0 - a, r1 - a)
+        if apply:
+            out[r0:r1] = part.disparity[keep]
+        if sigma is not None and part.sigma is not None:
+            sigma[r0:r1] = part.sigma[keep]
 
-        for future in [pool.submit(band, r0) for r0 in range(0, h, step)]:
-            future.result()
-    out = np.where(valid, best, np.float32(np.nan)).astype(np.float32) if apply else disparity
+    run_in_bands(band, h, bands, window // 2, pool)
     return Refinement(out, sigma)
 
 
@@ -160,34 +213,48 @@ def _refine_rows(
     want_sigma: bool,
 ) -> tuple[F32, F32 | None]:
     """The disparity-dependent part of :func:`refine_disparity` on rows of normalised images:
-    (refined disparity or the matcher's where not trusted, σ or None)."""
+    (refined disparity or the matcher's where not trusted, σ or None). A fresh array each."""
     h, w = L.shape
     xs, ys = _grid(h, w)
     vf = valid.astype(np.float32)
     d0 = np.rint(d_clean)
     # Integer gather R(x - d0) and ∂R(x - d0) through remap (nearest: exact on integer maps).
     map_x = xs - d0
-    Rs = cv2.remap(R, map_x, ys, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+    Rs: F32 = np.asarray(cv2.remap(R, map_x, ys, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE))
     gRs = cv2.remap(gR, map_x, ys, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
     # Invalid pixels (g = e = 0) do not vote in their neighbours' windows.
-    g = (gL + gRs) * (np.float32(0.5) * vf)
-    e = (Rs - L) * vf
-    a = e + d0 * g
+    g = gL + gRs
+    g *= vf
+    g *= np.float32(0.5)
+    e = Rs
+    e -= L
+    e *= vf
+    a = d0 * g
+    a += e
+    a *= g
     sum_g2 = _box(g * g, window)
     with np.errstate(divide="ignore", invalid="ignore"):
-        refined = _box(g * a, window) / sum_g2
-        ok = (np.abs(refined - d_clean) <= MAX_STEP_PX) & valid
+        refined = _box(a, window)
+        refined /= sum_g2
+        ok = np.abs(refined - d_clean) <= MAX_STEP_PX
+    ok &= valid
     best = np.where(ok, refined, d_clean)
     if not want_sigma:
         return best, None
     # Residual of each pixel under its own disparity (small numbers: float32 is enough).
-    d_used = best if apply else d_clean
-    r = e - (d_used - d0) * g
+    r = best - d0 if apply else d_clean - d0
+    r *= g
+    np.subtract(e, r, out=r)
+    r *= r
     n = _box(vf, window)
     with np.errstate(divide="ignore", invalid="ignore"):
-        sig = np.sqrt(_box(r * r, window) / np.maximum(n - 1.0, 1.0) / sum_g2)
-    sigma = np.where(ok & (n >= 3) & np.isfinite(sig), sig, np.float32(np.inf)).astype(np.float32)
-    return best, sigma
+        sig = _box(r, window)
+        sig /= np.maximum(n - np.float32(1.0), np.float32(1.0))
+        sig /= sum_g2
+        np.sqrt(sig, out=sig)
+        ok &= (n >= 3) & np.isfinite(sig)
+    sig[~ok] = np.inf
+    return best, sig
 
 
 def confidence_from_sigma(sigma: F32, sigma0: float) -> F32:

@@ -2,8 +2,8 @@
 result, as a three-stage pipeline on three threads so that consecutive frames overlap on a
 multi-core CPU (OpenCV and numpy release the GIL):
 
-1. ``rig-depth-prepare``: take the newest pair, decode both frames (in parallel when the capture
-   did not decode them already) and remap them to the VPC pair (:meth:`DepthPipeline.rectify`);
+1. ``rig-depth-prepare``: take the newest pair, decode both frames (unless the capture did) and
+   remap them to the VPC pair, one frame per thread (:meth:`DepthPipeline.rectify_camera`);
 2. ``rig-depth-match``: the stereo matcher (:meth:`DepthPipeline.match`);
 3. ``rig-depth-worker``: refinement, filters, depth (:meth:`DepthPipeline.finish`) and publishing.
 
@@ -273,13 +273,13 @@ class DepthWorker:
         """Decode (both frames at once when neither is decoded yet) and remap one pair."""
         pipe = self.pipeline
         left_name, right_name = pipe.names
-        decoded = pair.left.decoded and pair.right.decoded
-        if decoded or self._decoder is None:
+        if self._decoder is None:
             t0 = time.perf_counter()
             left, right = pair.left.image, pair.right.image
             decode_ms = (time.perf_counter() - t0) * 1e3
             return pipe.rectify(left, right), decode_ms
-        # Each frame decoded and remapped on its own thread: JPEG decoding is single-threaded.
+        # Each frame decoded (unless the capture did) and remapped on its own thread: JPEG
+        # decoding is single-threaded, and two remaps at once beat one parallelised after another.
         future: Future[tuple[NDArray[Any], NDArray[Any], float, float]] = self._decoder.submit(
             self._decode_rectify, left_name, pair.left
         )

@@ -15,11 +15,12 @@ import numpy as np
 import pytest
 
 import rig.lut_cache as lut_cache
+import rig.pipeline as pipeline_module
 from calibration.geometry import rot_x, rot_y
 from calibration.models import ScaramuzzaModel, create
 from rig.capture.frame import Frame, FramePair
 from rig.lut_cache import LutCache
-from rig.pipeline import DepthPipeline, tune_allocator
+from rig.pipeline import DepthFrame, DepthPipeline, tune_allocator
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
 from service.store import ResultStore
@@ -155,6 +156,41 @@ def test_pipeline_stages_are_process(pipe: DepthPipeline, shot: StereoShot) -> N
     )
     vpc, gray = pipe.rectify_camera("left", cv2.cvtColor(shot.left, cv2.COLOR_GRAY2BGR))
     assert vpc.shape == (240, 320, 3) and gray.shape == (240, 320)
+
+
+@pytest.mark.parametrize("stereo", [{}, {"temporal_alpha": 0.5}, {"subpixel": False, "median": 3}])
+def test_banded_finish_is_one_pass(
+    shot: StereoShot, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, stereo: dict[str, float]
+) -> None:
+    """The finish stage in row bands across threads (refinement, median, confidence and depth
+    with margins) gives what one pass over the whole frame gives, up to the box filters'
+    summation order."""
+    params = StereoParams(disparity_range=64, **stereo)  # type: ignore[arg-type]
+
+    def finish(pool: bool) -> list[DepthFrame]:
+        if not pool:
+            monkeypatch.setattr(pipeline_module, "refine_pool", lambda: None)
+        pipe = DepthPipeline(shot.rig, VpcConfig(width=320, height=240), params, cache_dir=tmp_path)
+        rect = pipe.rectify(shot.left, shot.right)
+        # Two frames: the second one through the temporal filter's history when it is on.
+        return [pipe.finish(pipe.match(rect), i, 0) for i in range(2)]
+
+    banded, whole = finish(True), finish(False)
+    assert pipeline_module._REFINE_THREADS >= 2, "this machine has one core: nothing is banded"
+    for b, w in zip(banded, whole, strict=True):
+        assert np.array_equal(b.valid, w.valid)
+        assert b.valid.mean() > 0.5
+        for name in ("disparity", "depth", "confidence"):
+            got, want = getattr(b, name), getattr(w, name)
+            assert (got is None) == (want is None), name
+            if want is not None:
+                assert np.array_equal(np.isnan(got), np.isnan(want)), name
+                err = np.abs(got - want)
+                if name == "confidence":  # σ from float32 running sums of tiny residuals
+                    assert np.nanmax(err) < 0.01 and np.nanmean(err) < 1e-4
+                else:
+                    assert np.nanmax(err) < 1e-4 * max(1.0, float(np.nanmax(np.abs(want)))), name
+        assert set(b.timings_ms) == set(w.timings_ms)
 
 
 class _ListSource:
