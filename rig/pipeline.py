@@ -37,6 +37,7 @@ from rig.errors import ConfigError, PipelineError
 from rig.filters import TemporalFilter, median_filter, visible_in_right
 from rig.lut import Lut
 from rig.lut_cache import CachedLut, LutCache
+from rig.priority import apply_to_current_thread
 from rig.stereo import StereoMatcher, StereoParams
 from rig.subpixel import confidence_from_sigma, refine_rows, refinement_inputs
 from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
@@ -106,7 +107,9 @@ def refine_pool() -> ThreadPoolExecutor | None:
         return None
     with _allocator_lock:
         if _refine_pool is None:
-            _refine_pool = ThreadPoolExecutor(_REFINE_THREADS, thread_name_prefix="rig-refine")
+            _refine_pool = ThreadPoolExecutor(
+                _REFINE_THREADS, thread_name_prefix="rig-refine", initializer=apply_to_current_thread
+            )
         return _refine_pool
 
 

@@ -29,6 +29,7 @@ from calibration import save_rig
 from calibration.rig import Rig
 from rig.capture.frame import FramePair
 from rig.errors import RecordingError, RigError
+from rig.priority import apply_to_current_thread
 from rig.recording import RecordingWriter
 from service.errors import RecordingConflict, RecordingNameError, RecordingNotFound
 
@@ -91,6 +92,7 @@ class _Active:
         self.thread = threading.Thread(target=self._run, name=f"rig-recording-{name}", daemon=True)
 
     def _run(self) -> None:
+        apply_to_current_thread()  # a recorded frame is never lost to HTTP clients' CPU
         while True:
             item = self.queue.get()
             if item is _STOP:

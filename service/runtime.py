@@ -19,6 +19,7 @@ from typing import Any, Literal, TypeVar
 
 from calibration import load_rig
 from calibration.rig import Rig
+from rig import priority
 from rig.capture.capture import CAMERA_NAMES, StereoCapture
 from rig.capture.config import CaptureConfig, FileCameraConfig
 from rig.capture.health import CaptureHealth
@@ -157,8 +158,11 @@ class Runtime:
             return
         self._running = True
         self.started_ns = time.monotonic_ns()
+        # Before the threads start: each depth thread takes its priority first thing.
+        priority.configure(self.settings.server.depth_nice)
         self.capture.start()
         self.worker.start()
+        priority.prioritise_native_threads()  # OpenCV's pool, if the main thread started it
         log.info(
             "depth service running: VPC %s, baseline %.4f m",
             self.pipeline.pair.as_json(),

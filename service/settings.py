@@ -115,6 +115,14 @@ class ServerSettings(BaseModel):
         0.1, ge=0.0, le=1.0, description="/health document shared by requests within this age (0 = none)"
     )
     fault_injection: bool = Field(False, description="expose POST /cameras/{name}/faults (file cameras)")
+    depth_nice: int | None = Field(
+        -5,
+        ge=-20,
+        le=19,
+        description="nice value of the capture, depth and recording threads, HTTP staying at the "
+        "process's: clients cannot starve the frame rate (below 0 needs root, CAP_SYS_NICE or "
+        "LimitNICE; null = leave all threads alone)",
+    )
 
     @field_validator("api_token", mode="before")
     @classmethod

@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 from rig.capture.frame import Frame, FramePair
 from rig.errors import RigError
 from rig.pipeline import DepthFrame, DepthPipeline, MatchedPair, RectifiedPair
+from rig.priority import apply_to_current_thread
 from service.store import FrameResult, ResultStore
 
 __all__ = ["DepthWorker", "PairSource", "WorkerStats"]
@@ -211,7 +212,9 @@ class DepthWorker:
     def start(self) -> None:
         if self._threads:
             return
-        self._decoder = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rig-depth-decode")
+        self._decoder = ThreadPoolExecutor(
+            max_workers=1, thread_name_prefix="rig-depth-decode", initializer=apply_to_current_thread
+        )
         for name, target in (
             ("rig-depth-prepare", self._prepare_loop),
             ("rig-depth-match", self._match_loop),
@@ -239,6 +242,7 @@ class DepthWorker:
     # ----- stages ------------------------------------------------------------------------------
     def _guarded(self, step: Callable[[], None]) -> None:
         """Run one stage's step until stopped; a failing frame is counted, never fatal."""
+        apply_to_current_thread()
         while not self._stop.is_set():
             try:
                 step()

@@ -27,6 +27,7 @@ from rig.capture.frame import Frame
 from rig.capture.health import CameraHealth, CameraState
 from rig.capture.protocol import Camera, CameraInfo
 from rig.errors import CorruptFrameError, EndOfStream, RigError
+from rig.priority import apply_to_current_thread
 
 __all__ = ["CameraSupervisor", "SupervisorCounters"]
 
@@ -83,7 +84,9 @@ class CameraSupervisor:
         if self._threads:
             return
         for target, suffix in ((self._run, "capture"), (self._watchdog, "watchdog")):
-            t = threading.Thread(target=target, name=f"rig-{self.name}-{suffix}", daemon=True)
+            t = threading.Thread(
+                target=_prioritised, args=(target,), name=f"rig-{self.name}-{suffix}", daemon=True
+            )
             self._threads.append(t)
             t.start()
 
@@ -334,6 +337,11 @@ class CameraSupervisor:
                 width=info.width,
                 height=info.height,
             )
+
+
+def _prioritised(target: Callable[[], None]) -> None:
+    apply_to_current_thread()  # the depth threads' priority (rig.priority)
+    target()
 
 
 def _describe(camera: str, err: Exception) -> str:
