@@ -29,7 +29,12 @@ def run_in_bands(fn: BandFn, height: int, bands: int, margin: int, pool: Executo
         (max(0, r0 - margin), min(height, r0 + step + margin), r0, min(height, r0 + step))
         for r0 in range(0, height, step)
     ]
-    futures = [pool.submit(fn, *span) for span in spans[:-1]]
+    futures = []
+    for span in spans[:-1]:
+        try:
+            futures.append(pool.submit(fn, *span))
+        except RuntimeError:  # the pool was shut down (replaced) meanwhile: do it here
+            fn(*span)
     try:
         fn(*spans[-1])
     finally:

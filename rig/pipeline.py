@@ -31,13 +31,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calibration.rig import Rig
+from rig import priority
 from rig.bands import run_in_bands
 from rig.depth import depth_points, disparity_to_depth
 from rig.errors import ConfigError, PipelineError
 from rig.filters import TemporalFilter, median_filter, visible_in_right
 from rig.lut import Lut
 from rig.lut_cache import CachedLut, LutCache
-from rig.priority import apply_to_current_thread
 from rig.stereo import StereoMatcher, StereoParams
 from rig.subpixel import confidence_from_sigma, refine_rows, refinement_inputs
 from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
@@ -96,20 +96,27 @@ def tune_allocator() -> bool:
 
 
 _refine_pool: ThreadPoolExecutor | None = None
+_refine_pool_nice: int | None = None
 _REFINE_THREADS = min(4, os.cpu_count() or 1)
 
 
 def refine_pool() -> ThreadPoolExecutor | None:
-    """The process's threads for banded refinement (:func:`rig.subpixel.refine_disparity`);
-    None on a single core. Shared by all pipelines: the finish stage is serialised anyway."""
-    global _refine_pool
+    """The process's threads for the banded finish stage (:func:`rig.bands.run_in_bands`);
+    None on a single core. Shared by all pipelines: the finish stage is serialised anyway. Its
+    threads take the depth threads' priority (:mod:`rig.priority`) when they start; a new
+    priority gets a new pool (the old one's threads finish their bands and end)."""
+    global _refine_pool, _refine_pool_nice
     if _REFINE_THREADS < 2:
         return None
+    nice = priority.configured_nice()
     with _allocator_lock:
-        if _refine_pool is None:
+        if _refine_pool is None or nice != _refine_pool_nice:
+            if _refine_pool is not None:
+                _refine_pool.shutdown(wait=False)
             _refine_pool = ThreadPoolExecutor(
-                _REFINE_THREADS, thread_name_prefix="rig-refine", initializer=apply_to_current_thread
+                _REFINE_THREADS, thread_name_prefix="rig-refine", initializer=priority.apply_to_current_thread
             )
+            _refine_pool_nice = nice
         return _refine_pool
 
 

@@ -127,7 +127,10 @@ def refinement_inputs(left: U8, right: U8, disparity: F32, pool: Executor | None
     if pool is None:
         L, R = _normalise(left), _normalise(right)
     else:
-        right_future = pool.submit(_normalise, right)
+        try:
+            right_future = pool.submit(_normalise, right)
+        except RuntimeError:  # the pool was shut down (replaced) meanwhile
+            return refinement_inputs(left, right, disparity)
         L = _normalise(left)
         R = right_future.result()
     d_clean: F32 = np.asarray(cv2.patchNaNs(disparity.copy(), 0.0), dtype=np.float32)  # NaN -> 0

@@ -12,6 +12,7 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
+import rig.pipeline as pipeline_module
 from rig import priority
 from tests.service.conftest import LiveServer
 
@@ -45,8 +46,13 @@ def test_depth_threads_take_the_nice_value_http_keeps_its_own(
     own = priority.thread_nice()
     caplog.set_level(logging.INFO, logger="rig.priority")
     live = start_server(depth_nice=NICE)
-    depth = _nices("rig-")
+    depth = _nices("rig-depth-") | _nices("rig-left-") | _nices("rig-right-")
     assert {"rig-depth-prepare", "rig-depth-match", "rig-depth-worker", "rig-left-capture"} <= set(depth)
+    # The finish stage's pool (shared by the process) is made anew for a new nice value.
+    pool = pipeline_module.refine_pool()
+    if pipeline_module._REFINE_THREADS >= 2:  # else there is no pool (one core)
+        assert pool is not None and pool._threads, "no frame went through the banded finish"
+        depth |= {t.name: priority.thread_nice(t.native_id) for t in pool._threads if t.native_id is not None}
     assert live.thread.native_id is not None
     # The uvicorn thread ran the lifespan that started the depth threads: it is HTTP, untouched.
     assert priority.thread_nice(live.thread.native_id) == own
