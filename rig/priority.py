@@ -67,7 +67,7 @@ def _set(tid: int, nice: int) -> bool:
                 err.strerror,
             )
         return False
-    except (ProcessLookupError, OSError):  # the thread ended meanwhile, or no such call here
+    except OSError:  # the thread ended meanwhile (ESRCH), or no such call here
         return False
 
 

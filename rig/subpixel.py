@@ -150,13 +150,51 @@ def refine_rows(
     of; ``inputs`` are the frame's, sliced to the same rows by the caller. Rows within
     ``window // 2`` of a cut that is not the image border see a truncated window: give a margin
     (:func:`rig.bands.run_in_bands`)."""
-    best, sigma = _refine_rows(
-        inputs.L, inputs.R, inputs.gL, inputs.gR, inputs.d_clean, valid, window, apply, want_sigma
-    )
+    L, R, gL, gR, d_clean = inputs.L, inputs.R, inputs.gL, inputs.gR, inputs.d_clean
+    h, w = L.shape
+    xs, ys = _grid(h, w)
+    vf = valid.astype(np.float32)
+    d0 = np.rint(d_clean)
+    # Integer gather R(x - d0) and ∂R(x - d0) through remap (nearest: exact on integer maps).
+    map_x = xs - d0
+    Rs: F32 = np.asarray(cv2.remap(R, map_x, ys, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE))
+    gRs = cv2.remap(gR, map_x, ys, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+    # Invalid pixels (g = e = 0) do not vote in their neighbours' windows.
+    g = gL + gRs
+    g *= vf
+    g *= np.float32(0.5)
+    e = Rs
+    e -= L
+    e *= vf
+    a = d0 * g
+    a += e
+    a *= g
+    sum_g2 = _box(g * g, window)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        refined = _box(a, window)
+        refined /= sum_g2
+        ok = np.abs(refined - d_clean) <= MAX_STEP_PX
+    ok &= valid
+    best = np.where(ok, refined, d_clean)
+    sig: F32 | None = None
+    if want_sigma:
+        # Residual of each pixel under its own disparity (small numbers: float32 is enough).
+        r = best - d0 if apply else d_clean - d0
+        r *= g
+        np.subtract(e, r, out=r)
+        r *= r
+        n = _box(vf, window)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sig = _box(r, window)
+            sig /= np.maximum(n - np.float32(1.0), np.float32(1.0))
+            sig /= sum_g2
+            np.sqrt(sig, out=sig)
+            ok &= (n >= 3) & np.isfinite(sig)
+        sig[~ok] = np.inf
     if not apply:
-        return Refinement(disparity, sigma)
+        return Refinement(disparity, sig)
     best[~valid] = np.nan
-    return Refinement(best, sigma)
+    return Refinement(best, sig)
 
 
 def refine_disparity(
@@ -202,62 +240,6 @@ def refine_disparity(
 
     run_in_bands(band, h, bands, window // 2, pool)
     return Refinement(out, sigma)
-
-
-def _refine_rows(
-    L: F32,
-    R: F32,
-    gL: F32,
-    gR: F32,
-    d_clean: F32,
-    valid: NDArray[np.bool_],
-    window: int,
-    apply: bool,
-    want_sigma: bool,
-) -> tuple[F32, F32 | None]:
-    """The disparity-dependent part of :func:`refine_disparity` on rows of normalised images:
-    (refined disparity or the matcher's where not trusted, σ or None). A fresh array each."""
-    h, w = L.shape
-    xs, ys = _grid(h, w)
-    vf = valid.astype(np.float32)
-    d0 = np.rint(d_clean)
-    # Integer gather R(x - d0) and ∂R(x - d0) through remap (nearest: exact on integer maps).
-    map_x = xs - d0
-    Rs: F32 = np.asarray(cv2.remap(R, map_x, ys, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE))
-    gRs = cv2.remap(gR, map_x, ys, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-    # Invalid pixels (g = e = 0) do not vote in their neighbours' windows.
-    g = gL + gRs
-    g *= vf
-    g *= np.float32(0.5)
-    e = Rs
-    e -= L
-    e *= vf
-    a = d0 * g
-    a += e
-    a *= g
-    sum_g2 = _box(g * g, window)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        refined = _box(a, window)
-        refined /= sum_g2
-        ok = np.abs(refined - d_clean) <= MAX_STEP_PX
-    ok &= valid
-    best = np.where(ok, refined, d_clean)
-    if not want_sigma:
-        return best, None
-    # Residual of each pixel under its own disparity (small numbers: float32 is enough).
-    r = best - d0 if apply else d_clean - d0
-    r *= g
-    np.subtract(e, r, out=r)
-    r *= r
-    n = _box(vf, window)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sig = _box(r, window)
-        sig /= np.maximum(n - np.float32(1.0), np.float32(1.0))
-        sig /= sum_g2
-        np.sqrt(sig, out=sig)
-        ok &= (n >= 3) & np.isfinite(sig)
-    sig[~ok] = np.inf
-    return best, sig
 
 
 def confidence_from_sigma(sigma: F32, sigma0: float) -> F32:

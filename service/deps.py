@@ -23,6 +23,7 @@ __all__ = [
     "SettingsDep",
     "binary_response_doc",
     "cached_body",
+    "frame_body",
     "frame_headers",
 ]
 
@@ -85,6 +86,13 @@ def frame_headers(result: FrameResult, **extra: str) -> dict[str, str]:
         "Cache-Control": "no-store",
         **extra,
     }
+
+
+async def frame_body(runtime: Runtime, result: FrameResult, key: str) -> bytes:
+    """:func:`cached_body` of one of the runtime's frame bodies (``runtime.frame_bodies[key]``),
+    the table the worker prefetches from."""
+    produce = runtime.frame_bodies[key]
+    return await cached_body(result, key, lambda: produce(result))
 
 
 async def cached_body(result: FrameResult, key: str, produce: Callable[[], bytes]) -> bytes:

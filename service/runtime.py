@@ -31,7 +31,7 @@ from service.host import HostInfo, host_info
 from service.metrics import MetricsSnapshot, ServiceMetrics
 from service.recordings import RecordingManager, RecordingStatus
 from service.settings import Settings
-from service.store import ResultStore
+from service.store import FrameResult, ResultStore
 from service.worker import DepthWorker, WorkerStats
 
 __all__ = ["HealthReport", "Runtime", "resolve_calibration"]
@@ -109,19 +109,21 @@ class Runtime:
         )
         self.metrics = ServiceMetrics(self.metrics_snapshot)
         scale, level = settings.server.depth_scale_m, settings.server.png_compression
+        # The /depth and /disparity bodies by cache key: the routes encode them on request and
+        # the worker ahead of the clients that poll them (one table, so they cannot disagree).
+        self.frame_bodies: dict[str, Callable[[FrameResult], bytes]] = {
+            "depth_png": lambda r: depth_png(r.frame.depth, scale, level),
+            "depth_npy": lambda r: npy_bytes(r.frame.depth),
+            "disparity_png": lambda r: disparity_png(r.frame.disparity, level),
+            "disparity_npy": lambda r: npy_bytes(r.frame.disparity),
+        }
         self.worker = DepthWorker(
             capture,
             pipeline,
             self.store,
             on_pair=self.recordings.offer,
             on_result=self.metrics.observe,
-            # Keys and bodies as the /depth and /disparity routes cache them.
-            prefetch={
-                "depth_png": lambda r: depth_png(r.frame.depth, scale, level),
-                "depth_npy": lambda r: npy_bytes(r.frame.depth),
-                "disparity_png": lambda r: disparity_png(r.frame.disparity, level),
-                "disparity_npy": lambda r: npy_bytes(r.frame.disparity),
-            },
+            prefetch=self.frame_bodies,
         )
         self.started_ns = time.monotonic_ns()
         self.calibration_doc: Any = None  # /calibration's response, made on first request

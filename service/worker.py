@@ -274,7 +274,7 @@ class DepthWorker:
         self._to_match.put(_Prepared(pair, rect, decode_ms))
 
     def _rectify(self, pair: FramePair) -> tuple[RectifiedPair, float]:
-        """Decode (both frames at once when neither is decoded yet) and remap one pair."""
+        """Decode (where the capture did not) and remap one pair, the two frames on two threads."""
         pipe = self.pipeline
         left_name, right_name = pipe.names
         if self._decoder is None:

@@ -6,14 +6,19 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Response
 
-from service.deps import ResultDep, RuntimeDep, SettingsDep, binary_response_doc, cached_body, frame_headers
+from service.deps import (
+    ResultDep,
+    RuntimeDep,
+    SettingsDep,
+    binary_response_doc,
+    cached_body,
+    frame_body,
+    frame_headers,
+)
 from service.encoders import (
     DISPARITY_PNG_SCALE,
     colorize_depth,
-    depth_png,
-    disparity_png,
     encode_jpeg,
-    npy_bytes,
     ply_bytes,
 )
 from service.runtime import Runtime
@@ -42,17 +47,15 @@ ArrayFormat = Literal["png", "npy"]
 )
 async def get_depth(
     result: ResultDep,
+    runtime: RuntimeDep,
     settings: SettingsDep,
     format: Annotated[ArrayFormat, Query(description="png (16-bit) or npy (float32 m)")] = "png",
 ) -> Response:
     scale = settings.server.depth_scale_m
-    depth = result.frame.depth
     if format == "npy":
-        body = await cached_body(result, "depth_npy", lambda: npy_bytes(depth))
+        body = await frame_body(runtime, result, "depth_npy")
         return Response(body, media_type=NPY, headers=frame_headers(result, **{"X-Depth-Scale": "1"}))
-    body = await cached_body(
-        result, "depth_png", lambda: depth_png(depth, scale, settings.server.png_compression)
-    )
+    body = await frame_body(runtime, result, "depth_png")
     return Response(
         body, media_type="image/png", headers=frame_headers(result, **{"X-Depth-Scale": f"{scale:g}"})
     )
@@ -70,16 +73,13 @@ async def get_depth(
 )
 async def get_disparity(
     result: ResultDep,
-    settings: SettingsDep,
+    runtime: RuntimeDep,
     format: Annotated[ArrayFormat, Query(description="png (16-bit, 1/16 px) or npy (float32 px)")] = "png",
 ) -> Response:
-    disp = result.frame.disparity
     if format == "npy":
-        body = await cached_body(result, "disparity_npy", lambda: npy_bytes(disp))
+        body = await frame_body(runtime, result, "disparity_npy")
         return Response(body, media_type=NPY, headers=frame_headers(result, **{"X-Disparity-Scale": "1"}))
-    body = await cached_body(
-        result, "disparity_png", lambda: disparity_png(disp, settings.server.png_compression)
-    )
+    body = await frame_body(runtime, result, "disparity_png")
     headers = frame_headers(result, **{"X-Disparity-Scale": f"{DISPARITY_PNG_SCALE:g}"})
     return Response(body, media_type="image/png", headers=headers)
 
