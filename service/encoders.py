@@ -1,16 +1,19 @@
 """Response encodings of one depth frame: 16-bit PNG depth, npy, JPEG, colourised depth, PLY.
 
-All vectorised numpy plus OpenCV's encoders (which release the GIL), so encoding in a request
-thread does not stall the worker.
+All vectorised numpy plus OpenCV's encoders and ISA-L's deflate (all of which release the GIL),
+so encoding in a request thread does not stall the worker.
 """
 
 from __future__ import annotations
 
 import io
+import struct
+import zlib
 from typing import Any
 
 import cv2
 import numpy as np
+from isal import isal_zlib
 from numpy.typing import NDArray
 
 from rig.errors import PipelineError
@@ -36,12 +39,13 @@ PNG_COMPRESSION_DEFAULT = 1
 
 
 def _png_params(compression: int) -> list[int]:
-    """OpenCV PNG parameters for a zlib level. Level 1 uses the SUB row filter alone and zlib's
-    run-length strategy: libpng's default tries all five filters on every row, which costs more
-    than the compression itself. On a 640×480 depth map that is 4.5 against 8.4 ms for level 1's
-    defaults with Huffman-only coding, and 216 against 219 KiB (disparity: 3.5 against 7.0 ms,
-    86 against 103 KiB). Level 0 stores (1.4 ms, 600 KiB) and skips PNG's row filters, useless
-    without compression. Levels 2-9 keep libpng's and zlib's defaults."""
+    """OpenCV PNG parameters for a zlib level: levels 0 and 2-9, and level 1 for the images
+    :func:`_write_png` does not take (colour, other dtypes). Level 1 uses the SUB row filter alone
+    and zlib's run-length strategy: libpng's default tries all five filters on every row, which
+    costs more than the compression itself. On a 640×480 depth map that is 4.5 against 8.4 ms for
+    level 1's defaults with Huffman-only coding, and 216 against 219 KiB (disparity: 3.5 against
+    7.0 ms, 86 against 103 KiB). Level 0 stores (1.4 ms, 600 KiB) and skips PNG's row filters,
+    useless without compression. Levels 2-9 keep libpng's and zlib's defaults."""
     if compression <= 0:
         return [cv2.IMWRITE_PNG_COMPRESSION, 0, cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_NONE]
     if compression == 1:
@@ -57,25 +61,88 @@ def _png_params(compression: int) -> list[int]:
     return [cv2.IMWRITE_PNG_COMPRESSION, int(compression), cv2.IMWRITE_PNG_STRATEGY, default]
 
 
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: ISA-L's level for :func:`_write_png`. Deflating the SUB-filtered 640×480 depth map takes, at
+#: levels 0/1/2/3: 1.1/1.2/1.3/1.6 ms CPU for 265/233/232/232 KiB (disparity: 0.9/0.9/0.9/1.6 ms
+#: for 121/100/100/107 KiB); level 1 is the knee.
+_ISAL_LEVEL = 1
+
+
+def _png_chunk(kind: bytes, data: bytes) -> list[bytes]:
+    """One PNG chunk as parts to join: length, type, data, CRC-32 of type + data."""
+    crc = zlib.crc32(data, zlib.crc32(kind))
+    return [struct.pack(">I", len(data)), kind, data, struct.pack(">I", crc)]
+
+
+def _sub_filtered(image: NDArray[np.uint8] | NDArray[np.uint16]) -> NDArray[np.uint8]:
+    """PNG scanlines of a greyscale (H, W) uint8 or uint16 image with the SUB filter:
+    (H, 1 + W·bpp) uint8, each row the filter type 1 then each byte minus the byte ``bpp``
+    (the sample size, 1 or 2) to its left, mod 256, samples big-endian as PNG stores them."""
+    bpp = image.dtype.itemsize
+    samples = np.ascontiguousarray(image, dtype=image.dtype.newbyteorder(">"))
+    raw = samples.view(np.uint8).reshape(image.shape[0], image.shape[1] * bpp)
+    rows = np.empty((raw.shape[0], raw.shape[1] + 1), np.uint8)
+    rows[:, 0] = 1  # SUB
+    rows[:, 1 : 1 + bpp] = raw[:, :bpp]  # the first pixel has no left neighbour (0)
+    np.subtract(raw[:, bpp:], raw[:, :-bpp], out=rows[:, 1 + bpp :])  # wraps mod 256
+    return rows
+
+
+def _write_png(image: NDArray[np.uint8] | NDArray[np.uint16]) -> bytes:
+    """PNG of a non-empty greyscale (H, W) uint8 or uint16 image, ``encode_png``'s level 1.
+
+    Why not OpenCV: libpng with zlib's level 1 spends 4.4 ms CPU on the 640×480 depth map
+    (215 KiB; disparity 3.6 ms, 86 KiB). This writer takes 1.4 ms (233 KiB; disparity 1.1 ms,
+    100 KiB), 0.06 ms of it the SUB filter. Without the filter (type 0) it takes 1.3 ms but
+    grows to 282 KiB (disparity 1.0 ms, 113 KiB), so the filter stays."""
+    height, width = image.shape
+    ihdr = struct.pack(">IIBBBBB", width, height, 8 * image.dtype.itemsize, 0, 0, 0, 0)
+    idat = isal_zlib.compress(_sub_filtered(image), _ISAL_LEVEL)
+    parts = [_PNG_SIGNATURE, *_png_chunk(b"IHDR", ihdr), *_png_chunk(b"IDAT", idat)]
+    return b"".join(parts + _png_chunk(b"IEND", b""))
+
+
+def _to_units16(values: NDArray[Any], unit: np.floating[Any]) -> NDArray[np.uint16]:
+    """uint16 of ``rint(values / unit)`` computed in ``unit``'s precision, 0 where that is not
+    in 1…65535 (NaN, ±inf, ≤ 0, or too large: not saturated). Same shape as ``values``.
+
+    In place on one float temporary, casting only the valid values. On the 640×480 depth map
+    0.39 ms CPU where ``np.where(ok, rint(x / unit), 0).astype`` took 1.0 ms, or 3.5 ms when its
+    four float64 temporaries page-faulted back in after malloc had returned them to the OS."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        units = np.divide(values, unit, dtype=unit.dtype)
+        np.rint(units, out=units)
+        ok = units > 0  # False for NaN too
+        ok &= units <= 65535  # and for +inf
+        out = np.zeros(units.shape, np.uint16)
+        np.copyto(out, units, casting="unsafe", where=ok)
+    return out
+
+
 def depth_to_png16(depth: F32, scale_m: float) -> NDArray[np.uint16]:
     """Depth (H, W) float32 m → uint16 units of ``scale_m`` (0.001 = mm), 0 where invalid (NaN,
-    ≤ 0) or beyond 65535 units (not saturated: a clipped depth would be a wrong depth)."""
-    with np.errstate(invalid="ignore"):
-        units = np.rint(np.asarray(depth, dtype=np.float64) / scale_m)
-        ok = np.isfinite(units) & (units > 0) & (units <= 65535)
-    return np.where(ok, units, 0).astype(np.uint16)
+    ≤ 0) or beyond 65535 units (not saturated: a clipped depth would be a wrong depth). Divides
+    in float64: in float32, dividing by a ``scale_m`` like 0.001 moves some values across a
+    half unit (0.0065 m would give 6 mm instead of 7)."""
+    return _to_units16(depth, np.float64(scale_m))
 
 
 def disparity_to_png16(disparity: F32) -> NDArray[np.uint16]:
-    """Disparity (H, W) float32 px → uint16 1/16 px, 0 where invalid or ≤ 0."""
-    with np.errstate(invalid="ignore"):
-        units = np.rint(np.asarray(disparity, dtype=np.float64) / DISPARITY_PNG_SCALE)
-        ok = np.isfinite(units) & (units > 0) & (units <= 65535)
-    return np.where(ok, units, 0).astype(np.uint16)
+    """Disparity (H, W) float32 px → uint16 1/16 px, 0 where invalid or ≤ 0. Float32 input is
+    scaled in float32 (0.23 against 0.39 ms in float64; 0.52 ms before): dividing by 1/16 is
+    exact in either precision, short of float32's overflow to inf, invalid either way, so the
+    result is the same."""
+    disparity = np.asarray(disparity)
+    unit = np.float32 if disparity.dtype == np.float32 else np.float64
+    return _to_units16(disparity, unit(DISPARITY_PNG_SCALE))
 
 
 def encode_png(image: NDArray[Any], compression: int = PNG_COMPRESSION_DEFAULT) -> bytes:
-    """PNG of ``image`` at zlib level ``compression`` (0 = stored … 9)."""
+    """PNG of ``image`` at zlib level ``compression`` (0 = stored … 9). Level 1 of a non-empty
+    greyscale (H, W) uint8 or uint16 image goes through :func:`_write_png` (ISA-L, about 3× less
+    CPU than OpenCV), everything else through OpenCV with :func:`_png_params`."""
+    if compression == 1 and image.ndim == 2 and image.size and image.dtype in (np.uint8, np.uint16):
+        return _write_png(image)
     ok, buf = cv2.imencode(".png", image, _png_params(compression))
     if not ok:
         raise PipelineError(f"PNG encoding failed for an image of shape {image.shape}")
