@@ -19,9 +19,11 @@ from fastapi.responses import JSONResponse, Response
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import compile_path
+from starlette.types import Receive, Scope, Send
 
 from rig.errors import ConfigError, DiskFullError, RigError
 from service.errors import RecordingConflict, RecordingNameError, RecordingNotFound, ServiceError
+from service.fast_path import serve_cached_frame
 from service.routes import (
     calibration,
     config,
@@ -38,7 +40,7 @@ from service.runtime import Runtime
 from service.security import BodySizeLimit
 from service.settings import Settings, load_settings
 
-__all__ = ["API_VERSION", "create_app"]
+__all__ = ["API_VERSION", "DepthServiceApp", "create_app"]
 
 log = logging.getLogger("service.app")
 
@@ -72,6 +74,19 @@ def _documented_methods(app: FastAPI, path: str) -> set[str]:
     return {m for regex, methods in table if regex.match(path) for m in methods}
 
 
+class DepthServiceApp(FastAPI):
+    """FastAPI, except that the hot frame requests (polls of ``/depth`` and ``/disparity`` whose
+    body the worker already encoded) are answered before its middleware stack
+    (:mod:`service.fast_path`). ``fast_frames`` False sends every request through the stack."""
+
+    fast_frames = True
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if self.fast_frames and await serve_cached_frame(self.state, scope, send):
+            return
+        await super().__call__(scope, receive, send)
+
+
 def create_app(settings: Settings | None = None, *, runtime: Runtime | None = None) -> FastAPI:
     """The depth service app for ``settings`` (default: :func:`load_settings`). A given
     ``runtime`` is started at startup and stopped at shutdown (ownership passes to the app)."""
@@ -88,7 +103,7 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
             await run_in_threadpool(rt.stop)
             log.info("stopped: depth worker and camera threads joined")
 
-    app = FastAPI(
+    app = DepthServiceApp(
         title="odfc-rig depth service",
         version=API_VERSION,
         description="Depth from an orthogonally divergent fisheye stereo rig: depth maps, frames, "
@@ -130,6 +145,7 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
 
     # Added last = outermost: oversized bodies are refused before anything else reads them.
     if settings.server.cors_origins:
+        app.fast_frames = False  # the CORS middleware adds headers to every response
         app.add_middleware(
             CORSMiddleware,
             allow_origins=settings.server.cors_origins,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Response
@@ -22,15 +23,48 @@ from service.encoders import (
     ply_bytes,
 )
 from service.runtime import Runtime
+from service.settings import Settings
 from service.store import FrameResult
 
-__all__ = ["colorized_body", "router"]
+__all__ = ["ArrayBody", "ArrayEndpoint", "ArrayFormat", "array_body", "colorized_body", "router"]
 
 router = APIRouter(tags=["depth"])
 
 NPY = "application/x-npy"
 PLY = "application/x-ply"
 ArrayFormat = Literal["png", "npy"]
+ArrayEndpoint = Literal["depth", "disparity"]
+
+
+@dataclass(frozen=True)
+class ArrayBody:
+    """How ``GET /depth`` or ``GET /disparity`` answers in one ``format``: the runtime's frame
+    body (``Runtime.frame_bodies`` key), its media type and the scale header. Shared by the
+    routes and :mod:`service.fast_path`, so both give the same response."""
+
+    key: str
+    media_type: str
+    headers: dict[str, str]
+
+
+def array_body(endpoint: ArrayEndpoint, format: ArrayFormat, depth_scale_m: float) -> ArrayBody:
+    """The :class:`ArrayBody` of ``endpoint`` in ``format`` (PNG depth in units of ``depth_scale_m``)."""
+    if format == "npy":
+        scale = "1"
+    elif endpoint == "depth":
+        scale = f"{depth_scale_m:g}"
+    else:
+        scale = f"{DISPARITY_PNG_SCALE:g}"
+    header = "X-Depth-Scale" if endpoint == "depth" else "X-Disparity-Scale"
+    return ArrayBody(f"{endpoint}_{format}", NPY if format == "npy" else "image/png", {header: scale})
+
+
+async def _array_response(
+    endpoint: ArrayEndpoint, format: ArrayFormat, result: FrameResult, runtime: Runtime, settings: Settings
+) -> Response:
+    spec = array_body(endpoint, format, settings.server.depth_scale_m)
+    body = await frame_body(runtime, result, spec.key)
+    return Response(body, media_type=spec.media_type, headers=frame_headers(result, **spec.headers))
 
 
 @router.get(
@@ -51,14 +85,7 @@ async def get_depth(
     settings: SettingsDep,
     format: Annotated[ArrayFormat, Query(description="png (16-bit) or npy (float32 m)")] = "png",
 ) -> Response:
-    scale = settings.server.depth_scale_m
-    if format == "npy":
-        body = await frame_body(runtime, result, "depth_npy")
-        return Response(body, media_type=NPY, headers=frame_headers(result, **{"X-Depth-Scale": "1"}))
-    body = await frame_body(runtime, result, "depth_png")
-    return Response(
-        body, media_type="image/png", headers=frame_headers(result, **{"X-Depth-Scale": f"{scale:g}"})
-    )
+    return await _array_response("depth", format, result, runtime, settings)
 
 
 @router.get(
@@ -74,14 +101,10 @@ async def get_depth(
 async def get_disparity(
     result: ResultDep,
     runtime: RuntimeDep,
+    settings: SettingsDep,
     format: Annotated[ArrayFormat, Query(description="png (16-bit, 1/16 px) or npy (float32 px)")] = "png",
 ) -> Response:
-    if format == "npy":
-        body = await frame_body(runtime, result, "disparity_npy")
-        return Response(body, media_type=NPY, headers=frame_headers(result, **{"X-Disparity-Scale": "1"}))
-    body = await frame_body(runtime, result, "disparity_png")
-    headers = frame_headers(result, **{"X-Disparity-Scale": f"{DISPARITY_PNG_SCALE:g}"})
-    return Response(body, media_type="image/png", headers=headers)
+    return await _array_response("disparity", format, result, runtime, settings)
 
 
 async def colorized_body(runtime: Runtime, result: FrameResult) -> bytes:

@@ -1,0 +1,130 @@
+"""The hot frame requests answered ahead of FastAPI (service.fast_path), on a real server: the
+same response as the route for the same frame, and every other request left to the app."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import cv2
+import httpx
+import numpy as np
+import pytest
+
+import service.app
+from tests.service.conftest import SMALL_SPEC, LiveServer, wait_for
+
+pytestmark = pytest.mark.timeout(120)
+
+
+@pytest.fixture
+def fast_answers(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[str]]:
+    """Paths (with query) the fast path answered during the test."""
+    answered: list[str] = []
+    real = service.app.serve_cached_frame
+
+    async def spy(state: Any, scope: Any, send: Any) -> bool:
+        done = await real(state, scope, send)
+        if done:
+            answered.append(
+                scope["path"] + ("?" + scope["query_string"].decode() if scope["query_string"] else "")
+            )
+        return done
+
+    monkeypatch.setattr(service.app, "serve_cached_frame", spy)
+    yield answered
+
+
+def _frozen(start_server: Callable[..., LiveServer]) -> LiveServer:
+    """A ready server whose worker is stopped: its latest frame stays the latest."""
+    live = start_server()
+    live.runtime.worker.stop()
+    return live
+
+
+def _comparable(r: httpx.Response) -> tuple[int, dict[str, str], bytes]:
+    headers = {k.lower(): v for k, v in r.headers.items() if k.lower() != "date"}
+    return r.status_code, headers, r.content
+
+
+@pytest.mark.parametrize(
+    "path",
+    ["/depth", "/depth?format=png", "/depth?format=npy", "/disparity", "/disparity?format=npy"],
+)
+def test_a_polled_frame_gets_the_routes_response(
+    start_server: Callable[..., LiveServer], fast_answers: list[str], path: str
+) -> None:
+    live = _frozen(start_server)
+    with httpx.Client(base_url=live.base_url) as client:
+        live.app.fast_frames = False
+        by_route = client.get(path)  # encodes the body into the frame's cache
+        assert by_route.status_code == 200 and fast_answers == []
+        live.app.fast_frames = True
+        fast = client.get(path)
+    assert fast_answers == [path]
+    assert _comparable(fast) == _comparable(by_route)
+    seq = int(fast.headers["X-Frame-Seq"])
+    assert seq == live.runtime.store.latest.seq  # type: ignore[union-attr]
+
+
+def test_the_fast_bodies_decode_to_the_frame(
+    start_server: Callable[..., LiveServer], fast_answers: list[str]
+) -> None:
+    live = _frozen(start_server)
+    frame = live.runtime.store.latest.frame  # type: ignore[union-attr]
+    with httpx.Client(base_url=live.base_url) as client:
+        for _ in range(2):  # the first may encode (route), the second is cached (fast path)
+            png = client.get("/depth")
+            npy = client.get("/disparity", params={"format": "npy"})
+    assert fast_answers[-2:] == ["/depth", "/disparity?format=npy"]
+    depth_mm = cv2.imdecode(np.frombuffer(png.content, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert depth_mm.shape == (SMALL_SPEC.vpc.height, SMALL_SPEC.vpc.width)
+    ok = frame.valid & (depth_mm > 0)
+    assert ok.sum() > 0.3 * ok.size
+    np.testing.assert_allclose(depth_mm[ok] * 1e-3, frame.depth[ok], atol=6e-4)
+    disparity = np.load(__import__("io").BytesIO(npy.content))
+    np.testing.assert_array_equal(disparity, frame.disparity)
+
+
+@pytest.mark.parametrize(
+    ("method", "path", "headers", "status"),
+    [
+        ("GET", "/depth?format=bmp", {}, 422),  # validation is the route's
+        ("GET", "/depth?format=png&stride=2", {}, 200),  # unknown parameters: the route ignores them
+        ("GET", "/depth/", {}, 307),  # the router redirects a trailing slash
+        ("HEAD", "/depth", {}, 405),
+        ("POST", "/depth", {}, 405),
+        ("GET", "/depth", {"Content-Length": "4"}, 200),  # a body goes through the size limit
+        ("GET", "/depth/colorized", {}, 200),
+    ],
+)
+def test_other_requests_go_to_the_app(
+    start_server: Callable[..., LiveServer],
+    fast_answers: list[str],
+    method: str,
+    path: str,
+    headers: dict[str, str],
+    status: int,
+) -> None:
+    live = _frozen(start_server)
+    with httpx.Client(base_url=live.base_url) as client:
+        client.get("/depth")
+        client.get("/depth")  # cached now: a plain poll would be answered fast
+        before = list(fast_answers)
+        content = b"abcd" if "Content-Length" in headers else None
+        r = client.request(method, path, headers=headers, content=content)
+    assert r.status_code == status
+    assert fast_answers == before
+    if status >= 400 and method != "HEAD":  # a HEAD answer has no body
+        assert "detail" in r.json()
+
+
+def test_no_fast_path_with_cors(start_server: Callable[..., LiveServer], fast_answers: list[str]) -> None:
+    origin = "http://robot-ui.test"
+    live = start_server(cors_origins=[origin])
+    assert live.app.fast_frames is False
+    with httpx.Client(base_url=live.base_url) as client:
+        wait_for(lambda: client.get("/depth").status_code == 200, 10.0, "a depth frame")
+        r = client.get("/depth", headers={"Origin": origin})
+    assert r.status_code == 200 and r.headers["access-control-allow-origin"] == origin
+    assert fast_answers == []
