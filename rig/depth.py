@@ -30,14 +30,15 @@ __all__ = [
 F32 = NDArray[np.float32]
 
 
-def disparity_to_depth(disparity: F32, fx: float, baseline_m: float) -> F32:
-    """Depth (H, W) float32 m from disparity (H, W) px: ``fx·B/d``; NaN where d ≤ 0 or NaN."""
+def disparity_to_depth(disparity: F32, fx: float, baseline_m: float, *, out: F32 | None = None) -> F32:
+    """Depth (H, W) float32 m from disparity (H, W) px: ``fx·B/d``; NaN where d ≤ 0 or NaN.
+    ``out``: an (H, W) float32 array (or view) to write the depth into, returned."""
     d = np.asarray(disparity, dtype=np.float32)
+    depth = np.empty(d.shape, dtype=np.float32) if out is None else out
     with np.errstate(divide="ignore", invalid="ignore"):
-        depth = np.float32(fx * baseline_m) / d
-    depth[~(d > 0)] = np.nan
-    out: F32 = depth
-    return out
+        np.divide(np.float32(fx * baseline_m), d, out=depth)
+    depth[d <= 0] = np.nan  # (few; NaN d already gave NaN)
+    return depth
 
 
 def depth_to_png_mm(depth: F32) -> NDArray[np.uint16]:

@@ -13,6 +13,8 @@ from numpy.typing import NDArray
 
 __all__ = [
     "TemporalFilter",
+    "copy_where",
+    "fill_where",
     "left_right_consistent",
     "median_filter",
     "visible_in_right",
@@ -21,9 +23,39 @@ __all__ = [
 F32 = NDArray[np.float32]
 Mask = NDArray[np.bool_]
 
-# Stand-in for invalid pixels inside the median: far below any disparity, so a window whose
-# majority is invalid yields it (and stays invalid) and a minority cannot drag values far.
-_INVALID_FILL = np.float32(-1.0e6)
+
+# Constant images for fill_where by the value's bit pattern (so that NaN is a key like any
+# other), grown to the largest size asked for; smaller ones are views of them.
+_constants: dict[int, F32] = {}
+
+
+def _constant_image(shape: tuple[int, ...], value: float) -> F32:
+    """A read-only float32 image of ``value`` and ``shape`` (H, W)."""
+    h, w = shape
+    bits = int(np.float32(value).view(np.uint32))
+    img = _constants.get(bits)
+    if img is None or img.shape[0] < h or img.shape[1] < w:
+        size = (h, w) if img is None else (max(h, img.shape[0]), max(w, img.shape[1]))
+        img = np.full(size, bits, dtype=np.uint32).view(np.float32)
+        img.flags.writeable = False
+        _constants[bits] = img  # threads racing here each make one: harmless
+    return img[:h, :w]
+
+
+def copy_where(dst: F32, src: F32, where: Mask) -> None:
+    """``dst[where] = src[where]`` in place for (H, W) float32 arrays (views are fine).
+
+    OpenCV's masked copy: on a 640×480 frame in cache it costs ~0.03 ms where numpy's boolean
+    assignment, ``np.copyto`` or ``np.where`` cost 0.1-0.2 ms (they branch per pixel), and the
+    finish stage does this on every frame."""
+    if cv2.copyTo(src, where.view(np.uint8), dst) is not dst:  # OpenCV made a new array instead
+        raise ValueError(f"copy_where: cannot write {src.dtype} {src.shape} into {dst.dtype} {dst.shape}")
+
+
+def fill_where(dst: F32, value: float, where: Mask) -> None:
+    """``dst[where] = value`` in place for (H, W) float32 ``dst`` (:func:`copy_where` from a
+    cached constant image)."""
+    copy_where(dst, _constant_image(dst.shape, value), where)
 
 
 def _right_columns(disparity: F32, valid: Mask) -> NDArray[np.intp]:
@@ -65,13 +97,20 @@ def visible_in_right(disparity: F32, valid: Mask, right_lut_valid: Mask) -> Mask
 
 def median_filter(disparity: F32, valid: Mask, ksize: int) -> tuple[F32, Mask]:
     """``ksize`` 3 or 5 median of valid disparities; pixels whose window is mostly invalid
-    become invalid. Returns (disparity, valid), NaN invalid."""
+    become invalid. ``disparity`` is NaN exactly where ``valid`` is False (the module's
+    convention: the NaNs are what marks the invalid pixels here). Returns (disparity, valid),
+    NaN invalid."""
     if ksize not in (3, 5):
         raise ValueError(f"median ksize must be 3 or 5, got {ksize}")
-    src = np.where(valid, disparity, _INVALID_FILL).astype(np.float32)
+    src = disparity.astype(np.float32)  # a copy
+    cv2.patchNaNs(src, -np.inf)  # invalid pixels sort below every disparity
     med: F32 = np.asarray(cv2.medianBlur(src, ksize), dtype=np.float32)
-    ok = valid & (med > _INVALID_FILL / 2)
-    med[~ok] = np.nan
+    # NaN where invalid (0·NaN) and where the window was mostly invalid (0·(−inf)), exact
+    # elsewhere: cheaper than masking.
+    cv2.scaleAdd(disparity, 0.0, med, dst=med)
+    cv2.scaleAdd(med, 0.0, med, dst=med)
+    ok = ~np.isnan(med)
+    ok &= valid
     return med, ok
 
 

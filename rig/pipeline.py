@@ -35,7 +35,7 @@ from rig import priority
 from rig.bands import run_in_bands
 from rig.depth import depth_points, disparity_to_depth
 from rig.errors import ConfigError, PipelineError
-from rig.filters import TemporalFilter, median_filter, visible_in_right
+from rig.filters import TemporalFilter, fill_where, median_filter, visible_in_right
 from rig.lut import Lut
 from rig.lut_cache import CachedLut, LutCache
 from rig.stereo import StereoMatcher, StereoParams
@@ -171,22 +171,36 @@ class _FinishOutputs:
 
     disparity: F32
     valid: NDArray[np.bool_]
-    sigma: F32 | None
     confidence: F32 | None
     depth: F32
 
     @classmethod
-    def empty(cls, shape: tuple[int, ...], *, with_sigma: bool) -> _FinishOutputs:
+    def empty(cls, shape: tuple[int, ...], *, with_confidence: bool, cols: slice) -> _FinishOutputs:
+        """Arrays to fill in columns ``cols`` (step 1; depth everywhere), invalid outside them."""
+
         def f32() -> F32:
             return np.empty(shape, dtype=np.float32)
 
-        return cls(
-            f32(),
-            np.empty(shape, dtype=bool),
-            f32() if with_sigma else None,
-            f32() if with_sigma else None,
-            f32(),
-        )
+        out = cls(f32(), np.empty(shape, dtype=bool), f32() if with_confidence else None, f32())
+        for outside in (slice(0, cols.start), slice(cols.stop, None)):
+            out.disparity[:, outside] = np.nan
+            out.valid[:, outside] = False
+            if out.confidence is not None:
+                out.confidence[:, outside] = 0.0
+        return out
+
+
+def _active_columns(valid: NDArray[np.bool_], margin: int) -> slice:
+    """The columns holding every valid pixel, and ``margin`` more either side. Outside them
+    everything is invalid, so the finish stage need not look: the matcher leaves its first
+    ``min_disparity + disparity_range`` columns invalid (a fifth of a 640 px wide frame by
+    default). Within, every valid pixel sees what it would see in the whole frame (as across a
+    band's margin; and invalid pixels add nothing to the refinement's sums)."""
+    w = valid.shape[1]
+    cols = np.flatnonzero(valid.any(axis=0))
+    if cols.size == 0:
+        return slice(0, w)
+    return slice(max(0, int(cols[0]) - margin), min(w, int(cols[-1]) + 1 + margin))
 
 
 def _gray(img: U8) -> U8:
@@ -330,6 +344,7 @@ class DepthPipeline:
         Everything but the temporal filter is row-local, so it runs in horizontal bands across
         the cores (:func:`rig.bands.run_in_bands`, margins so every row sees what one pass would
         see): this stage is on every frame's critical path. A stage's time is its longest band's.
+        Only the columns around the valid pixels are worked on (:func:`_active_columns`).
         """
         with self._finish_lock:
             p = matched.matcher.params
@@ -339,20 +354,24 @@ class DepthPipeline:
             pool = refine_pool()
             t0 = time.perf_counter()
             refine = p.subpixel or p.confidence
-            inputs = refinement_inputs(rect.left_gray, rect.right_gray, disparity, pool) if refine else None
+            margin = (p.subpixel_window // 2 if refine else 0) + p.median // 2
+            cols = _active_columns(valid, margin)
+            inputs = None
+            if refine:
+                inputs = refinement_inputs(rect.left_gray, rect.right_gray, disparity, pool, cols=cols)
             prep_ms = (time.perf_counter() - t0) * 1e3
             temporal = p.temporal_alpha > 0.0
             if matched.matcher is not self._temporal_owner:
                 # New parameters: history made under the old ones is not averaged in.
                 self._temporal = TemporalFilter(p.temporal_alpha, p.temporal_reset)
                 self._temporal_owner = matched.matcher
-            out = _FinishOutputs.empty(disparity.shape, with_sigma=p.confidence)
+            out = _FinishOutputs.empty(disparity.shape, with_confidence=p.confidence, cols=cols)
             band_ms: list[dict[str, float]] = []
 
             def band(a: int, b: int, r0: int, r1: int) -> None:
-                rows, keep = slice(a, b), slice(r0 - a, r1 - a)
+                rows, keep, dst = slice(a, b), slice(r0 - a, r1 - a), (slice(r0, r1), cols)
                 b0 = time.perf_counter()
-                d, v, sigma = disparity[rows], valid[rows], None
+                d, v, sigma = disparity[rows, cols], valid[rows, cols], None
                 if inputs is not None:
                     ref = refine_rows(
                         inputs.rows(rows),
@@ -364,19 +383,27 @@ class DepthPipeline:
                     )
                     d, sigma = ref.disparity, ref.sigma
                 b1 = time.perf_counter()
+                v_in = v
                 if p.median:
                     d, v = median_filter(d, v, p.median)
-                out.disparity[r0:r1] = d[keep]
-                out.valid[r0:r1] = v[keep]
-                if out.sigma is not None and sigma is not None:
-                    out.sigma[r0:r1] = sigma[keep]
+                out.disparity[dst] = d[keep]
+                out.valid[dst] = v[keep]
+                if out.confidence is not None and sigma is not None:
+                    # Here, not after the temporal filter: it keeps the valid mask. σ is inf
+                    # (confidence 0) where the refinement's input was invalid; the median
+                    # invalidates a few more: NaN there (0·NaN disparity), then 0.
+                    # (Contiguous, then copied: numpy is 2-3× slower on a column window.)
+                    confidence = confidence_from_sigma(sigma[keep], p.confidence_sigma)
+                    if v is not v_in:
+                        cv2.scaleAdd(d[keep], 0.0, confidence, dst=confidence)
+                        cv2.patchNaNs(confidence, 0.0)
+                    out.confidence[dst] = confidence
                 b2 = time.perf_counter()
                 times = {"refine": (b1 - b0) * 1e3, "filters": (b2 - b1) * 1e3}
                 if not temporal:
-                    times.update(self._depth_rows(out, r0, r1, p))
+                    times.update(self._depth_rows(out, r0, r1))
                 band_ms.append(times)
 
-            margin = (p.subpixel_window // 2 if refine else 0) + p.median // 2
             run_in_bands(band, h, _REFINE_THREADS, margin, pool)
             stage = {k: max(t.get(k, 0.0) for t in band_ms) for k in ("refine", "filters", "depth")}
             stage["refine"] += prep_ms
@@ -384,7 +411,7 @@ class DepthPipeline:
                 t3 = time.perf_counter()
                 out.disparity = self._temporal(out.disparity, out.valid)
                 stage["filters"] += (time.perf_counter() - t3) * 1e3
-                for key, ms in self._depth_rows(out, 0, h, p).items():
+                for key, ms in self._depth_rows(out, 0, h).items():
                     stage[key] += ms
         timings = {"remap": rect.remap_ms, "match": matched.match_ms, **stage}
         # Processing time, not wall time: pipelined stages may wait between each other.
@@ -401,27 +428,21 @@ class DepthPipeline:
             timings,
         )
 
-    def _depth_rows(self, out: _FinishOutputs, r0: int, r1: int, p: StereoParams) -> dict[str, float]:
-        """Confidence and depth of rows ``[r0, r1)`` of ``out`` (in place); their times."""
+    def _depth_rows(self, out: _FinishOutputs, r0: int, r1: int) -> dict[str, float]:
+        """Depth of rows ``[r0, r1)`` of ``out`` (in place; whole rows: numpy is 2-3× slower on
+        a column window than on contiguous rows); its time."""
         t0 = time.perf_counter()
         disparity, valid = out.disparity[r0:r1], out.valid[r0:r1]
-        confidence = None
-        if out.sigma is not None:
-            confidence = confidence_from_sigma(out.sigma[r0:r1], p.confidence_sigma)
-            confidence[~valid] = 0.0
-        t1 = time.perf_counter()
-        depth = disparity_to_depth(disparity, self.pair.fx, self.baseline_m)
+        depth = disparity_to_depth(disparity, self.pair.fx, self.baseline_m, out=out.depth[r0:r1])
         # d <= 0 has no depth: invalid everywhere, so the arrays agree pixel for pixel.
-        gone = valid & ~np.isfinite(depth)
+        gone = ~np.isfinite(depth)
+        gone &= valid
         if gone.any():
-            valid &= ~gone
-            disparity[gone] = np.nan
-            if confidence is not None:
-                confidence[gone] = 0.0
-        out.depth[r0:r1] = depth
-        if out.confidence is not None and confidence is not None:
-            out.confidence[r0:r1] = confidence
-        return {"filters": (t1 - t0) * 1e3, "depth": (time.perf_counter() - t1) * 1e3}
+            valid ^= gone  # gone ⊂ valid: clears them
+            fill_where(disparity, np.nan, gone)
+            if out.confidence is not None:
+                fill_where(out.confidence[r0:r1], 0.0, gone)
+        return {"depth": (time.perf_counter() - t0) * 1e3}
 
     def process(self, left: U8, right: U8, seq: int = 0, ts_ns: int = 0) -> DepthFrame:
         """Depth for one fisheye pair (see :class:`DepthFrame`): :meth:`rectify`, :meth:`match`

@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rig.bands import run_in_bands
+from rig.filters import copy_where, fill_where
 
 __all__ = [
     "Refinement",
@@ -72,35 +73,51 @@ def _x_derivative(img: F32) -> F32:
 
 
 @functools.lru_cache(maxsize=8)
-def _grid(h: int, w: int) -> tuple[F32, F32]:
-    """Column indices (1, W) and the row map (H, W) float32 for remap; cached per size."""
-    xs = np.arange(w, dtype=np.float32)[None, :]
+def _row_map(h: int, w: int) -> F32:
+    """The row map (h, w) float32 for remap (each pixel's row index); cached per size."""
     ys = np.ascontiguousarray(np.broadcast_to(np.arange(h, dtype=np.float32)[:, None], (h, w)))
     ys.flags.writeable = False
-    return xs, ys
+    return ys
 
 
 def _normalise(img: U8) -> F32:
     """Local contrast normalisation ``(I − μ) / sqrt(σ² + ε²)`` over :data:`NORM_WINDOW`: the two
     cameras' gain and offset differences (exposure, vignetting at different field angles) would
     otherwise leak into the intensity residual and bias the step. Means straight from the uint8
-    image (OpenCV sums integers), the rest in place: this runs on every frame."""
+    image (OpenCV sums integers), the rest in place with OpenCV's arithmetic (its ``sqrt`` is
+    half numpy's time on float32; both are exact IEEE operations): this runs on every frame."""
     k = (NORM_WINDOW, NORM_WINDOW)
-    mu = np.asarray(cv2.boxFilter(img, cv2.CV_32F, k), dtype=np.float32)
-    scale = np.asarray(cv2.sqrBoxFilter(img, cv2.CV_32F, k), dtype=np.float32)
-    scale -= mu * mu
-    np.maximum(scale, np.float32(0.0), out=scale)
-    scale += np.float32(NORM_EPS**2)
-    np.sqrt(scale, out=scale)
-    out = img.astype(np.float32)
-    out -= mu
-    out /= scale
+    mu = _f32(cv2.boxFilter(img, cv2.CV_32F, k))
+    var = _f32(cv2.sqrBoxFilter(img, cv2.CV_32F, k))
+    out = _f32(cv2.multiply(mu, mu))
+    cv2.subtract(var, out, dst=var)
+    cv2.threshold(var, 0.0, 0.0, cv2.THRESH_TOZERO, dst=var)  # max(σ², 0): 8× np.maximum's speed
+    var += np.float32(NORM_EPS**2)
+    cv2.sqrt(var, dst=var)
+    cv2.subtract(img, mu, dst=out, dtype=cv2.CV_32F)  # μ² is spent: its buffer takes the result
+    cv2.divide(out, var, dst=out)
     return out
 
 
-def _box(x: F32, window: int) -> F32:
-    out = cv2.boxFilter(x, -1, (window, window), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    return np.asarray(out, dtype=np.float32)
+def _box(x: F32, window: int, out: F32 | None = None) -> F32:
+    """Sum of ``x`` (n, W) float32 over ``window``² (zero outside), float32 (OpenCV sums in
+    double); into ``out`` if given (not ``x``)."""
+    k = (window, window)
+    return _f32(cv2.boxFilter(x, -1, k, dst=out, normalize=False, borderType=cv2.BORDER_CONSTANT))
+
+
+def _count(mask: NDArray[np.bool_], window: int) -> F32:
+    """True pixels of ``mask`` (n, W) in each ``window``² (float32): the box filter of the mask as
+    uint8 sums integers, twice as fast as the float box and exact."""
+    k = (window, window)
+    return _f32(
+        cv2.boxFilter(mask.view(np.uint8), cv2.CV_32F, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    )
+
+
+def _f32(x: object) -> F32:
+    """An OpenCV result as the float32 ndarray it is (for the type checker; no copy)."""
+    return np.asarray(x, dtype=np.float32)
 
 
 @dataclass(frozen=True)
@@ -108,33 +125,45 @@ class RefinementInputs:
     """What the refinement needs of one frame beyond the disparity's rows: the normalised images
     ``L``/``R``, their x-derivatives ``gL``/``gR`` and the matcher's disparity with NaN → 0, all
     (H, W) float32. Made once per frame by :func:`refinement_inputs`; rows of it are refined by
-    :func:`refine_rows` (in bands, by the pipeline)."""
+    :func:`refine_rows` (in bands, by the pipeline).
+
+    ``L``, ``gL`` and ``d_clean`` may be a window of the frame's columns, from column ``x0``;
+    ``R``/``gR`` are always whole: the step gathers them at ``x − d``."""
 
     L: F32
     R: F32
     gL: F32
     gR: F32
     d_clean: F32
+    x0: int = 0
 
     def rows(self, rows: slice) -> RefinementInputs:
         """The same inputs for a slice of rows (views)."""
-        return RefinementInputs(self.L[rows], self.R[rows], self.gL[rows], self.gR[rows], self.d_clean[rows])
+        return RefinementInputs(
+            self.L[rows], self.R[rows], self.gL[rows], self.gR[rows], self.d_clean[rows], self.x0
+        )
 
 
-def refinement_inputs(left: U8, right: U8, disparity: F32, pool: Executor | None = None) -> RefinementInputs:
+def refinement_inputs(
+    left: U8, right: U8, disparity: F32, pool: Executor | None = None, *, cols: slice = slice(None)
+) -> RefinementInputs:
     """:class:`RefinementInputs` for gray VPC images (H, W) uint8 and the matcher's disparity;
-    with a ``pool`` the two images are normalised in parallel."""
+    with a ``pool`` the two images are normalised in parallel. ``cols`` (step 1): the columns to
+    refine, of which ``L``, ``gL`` and ``d_clean`` are made. (The images are normalised whole:
+    OpenCV's box filter rounds its last few columns differently from the rest, so a window of
+    them would not be exactly the whole frame's.)"""
     if pool is None:
         L, R = _normalise(left), _normalise(right)
     else:
         try:
             right_future = pool.submit(_normalise, right)
         except RuntimeError:  # the pool was shut down (replaced) meanwhile
-            return refinement_inputs(left, right, disparity)
+            return refinement_inputs(left, right, disparity, cols=cols)
         L = _normalise(left)
         R = right_future.result()
-    d_clean: F32 = np.asarray(cv2.patchNaNs(disparity.copy(), 0.0), dtype=np.float32)  # NaN -> 0
-    return RefinementInputs(L, R, _x_derivative(L), _x_derivative(R), d_clean)
+    d_clean: F32 = np.asarray(cv2.patchNaNs(disparity[:, cols].copy(), 0.0), dtype=np.float32)  # NaN -> 0
+    x0 = cols.indices(left.shape[1])[0]
+    return RefinementInputs(L[:, cols], R, _x_derivative(L)[:, cols], _x_derivative(R), d_clean, x0)
 
 
 def refine_rows(
@@ -146,55 +175,77 @@ def refine_rows(
     apply: bool = True,
     want_sigma: bool = False,
 ) -> Refinement:
-    """:func:`refine_disparity` of the rows ``disparity``/``valid`` (the matcher's, (n, W)) are
-    of; ``inputs`` are the frame's, sliced to the same rows by the caller. Rows within
-    ``window // 2`` of a cut that is not the image border see a truncated window: give a margin
-    (:func:`rig.bands.run_in_bands`)."""
+    """:func:`refine_disparity` of the rows ``disparity``/``valid`` (the matcher's, (n, w); NaN
+    exactly where invalid) are of; ``inputs`` are the frame's, sliced to the same rows (and
+    columns, see :class:`RefinementInputs`) by the caller. Pixels within ``window // 2`` of a cut
+    that is not the image border see a truncated window: give a margin
+    (:func:`rig.bands.run_in_bands`), or cut where no pixel within that margin is valid (invalid
+    pixels add nothing to the sums)."""
     L, R, gL, gR, d_clean = inputs.L, inputs.R, inputs.gL, inputs.gR, inputs.d_clean
     h, w = L.shape
-    xs, ys = _grid(h, w)
-    vf = valid.astype(np.float32)
+    xs = np.arange(inputs.x0, inputs.x0 + w, dtype=np.float32)[None, :]
+    ys = _row_map(h, R.shape[1])[:, :w]  # cached whole rows: a window's width may change
     d0 = np.rint(d_clean)
     # Integer gather R(x - d0) and ∂R(x - d0) through remap (nearest: exact on integer maps).
-    map_x = xs - d0
-    Rs: F32 = np.asarray(cv2.remap(R, map_x, ys, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE))
-    gRs = cv2.remap(gR, map_x, ys, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-    # Invalid pixels (g = e = 0) do not vote in their neighbours' windows.
-    g = gL + gRs
-    g *= vf
-    g *= np.float32(0.5)
-    e = Rs
-    e -= L
-    e *= vf
-    a = d0 * g
-    a += e
-    a *= g
-    sum_g2 = _box(g * g, window)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        refined = _box(a, window)
-        refined /= sum_g2
-        ok = np.abs(refined - d_clean) <= MAX_STEP_PX
-    ok &= valid
-    best = np.where(ok, refined, d_clean)
+    map_x = np.subtract(xs, d0)
+    e = _f32(cv2.remap(R, map_x, ys, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE))
+    g = _f32(cv2.remap(gR, map_x, ys, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE))
+    # ḡ zero at invalid pixels so that they do not vote in their neighbours' windows (e needs
+    # no zeroing: it only enters multiplied by ḡ, and its residual is zeroed in _sigma). In place,
+    # OpenCV arithmetic (numpy's where a scalar is involved: OpenCV's is slower there); spent
+    # buffers are reused, which keeps the working set in cache.
+    cv2.add(g, gL, dst=g)
+    cv2.multiply(g, valid.view(np.uint8), dst=g, scale=0.5, dtype=cv2.CV_32F)
+    cv2.subtract(e, L, dst=e)
+    a = cv2.multiply(d0, g, dst=map_x)  # the map is spent: its buffer takes (d0·ḡ + e)·ḡ
+    cv2.add(a, e, dst=a)
+    cv2.multiply(a, g, dst=a)
+    g2 = _f32(cv2.multiply(g, g))
+    sum_g2 = _box(g2, window)
+    # NaN at invalid pixels (0·NaN; +0 elsewhere, exact): so are the refined values and σ below,
+    # which saves masking the many invalid pixels there.
+    cv2.scaleAdd(disparity, 0.0, sum_g2, dst=sum_g2)
+    best = _box(_f32(a), window)
+    cv2.divide(best, sum_g2, dst=best)  # IEEE division: NaN/inf where Σḡ² = 0, never ok below
+    ok = _f32(cv2.absdiff(best, d_clean, dst=g2)) <= np.float32(MAX_STEP_PX)  # False where NaN
+    rejected = ~ok
+    rejected &= valid  # few
+    copy_where(best, d_clean, rejected)  # the matcher's value where the step is not trusted
     sig: F32 | None = None
     if want_sigma:
-        # Residual of each pixel under its own disparity (small numbers: float32 is enough).
-        r = best - d0 if apply else d_clean - d0
-        r *= g
-        np.subtract(e, r, out=r)
-        r *= r
-        n = _box(vf, window)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            sig = _box(r, window)
-            sig /= np.maximum(n - np.float32(1.0), np.float32(1.0))
-            sig /= sum_g2
-            np.sqrt(sig, out=sig)
-            ok &= (n >= 3) & np.isfinite(sig)
-        sig[~ok] = np.inf
-    if not apply:
-        return Refinement(disparity, sig)
-    best[~valid] = np.nan
-    return Refinement(best, sig)
+        residual = _f32(cv2.subtract(best if apply else disparity, d0, dst=a))
+        sig = _sigma(residual, e, g, sum_g2, valid, rejected, window, scratch=g2)
+    return Refinement(best if apply else disparity, sig)
+
+
+def _sigma(
+    r: F32,
+    e: F32,
+    g: F32,
+    sum_g2: F32,
+    valid: NDArray[np.bool_],
+    rejected: NDArray[np.bool_],
+    window: int,
+    scratch: F32,
+) -> F32:
+    """Predicted σ_d (n, W) of each window from the residuals ``e − r·ḡ`` under the disparity
+    (``r``: its difference from d0; all (n, W) float32, ``r`` and ``Σḡ²`` NaN and ``ḡ`` zero at
+    invalid pixels); inf at invalid and ``rejected`` pixels, where Σḡ² = 0 and where fewer than
+    3 pixels of the window are valid. ``r`` and ``scratch`` (a spent buffer) are overwritten."""
+    cv2.multiply(r, g, dst=r)
+    cv2.subtract(e, r, dst=r)
+    cv2.patchNaNs(r, 0.0)  # invalid pixels have no residual
+    cv2.multiply(r, r, dst=r)
+    sig = _box(r, window, out=scratch)
+    n = _count(valid, window)
+    n -= np.float32(1.0)
+    cv2.threshold(n, 1.5, 0.0, cv2.THRESH_TOZERO, dst=n)  # n − 1 < 2 → 0: σ = x/0 → inf or NaN
+    cv2.divide(sig, n, dst=sig)
+    cv2.divide(sig, sum_g2, dst=sig)
+    cv2.sqrt(sig, dst=sig)
+    cv2.patchNaNs(sig, np.inf)  # invalid pixels and 0/0 (inf stays inf)
+    fill_where(sig, np.inf, rejected)
+    return sig
 
 
 def refine_disparity(
@@ -210,12 +261,12 @@ def refine_disparity(
     bands: int = 1,
 ) -> Refinement:
     """Refined disparity for gray VPC images ``left``/``right`` (H, W) uint8 and the matcher's
-    ``disparity`` (H, W) float32 (NaN where ``valid`` is False).
+    ``disparity`` (H, W) float32 (NaN exactly where ``valid`` is False).
 
     ``apply=False`` keeps the matcher's values and only predicts σ (confidence without
     refinement). Pixels whose refined value moved more than :data:`MAX_STEP_PX` keep the
     matcher's value and get σ = inf. Cost: two 5-tap filters, two nearest remaps and two box
-    filters (three more with σ), all float32.
+    filters (two more with σ, and a uint8 one), all float32.
 
     With a ``pool``, the two images are normalised in parallel and the rest runs as ``bands``
     horizontal bands (each with ``window // 2`` rows of margin, so every row sees the same
@@ -244,5 +295,9 @@ def refine_disparity(
 
 def confidence_from_sigma(sigma: F32, sigma0: float) -> F32:
     """Confidence in [0, 1]: ``exp(-σ_d / σ0)``; 0 where σ is unknown (inf)."""
-    out: F32 = np.exp(-sigma / np.float32(sigma0)).astype(np.float32)
+    conf = np.divide(sigma, np.float32(-sigma0), dtype=np.float32)
+    # Not cv2.exp: a quarter of numpy's time on normal results, but 100× slower where they are
+    # subnormal or 0 (σ > 87 σ0, σ unknown).
+    np.exp(conf, out=conf)
+    out: F32 = conf
     return out

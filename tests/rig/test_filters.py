@@ -11,7 +11,14 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from rig.filters import TemporalFilter, left_right_consistent, median_filter, visible_in_right
+from rig.filters import (
+    TemporalFilter,
+    copy_where,
+    fill_where,
+    left_right_consistent,
+    median_filter,
+    visible_in_right,
+)
 from rig.pipeline import DepthFrame, DepthPipeline
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
@@ -62,6 +69,36 @@ def test_median_removes_spikes_and_never_fills_holes() -> None:
     assert np.nanstd(out[:20, :20]) < np.nanstd(disp[:20, :20][np.isfinite(disp[:20, :20])]) / 1.5
     with pytest.raises(ValueError, match="3 or 5"):
         median_filter(disp, valid, 7)
+
+
+def test_median_drops_valid_pixels_whose_window_is_mostly_invalid() -> None:
+    disp = np.full((20, 20), np.nan, dtype=np.float32)
+    disp[:, 10:] = 7.5  # a valid half
+    disp[4, 3] = disp[4, 4] = 9.0  # two valid pixels among invalid ones
+    valid = np.isfinite(disp)
+    for ksize in (3, 5):
+        out, ok = median_filter(disp, valid, ksize)
+        assert not ok[4, 3] and not ok[4, 4] and np.isnan(out[4, 3])
+        assert ok[:, 11:].all() and (out[:, 11:] == 7.5).all()
+        assert np.array_equal(np.isnan(out), ~ok)
+
+
+def test_fill_and_copy_where_write_in_place_through_views() -> None:
+    a = np.zeros((6, 8), dtype=np.float32)
+    mask = np.zeros((6, 8), dtype=bool)
+    mask[::2, ::3] = True
+    fill_where(a[1:5, 2:7], np.nan, mask[1:5, 2:7])  # a window: strided rows
+    want = np.zeros((6, 8), dtype=np.float32)
+    want[1:5, 2:7][mask[1:5, 2:7]] = np.nan
+    assert np.array_equal(a, want, equal_nan=True)
+    fill_where(a, np.inf, mask)
+    fill_where(a[:2, :3], 0.5, np.ones((2, 3), dtype=bool))  # a smaller view of the cached image
+    assert a[0, 0] == 0.5 and np.isinf(a[0, 3]) and a[4, 3] == np.inf
+    src = np.arange(48, dtype=np.float32).reshape(6, 8)
+    copy_where(a, src, ~mask)
+    assert np.array_equal(a[~mask], src[~mask]) and np.isinf(a[2, 0])
+    with pytest.raises(ValueError, match="cannot write"):
+        copy_where(np.zeros((6, 8)), src, mask)  # float64: OpenCV would make a new array
 
 
 def test_temporal_filter_averages_static_pixels_and_restarts_on_change() -> None:

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import rig.pipeline as pipeline_module
 from calibration.geometry import make_transform, rot_y
 from calibration.models import create
 from calibration.rig import Rig
@@ -75,6 +76,29 @@ def test_depth_frame_contract(pipe: DepthPipeline, shot: StereoShot) -> None:
     assert pipe.valid_fraction == {"left": 1.0, "right": 1.0}
     box = central_box(frame.depth.shape)
     assert np.nanmedian(np.abs(frame.depth[box] - shot.depth[box]) / shot.depth[box]) < 0.005
+
+
+@pytest.mark.parametrize("stereo", [{}, {"subpixel": False}, {"median": 0}, {"temporal_alpha": 0.5}])
+def test_finish_on_the_active_columns_is_exactly_the_whole_frame(
+    shot: StereoShot, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, stereo: dict[str, float]
+) -> None:
+    """The finish stage works on the columns around the valid pixels only (the matcher leaves
+    its first disparity_range columns invalid): bit for bit what the whole frame gives."""
+    pipe = DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=64, **stereo), cache_dir=tmp_path)  # type: ignore[arg-type]
+    matched = pipe.match(pipe.rectify(shot.left, shot.right))
+    cols = pipeline_module._active_columns(matched.valid, 9)
+    assert cols.start >= 64 - 9, "nothing to leave out"
+    window = [pipe.finish(matched, i) for i in range(2)]
+    monkeypatch.setattr(pipeline_module, "_active_columns", lambda valid, margin: slice(0, valid.shape[1]))
+    pipe = DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=64, **stereo), cache_dir=tmp_path)  # type: ignore[arg-type]
+    whole = [pipe.finish(matched, i) for i in range(2)]  # twice: the temporal filter's history
+    for a, b in zip(window, whole, strict=True):
+        assert np.array_equal(a.valid, b.valid) and a.valid.mean() > 0.5
+        for name in ("disparity", "depth", "confidence"):
+            x, y = getattr(a, name), getattr(b, name)
+            assert (x is None) == (y is None)
+            if x is not None:
+                assert np.array_equal(x, y, equal_nan=True), name
 
 
 def test_colour_frames_give_colour_vpc_images_and_rgb_point_colours(

@@ -15,7 +15,7 @@ from pydantic import ValidationError
 
 from rig.errors import PipelineError
 from rig.stereo import SGBM_MODES, StereoMatcher, StereoParams
-from rig.subpixel import confidence_from_sigma, refine_disparity
+from rig.subpixel import confidence_from_sigma, refine_disparity, refine_rows, refinement_inputs
 
 U8 = NDArray[np.uint8]
 
@@ -206,6 +206,30 @@ def test_banded_refinement_is_the_single_pass(bands: int) -> None:
     assert np.array_equal(finite, np.isfinite(banded.sigma))
     rel = np.abs(whole.sigma[finite] - banded.sigma[finite]) / whole.sigma[finite]
     assert np.median(rel) < 1e-3 and rel.max() < 0.1  # float32 running sums: round-off only
+
+
+@pytest.mark.parametrize("apply", [True, False])
+def test_refinement_of_a_column_window_is_exactly_the_whole_frames(apply: bool) -> None:
+    """What the pipeline does: refine only the columns around the valid pixels (the matcher's
+    unmatched left band is left out), with L, gL and d_clean made for those columns only."""
+    left, right = shifted_pair(17.35, noise=3.0, seed=5)
+    raw = StereoMatcher(StereoParams(disparity_range=64)).match(left, right)
+    first = int(np.flatnonzero(raw.valid.any(axis=0))[0])
+    assert first >= 64
+    whole = refine_disparity(left, right, raw.disparity, raw.valid, 15, apply=apply, want_sigma=True)
+    for c0 in (first - 9, first - 1):  # with a margin and without one: invalid pixels add nothing
+        cols = slice(c0, left.shape[1])
+        inputs = refinement_inputs(left, right, raw.disparity, cols=cols)
+        assert inputs.x0 == c0 and inputs.L.shape[1] == inputs.d_clean.shape[1] == left.shape[1] - c0
+        part = refine_rows(
+            inputs, raw.disparity[:, cols], raw.valid[:, cols], 15, apply=apply, want_sigma=True
+        )
+        assert np.array_equal(part.disparity, whole.disparity[:, cols], equal_nan=True)
+        assert whole.sigma is not None and part.sigma is not None
+        assert np.array_equal(part.sigma, whole.sigma[:, cols])
+        # And row slices of a window keep its columns.
+        rows = inputs.rows(slice(5, 50))
+        assert rows.x0 == c0 and rows.R.shape[1] == left.shape[1]
 
 
 def test_lr_check_through_the_matcher_removes_inconsistent_pixels() -> None:
