@@ -23,7 +23,7 @@ from starlette.types import Receive, Scope, Send
 
 from rig.errors import ConfigError, DiskFullError, RigError
 from service.errors import RecordingConflict, RecordingNameError, RecordingNotFound, ServiceError
-from service.fast_path import serve_cached_frame
+from service.fast_path import answer_hot_request
 from service.routes import (
     calibration,
     config,
@@ -75,14 +75,15 @@ def _documented_methods(app: FastAPI, path: str) -> set[str]:
 
 
 class DepthServiceApp(FastAPI):
-    """FastAPI, except that the hot frame requests (polls of ``/depth`` and ``/disparity`` whose
-    body the worker already encoded) are answered before its middleware stack
-    (:mod:`service.fast_path`). ``fast_frames`` False sends every request through the stack."""
+    """FastAPI, except that the hot requests (polls of ``/depth`` and ``/disparity`` whose body
+    the worker already encoded, of ``/health`` while its shared document is fresh) are answered
+    before its middleware stack (:mod:`service.fast_path`). ``fast_path_on`` False sends every
+    request through the stack."""
 
-    fast_frames = True
+    fast_path_on = True
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if self.fast_frames and await serve_cached_frame(self.state, scope, send):
+        if self.fast_path_on and await answer_hot_request(self.state, scope, send):
             return
         await super().__call__(scope, receive, send)
 
@@ -145,7 +146,7 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
 
     # Added last = outermost: oversized bodies are refused before anything else reads them.
     if settings.server.cors_origins:
-        app.fast_frames = False  # the CORS middleware adds headers to every response
+        app.fast_path_on = False  # the CORS middleware adds headers to every response
         app.add_middleware(
             CORSMiddleware,
             allow_origins=settings.server.cors_origins,

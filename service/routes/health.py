@@ -7,7 +7,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
 from service.deps import RuntimeDep, SettingsDep
-from service.runtime import HealthReport
+from service.runtime import HealthReport, Runtime
 from service.schemas import (
     CameraHealthModel,
     HealthModel,
@@ -17,10 +17,13 @@ from service.schemas import (
     RecordingInfo,
     WorkerHealthModel,
 )
+from service.settings import Settings
 
-__all__ = ["health_model", "router"]
+__all__ = ["HEALTH_MEDIA_TYPE", "fresh_health", "health_model", "router"]
 
 router = APIRouter(tags=["health"])
+
+HEALTH_MEDIA_TYPE = "application/json"
 
 
 def health_model(report: HealthReport) -> HealthModel:
@@ -62,11 +65,18 @@ async def get_health(runtime: RuntimeDep, settings: SettingsDep) -> Response:
     max_age = settings.server.health_max_age_s
     # A fresh shared document is answered on the event loop; building one reads the host's
     # state (file systems, sensors), which may block, so that runs in a thread.
-    snapshot = runtime.fresh_health_snapshot(max_age)
+    snapshot = fresh_health(runtime, settings)
     if snapshot is None:
         snapshot = await run_in_threadpool(runtime.health_snapshot, _render, max_age)
     body, status = snapshot
-    return Response(body, status_code=status, media_type="application/json")
+    return Response(body, status_code=status, media_type=HEALTH_MEDIA_TYPE)
+
+
+def fresh_health(runtime: Runtime, settings: Settings) -> tuple[bytes, int] | None:
+    """The shared ``/health`` body and status if one younger than ``server.health_max_age_s``
+    exists (no I/O; also answered by :mod:`service.fast_path`), else None."""
+    snapshot: tuple[bytes, int] | None = runtime.fresh_health_snapshot(settings.server.health_max_age_s)
+    return snapshot
 
 
 def _render(report: HealthReport) -> tuple[bytes, int]:

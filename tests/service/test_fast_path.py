@@ -1,5 +1,6 @@
-"""The hot frame requests answered ahead of FastAPI (service.fast_path), on a real server: the
-same response as the route for the same frame, and every other request left to the app."""
+"""The hot requests answered ahead of FastAPI (service.fast_path), on a real server: the same
+response as the route for the same frame or health document, and every other request left to
+the app."""
 
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ pytestmark = pytest.mark.timeout(120)
 def fast_answers(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[str]]:
     """Paths (with query) the fast path answered during the test."""
     answered: list[str] = []
-    real = service.app.serve_cached_frame
+    real = service.app.answer_hot_request
 
     async def spy(state: Any, scope: Any, send: Any) -> bool:
         done = await real(state, scope, send)
@@ -31,13 +32,13 @@ def fast_answers(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[str]]:
             )
         return done
 
-    monkeypatch.setattr(service.app, "serve_cached_frame", spy)
+    monkeypatch.setattr(service.app, "answer_hot_request", spy)
     yield answered
 
 
-def _frozen(start_server: Callable[..., LiveServer]) -> LiveServer:
+def _frozen(start_server: Callable[..., LiveServer], **server: Any) -> LiveServer:
     """A ready server whose worker is stopped: its latest frame stays the latest."""
-    live = start_server()
+    live = start_server(**server)
     live.runtime.worker.stop()
     return live
 
@@ -56,10 +57,10 @@ def test_a_polled_frame_gets_the_routes_response(
 ) -> None:
     live = _frozen(start_server)
     with httpx.Client(base_url=live.base_url) as client:
-        live.app.fast_frames = False
+        live.app.fast_path_on = False
         by_route = client.get(path)  # encodes the body into the frame's cache
         assert by_route.status_code == 200 and fast_answers == []
-        live.app.fast_frames = True
+        live.app.fast_path_on = True
         fast = client.get(path)
     assert fast_answers == [path]
     assert _comparable(fast) == _comparable(by_route)
@@ -84,6 +85,33 @@ def test_the_fast_bodies_decode_to_the_frame(
     np.testing.assert_allclose(depth_mm[ok] * 1e-3, frame.depth[ok], atol=6e-4)
     disparity = np.load(__import__("io").BytesIO(npy.content))
     np.testing.assert_array_equal(disparity, frame.disparity)
+
+
+def test_a_fresh_health_document_is_answered_as_the_route_does(
+    start_server: Callable[..., LiveServer], fast_answers: list[str]
+) -> None:
+    live = start_server(health_max_age_s=1.0)  # one document for the three requests
+    with httpx.Client(base_url=live.base_url) as client:
+        live.app.fast_path_on = False
+        by_route = client.get("/health")  # builds the shared document
+        live.app.fast_path_on = True
+        fast = client.get("/health")
+        with_query = client.get("/health", params={"verbose": "1"})
+    assert fast_answers == ["/health"]
+    assert _comparable(fast) == _comparable(by_route)
+    assert fast.headers["content-type"] == "application/json" and fast.json()["status"] == "ok"
+    assert _comparable(with_query) == _comparable(by_route)  # by the route, from the same document
+
+
+def test_a_stale_health_document_is_left_to_the_route(
+    start_server: Callable[..., LiveServer], fast_answers: list[str]
+) -> None:
+    live = start_server(health_max_age_s=0.0)  # never fresh: every request builds one
+    with httpx.Client(base_url=live.base_url) as client:
+        first, second = client.get("/health"), client.get("/health")
+    assert first.status_code == second.status_code == 200
+    assert first.json()["uptime_s"] < second.json()["uptime_s"]
+    assert fast_answers == []
 
 
 @pytest.mark.parametrize(
@@ -122,7 +150,7 @@ def test_other_requests_go_to_the_app(
 def test_no_fast_path_with_cors(start_server: Callable[..., LiveServer], fast_answers: list[str]) -> None:
     origin = "http://robot-ui.test"
     live = start_server(cors_origins=[origin])
-    assert live.app.fast_frames is False
+    assert live.app.fast_path_on is False
     with httpx.Client(base_url=live.base_url) as client:
         wait_for(lambda: client.get("/depth").status_code == 200, 10.0, "a depth frame")
         r = client.get("/depth", headers={"Origin": origin})
