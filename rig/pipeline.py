@@ -383,7 +383,6 @@ class DepthPipeline:
                     )
                     d, sigma = ref.disparity, ref.sigma
                 b1 = time.perf_counter()
-                v_in = v
                 if p.median:
                     d, v = median_filter(d, v, p.median)
                 out.disparity[dst] = d[keep]
@@ -394,7 +393,7 @@ class DepthPipeline:
                     # invalidates a few more: NaN there (0·NaN disparity), then 0.
                     # (Contiguous, then copied: numpy is 2-3× slower on a column window.)
                     confidence = confidence_from_sigma(sigma[keep], p.confidence_sigma)
-                    if v is not v_in:
+                    if p.median:
                         cv2.scaleAdd(d[keep], 0.0, confidence, dst=confidence)
                         cv2.patchNaNs(confidence, 0.0)
                     out.confidence[dst] = confidence
