@@ -10,6 +10,13 @@ first ``--settle`` seconds, and over the second half of the run. The service kee
 for reuse (:func:`rig.pipeline.tune_allocator`), so RSS climbs to its working set during the
 first minutes and then must stay flat: a leak shows as a slope in the second half.
 
+RSS alone cannot tell a leak from memory the allocator keeps (a freed block's pages stay resident,
+and fragmentation can raise the high-water mark in steps). So each sample also reads the service's
+``/metrics``: ``rig_malloc_in_use_bytes`` (what malloc has handed out and not had back) and
+``rig_python_allocated_blocks`` (Python objects' memory blocks), see :mod:`rig.heap`. Their slopes
+over the second half (of each window's minimum, as a sample catches a varying share of one frame's
+temporaries) are the leak test: a leak must show there, whatever RSS does.
+
 Run: ``.venv/bin/python -m bench.memory`` (``--seconds 60`` to shorten, ``--quick`` for seconds).
 """
 
@@ -23,12 +30,13 @@ from typing import Any
 
 import httpx
 import numpy as np
+from prometheus_client.parser import text_string_to_metric_families
 from rich.table import Table
 
 from bench.common import add_common_arguments, console, finish, machine_info, print_machine
 from bench.service_proc import ServiceProcess, serve_args_for
 
-__all__ = ["main", "slope_mb_per_min"]
+__all__ = ["heap_sample", "main", "slope_mb_per_min", "window_minima"]
 
 ENDPOINTS = ("/depth", "/depth/colorized", "/health")
 
@@ -42,6 +50,31 @@ def slope_mb_per_min(times_s: list[float], rss_mb: list[float]) -> float:
     a = np.vstack([t, np.ones_like(t)]).T
     (k, _), *_ = np.linalg.lstsq(a, y, rcond=None)
     return float(k) * 60.0
+
+
+def window_minima(points: list[tuple[float, float]], window_s: float) -> list[tuple[float, float]]:
+    """``(time, value)`` points reduced to each ``window_s`` window's minimum, at the window's
+    middle (windows counted from time 0; empty ones left out)."""
+    windows: dict[int, float] = {}
+    for t, v in points:
+        k = int(t // window_s)
+        windows[k] = min(v, windows.get(k, v))
+    return [((k + 0.5) * window_s, v) for k, v in sorted(windows.items())]
+
+
+HEAP_METRICS = ("rig_malloc_in_use_bytes", "rig_python_allocated_blocks")
+
+
+def heap_sample(url: str) -> dict[str, float]:
+    """The service's heap figures (:data:`HEAP_METRICS`) from its ``/metrics``; those it does not
+    export (no glibc ``mallinfo2``) are missing."""
+    text = httpx.get(url + "/metrics", timeout=10.0).text
+    return {
+        s.name: s.value
+        for family in text_string_to_metric_families(text)
+        for s in family.samples
+        if s.name in HEAP_METRICS
+    }
 
 
 def _client(url: str, rate: float, stop: threading.Event, counts: dict[str, int]) -> None:
@@ -80,6 +113,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         f"client {args.client_rate:g} req/s over {', '.join(ENDPOINTS)}"
     )
     samples: list[tuple[float, float]] = []
+    heap: list[tuple[float, dict[str, float]]] = []
     counts = {"ok": 0, "failed": 0}
     with ServiceProcess([*serve_args, "--log-level", "warning"]) as svc:
         ready_s = svc.wait_ready(900.0)
@@ -98,6 +132,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             while True:
                 now = time.monotonic() - t0
                 samples.append((now, svc.rss_mb()))
+                heap.append((now, heap_sample(svc.url)))
                 if now >= seconds:
                     break
                 time.sleep(min(interval, max(0.0, seconds - now)))
@@ -113,20 +148,58 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     half = [(t, r) for t, r in samples if t >= times[-1] / 2]
     slope_half = slope_mb_per_min([t for t, _ in half], [r for _, r in half])
     peak = max(rss)
+    # The heap's second-half slopes (MiB/min in use by malloc, thousand Python blocks per minute),
+    # of each window's minimum: a sample catches a varying share of a frame's temporaries (tens
+    # of MiB), the minimum is what stays held between them.
+    window_s = min(60.0, seconds / 10)
+    heap_half = [(t, h) for t, h in heap if t >= times[-1] / 2]
+    heap_slopes = {}
+    for name, scale in (("rig_malloc_in_use_bytes", 1.0 / (1 << 20)), ("rig_python_allocated_blocks", 1e-3)):
+        floors = window_minima([(t, h[name] * scale) for t, h in heap_half if name in h], window_s)
+        if floors:
+            heap_slopes[name] = slope_mb_per_min([t for t, _ in floors], [v for _, v in floors])
     table = Table(title=f"RSS of rig serve (ready after {ready_s:.1f} s)")
-    for col in ("minute", "RSS MiB (min / max)"):
+    for col in (
+        "minute",
+        "RSS MiB (min / max)",
+        "malloc in use MiB (min / max)",
+        "Python blocks k (min / max)",
+    ):
         table.add_column(col, justify="right")
     minute = 0
+
+    def span(values: list[float], scale: float) -> str:
+        return f"{min(values) * scale:.1f} / {max(values) * scale:.1f}" if values else "-"
+
     while minute * 60 <= times[-1]:
         inside = [r for t, r in samples if minute * 60 <= t < (minute + 1) * 60]
+        heap_in = [h for t, h in heap if minute * 60 <= t < (minute + 1) * 60]
         if inside:
-            table.add_row(str(minute), f"{min(inside):.1f} / {max(inside):.1f}")
+            table.add_row(
+                str(minute),
+                span(inside, 1.0),
+                span(
+                    [h["rig_malloc_in_use_bytes"] for h in heap_in if "rig_malloc_in_use_bytes" in h],
+                    1 / (1 << 20),
+                ),
+                span([h["rig_python_allocated_blocks"] for h in heap_in], 1e-3),
+            )
         minute += 1
     console.print(
         f"peak {peak:.1f} MiB, start {rss[0]:.1f} MiB, end {rss[-1]:.1f} MiB, growth {slope:+.3f} MiB/min "
         f"after the first {settle:g} s, {slope_half:+.3f} MiB/min over the second half; worker processed "
         f"{health['worker']['frames_processed']} frames ({health['worker']['fps']:.1f} fps at the end); "
         f"client requests ok {counts['ok']}, failed {counts['failed']}. Target: ≤ 300 MiB, no growth."
+    )
+    console.print(
+        "second half, in use: malloc "
+        + (
+            f"{heap_slopes['rig_malloc_in_use_bytes']:+.3f} MiB/min"
+            if "rig_malloc_in_use_bytes" in heap_slopes
+            else "not exported (no glibc mallinfo2)"
+        )
+        + f", Python blocks {heap_slopes.get('rig_python_allocated_blocks', 0.0):+.3f} k/min "
+        "(a leak grows these; RSS also moves with what the allocator keeps)"
     )
     return finish(
         "memory",
@@ -144,6 +217,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "client_requests": counts,
             "frames_processed": health["worker"]["frames_processed"],
             "samples": samples,
+            "heap_samples": heap,
+            "heap_slopes_second_half": heap_slopes,
         },
         args.json,
         table,

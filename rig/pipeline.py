@@ -16,10 +16,8 @@ atomically, and the next frame to reach :meth:`match` uses it.
 
 from __future__ import annotations
 
-import ctypes
 import logging
 import os
-import sys
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -36,6 +34,7 @@ from rig.bands import run_in_bands
 from rig.depth import depth_points, disparity_to_depth
 from rig.errors import ConfigError, PipelineError
 from rig.filters import TemporalFilter, fill_where, median_filter, visible_in_right
+from rig.heap import tune_allocator
 from rig.lut import Lut
 from rig.lut_cache import CachedLut, LutCache
 from rig.stereo import StereoMatcher, StereoParams
@@ -49,53 +48,8 @@ log = logging.getLogger(__name__)
 F32 = NDArray[np.float32]
 U8 = NDArray[np.uint8]
 
-# glibc mallopt parameters (malloc.h) and the values tune_allocator sets.
-_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD, _M_ARENA_MAX = -1, -3, -8
-_MMAP_THRESHOLD_BYTES = 32 << 20  # glibc's largest allowed value on 64-bit
-_TRIM_THRESHOLD_BYTES = 256 << 20
-_allocator_tuned: bool | None = None
-_allocator_lock = threading.Lock()
-
-
-def tune_allocator() -> bool:
-    """Make glibc's malloc keep freed memory for reuse (once per process; True if done).
-
-    Every frame allocates and frees dozens of MB-sized numpy/OpenCV temporaries. By default
-    glibc returns such blocks to the kernel at once (mmap above 128 KiB, heap trimming, one arena
-    per thread), so the next frame's temporaries are fresh pages and each page costs a page fault:
-    measured on a 2-core VM, refinement took 21 ms of CPU instead of 8 and a 10 k-element multiply
-    30 µs instead of 2. This sets ``M_MMAP_THRESHOLD`` to 32 MiB, ``M_TRIM_THRESHOLD`` to 256 MiB
-    and one arena (thread arenas ignore the thresholds), so the process keeps its working set
-    (RSS stays at its peak instead of breathing). Process-wide: call it before starting threads.
-    A no-op (False) where the C library has no ``mallopt`` (not glibc).
-    """
-    global _allocator_tuned
-    with _allocator_lock:
-        if _allocator_tuned is not None:
-            return _allocator_tuned
-        _allocator_tuned = False
-        if not sys.platform.startswith("linux"):
-            return False
-        try:
-            mallopt = ctypes.CDLL(None).mallopt
-        except (OSError, AttributeError):
-            return False
-        mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-        mallopt.restype = ctypes.c_int
-        done = all(
-            mallopt(param, value) == 1
-            for param, value in (
-                (_M_ARENA_MAX, 1),
-                (_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_BYTES),
-                (_M_TRIM_THRESHOLD, _TRIM_THRESHOLD_BYTES),
-            )
-        )
-        _allocator_tuned = done
-        log.debug("malloc tuned for reuse of large temporaries: %s", done)
-        return done
-
-
 _refine_pool: ThreadPoolExecutor | None = None
+_pool_lock = threading.Lock()
 _refine_pool_nice: int | None = None
 _REFINE_THREADS = min(4, os.cpu_count() or 1)
 
@@ -109,7 +63,7 @@ def refine_pool() -> ThreadPoolExecutor | None:
     if _REFINE_THREADS < 2:
         return None
     nice = priority.configured_nice()
-    with _allocator_lock:
+    with _pool_lock:
         if _refine_pool is None or nice != _refine_pool_nice:
             if _refine_pool is not None:
                 _refine_pool.shutdown(wait=False)

@@ -1,7 +1,7 @@
 """Prometheus metrics of one running service, in its own :class:`CollectorRegistry` (never the
 global one: several apps may live in one process, e.g. in tests).
 
-Camera, pairing, worker, encode and recording figures are read from the live objects at scrape
+Camera, pairing, worker, encode, heap and recording figures are read from the live objects at scrape
 time (a custom collector), so they always agree with ``/health``; per-stage processing time is
 also a histogram the worker feeds frame by frame.
 """
@@ -11,11 +11,12 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
-from prometheus_client import CollectorRegistry, Histogram, generate_latest
+from prometheus_client import CollectorRegistry, Histogram, ProcessCollector, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 
 from rig.capture.health import CaptureHealth
+from rig.heap import HeapStats
 from service.recordings import RecordingStatus
 from service.store import FrameResult
 from service.worker import WorkerStats
@@ -32,6 +33,7 @@ class MetricsSnapshot:
     worker: WorkerStats
     encodes: dict[str, int]
     recording: RecordingStatus | None
+    heap: HeapStats
 
 
 class _RuntimeCollector(Collector):
@@ -116,6 +118,25 @@ class _RuntimeCollector(Collector):
             enc.add_metric([kind], n)
         yield enc
 
+        # RSS (process_resident_memory_bytes) stays at the working set's high-water mark (the
+        # allocator keeps freed blocks): these say whether what is *in use* grows (rig.heap).
+        h = s.heap
+        if h.malloc_in_use_bytes is not None:
+            yield GaugeMetricFamily(
+                "rig_malloc_in_use_bytes",
+                "bytes malloc has handed out and not had back",
+                value=h.malloc_in_use_bytes,
+            )
+        if h.malloc_free_bytes is not None:
+            yield GaugeMetricFamily(
+                "rig_malloc_free_bytes", "freed bytes malloc keeps for reuse", value=h.malloc_free_bytes
+            )
+        yield GaugeMetricFamily(
+            "rig_python_allocated_blocks",
+            "memory blocks held by Python's object allocator",
+            value=h.python_blocks,
+        )
+
         r = s.recording
         yield GaugeMetricFamily(
             "rig_recording_active", "1 while a recording runs", value=float(r is not None)
@@ -142,6 +163,7 @@ class ServiceMetrics:
             buckets=_STAGE_BUCKETS,
         )
         self.registry.register(_RuntimeCollector(snapshot))
+        ProcessCollector(registry=self.registry)  # process_resident_memory_bytes, CPU seconds, fds
 
     def observe(self, result: FrameResult, timings_ms: dict[str, float]) -> None:
         for stage, ms in timings_ms.items():

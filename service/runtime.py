@@ -23,6 +23,7 @@ from rig import priority
 from rig.capture.capture import CAMERA_NAMES, StereoCapture
 from rig.capture.config import CaptureConfig, FileCameraConfig
 from rig.capture.health import CaptureHealth
+from rig.heap import heap_stats
 from rig.pipeline import DepthPipeline
 from rig.recording import Recording
 from service.encoders import depth_png, disparity_png, npy_bytes
@@ -185,6 +186,7 @@ class Runtime:
             worker=self.worker.stats(),
             encodes=self.store.counter.snapshot(),
             recording=self.recordings.active,
+            heap=heap_stats(),
         )
 
     def health_snapshot(self, render: Callable[[HealthReport], _T], max_age_s: float) -> _T:

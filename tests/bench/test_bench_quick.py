@@ -81,6 +81,12 @@ def test_memory_bench_samples_the_service(bench_env: Path, tmp_path: Path) -> No
     assert doc["peak_mb"] >= doc["start_mb"] > 10
     assert doc["frames_processed"] > 0 and doc["client_requests"]["failed"] == 0
     assert math.isfinite(doc["slope_mb_per_min"])
+    # Every sample read the service's heap figures too; each in-use figure is below the RSS.
+    assert len(doc["heap_samples"]) == len(doc["samples"])
+    for (_, rss_mb), (_, heap) in zip(doc["samples"], doc["heap_samples"], strict=True):
+        assert 0 < heap["rig_malloc_in_use_bytes"] / (1 << 20) < rss_mb
+        assert heap["rig_python_allocated_blocks"] > 10_000
+    assert set(doc["heap_slopes_second_half"]) == {"rig_malloc_in_use_bytes", "rig_python_allocated_blocks"}
 
 
 def test_memory_slope_is_least_squares() -> None:
@@ -94,3 +100,9 @@ def test_startup_bench_times_warm_and_cold_starts(bench_env: Path, tmp_path: Pat
     doc = _written(tmp_path / "s.json", startup.main(["--quick", "--json", str(tmp_path / "s.json")]))
     assert set(doc["median_s"]) == {"imports", "warm", "cold LUTs"}
     assert all(v > 0 for v in doc["median_s"].values())
+
+
+def test_window_minima_keep_each_windows_floor() -> None:
+    points = [(0.0, 5.0), (10.0, 3.0), (59.0, 4.0), (61.0, 9.0), (130.0, 2.0), (170.0, 1.0)]
+    assert memory.window_minima(points, 60.0) == [(30.0, 3.0), (90.0, 9.0), (150.0, 1.0)]
+    assert memory.window_minima([], 60.0) == []

@@ -17,7 +17,7 @@ from calibration import load_rig
 from calibration.geometry import invert_transform, transform_points
 from rig.vpc import design_vpc_pair
 from service.client import RigClient, parse_ply
-from tests.service.conftest import SMALL_SPEC, LiveServer, SmallRecording
+from tests.service.conftest import SMALL_SPEC, LiveServer, SmallRecording, wait_for
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -185,6 +185,13 @@ def metric_values(text: str) -> dict[tuple[str, tuple[tuple[str, str], ...]], fl
 
 
 def test_metrics(shared_server: LiveServer) -> None:
+    # Camera rates need two frames in their window: right after the first depth frame they are 0.
+    right_fps = ("rig_camera_fps", (("camera", "right"),))
+    wait_for(
+        lambda: metric_values(httpx.get(shared_server.base_url + "/metrics").text)[right_fps] > 0,
+        10.0,
+        "camera fps",
+    )
     r = httpx.get(shared_server.base_url + "/metrics")
     assert r.status_code == 200 and r.headers["content-type"].startswith("text/plain")
     m = metric_values(r.text)
@@ -197,6 +204,11 @@ def test_metrics(shared_server: LiveServer) -> None:
     assert m[("rig_stage_seconds_count", (("stage", "match"),))] >= 1
     assert m[("rig_stage_latency_ms", (("stage", "total"),))] > 0
     assert ("rig_pairing_skew_ms", (("quantile", "0.5"),)) in m
+    # Memory: the process's RSS, and what its allocators hold in use (a leak shows there).
+    assert m[("process_resident_memory_bytes", ())] > 50e6
+    assert 1e6 < m[("rig_malloc_in_use_bytes", ())] < m[("process_resident_memory_bytes", ())]
+    assert m[("rig_malloc_free_bytes", ())] >= 0
+    assert m[("rig_python_allocated_blocks", ())] > 10_000
 
 
 def test_errors_are_json_with_the_right_status(shared_server: LiveServer) -> None:
