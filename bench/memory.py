@@ -7,7 +7,7 @@ the dashboard does (``/depth``, ``/depth/colorized`` and ``/health`` in turn, ``
 requests per second; 0 = none). Reports the peak, the RSS at the start and the end of the
 measured window, and the growth as least-squares slopes (MiB/min): over the window after the
 first ``--settle`` seconds, and over the second half of the run. The service keeps freed memory
-for reuse (:func:`rig.pipeline.tune_allocator`), so RSS climbs to its working set during the
+for reuse (:func:`rig.heap.tune_allocator`), so RSS climbs to its working set during the
 first minutes and then must stay flat: a leak shows as a slope in the second half.
 
 RSS alone cannot tell a leak from memory the allocator keeps (a freed block's pages stay resident,
@@ -62,7 +62,12 @@ def window_minima(points: list[tuple[float, float]], window_s: float) -> list[tu
     return [((k + 0.5) * window_s, v) for k, v in sorted(windows.items())]
 
 
-HEAP_METRICS = ("rig_malloc_in_use_bytes", "rig_python_allocated_blocks")
+# The service's heap figures (rig.heap, in /metrics) and the scale they are reported in:
+# malloc's bytes in use in MiB, Python's memory blocks in thousands.
+HEAP_METRICS: dict[str, float] = {
+    "rig_malloc_in_use_bytes": 1.0 / (1 << 20),
+    "rig_python_allocated_blocks": 1e-3,
+}
 
 
 def heap_sample(url: str) -> dict[str, float]:
@@ -154,7 +159,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     window_s = min(60.0, seconds / 10)
     heap_half = [(t, h) for t, h in heap if t >= times[-1] / 2]
     heap_slopes = {}
-    for name, scale in (("rig_malloc_in_use_bytes", 1.0 / (1 << 20)), ("rig_python_allocated_blocks", 1e-3)):
+    for name, scale in HEAP_METRICS.items():
         floors = window_minima([(t, h[name] * scale) for t, h in heap_half if name in h], window_s)
         if floors:
             heap_slopes[name] = slope_mb_per_min([t for t, _ in floors], [v for _, v in floors])
@@ -175,15 +180,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         inside = [r for t, r in samples if minute * 60 <= t < (minute + 1) * 60]
         heap_in = [h for t, h in heap if minute * 60 <= t < (minute + 1) * 60]
         if inside:
-            table.add_row(
-                str(minute),
-                span(inside, 1.0),
-                span(
-                    [h["rig_malloc_in_use_bytes"] for h in heap_in if "rig_malloc_in_use_bytes" in h],
-                    1 / (1 << 20),
-                ),
-                span([h["rig_python_allocated_blocks"] for h in heap_in], 1e-3),
-            )
+            heap_spans = [span([h[n] for h in heap_in if n in h], s) for n, s in HEAP_METRICS.items()]
+            table.add_row(str(minute), span(inside, 1.0), *heap_spans)
         minute += 1
     console.print(
         f"peak {peak:.1f} MiB, start {rss[0]:.1f} MiB, end {rss[-1]:.1f} MiB, growth {slope:+.3f} MiB/min "
