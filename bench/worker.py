@@ -3,10 +3,11 @@
 Input: a recording of 1280×960 MJPEG fisheye frames (:mod:`bench.recordings`, built once).
 
 **Floor** — a tight Python loop over the same JPEG bytes in memory doing only the bare OpenCV
-calls the depth needs: ``cv2.imdecode`` ×2 (the flags the capture uses), ``cv2.remap`` ×2 with
-the pipeline's own fixed-point maps, ``cv2.cvtColor`` ×2 to gray when the frames are colour, and
-``compute`` of a ``cv2.StereoSGBM`` built with the same parameters (checked to give the identical
-disparity as the pipeline's matcher). Per-frame time = one iteration; throughput = frames / time.
+calls the depth needs: ``cv2.imdecode`` ×2 to gray (what :attr:`rig.capture.frame.Frame.gray`,
+the worker's decode, does: depth needs only luma), ``cv2.remap`` ×2 with the pipeline's own
+fixed-point maps, and ``compute`` of a ``cv2.StereoSGBM`` built with the same parameters
+(checked to give the identical disparity as the pipeline's matcher). Per-frame time = one
+iteration; throughput = frames / time.
 
 **Ours** — the service itself minus HTTP: :meth:`service.runtime.Runtime.build` on settings whose
 cameras are file cameras replaying the recording (``FileCamera`` → ``StereoCapture`` →
@@ -64,6 +65,8 @@ __all__ = ["FloorRun", "WorkerRun", "floor_matcher", "main", "run_floor", "run_w
 FULL_SIZES = ((320, 240), (640, 480), (1280, 960))
 FULL_DISPARITIES = (64, 128)
 LATENCY_PACE_FRACTION = 0.6
+# What rig.capture.frame.Frame.gray, the worker's decode, decodes JPEG with.
+FLOOR_DECODE = cv2.IMREAD_GRAYSCALE
 # Stereo parameters of ``--stages``: the service's defaults, or none of our stages after the matcher.
 STAGES: dict[str, dict[str, Any]] = {
     "default": {},
@@ -113,9 +116,6 @@ def run_floor(
         right = decode(br, flags)
         lv = remap(left, lm1, lm2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         rv = remap(right, rm1, rm2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        if lv.ndim == 3:
-            lv = cv2.cvtColor(lv, cv2.COLOR_BGR2GRAY)
-            rv = cv2.cvtColor(rv, cv2.COLOR_BGR2GRAY)
         sgbm.compute(lv, rv)
         times.append((time.perf_counter() - t0) * 1e3)
     total = time.perf_counter() - t_start
@@ -128,9 +128,6 @@ def check_floor_matcher(pairs: list[tuple[bytes, bytes]], pipeline: DepthPipelin
     left = _decode(pairs[0][0])
     right = _decode(pairs[0][1])
     lv, rv = pipeline.remap(left, right)
-    if lv.ndim == 3:
-        lv = np.asarray(cv2.cvtColor(lv, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
-        rv = np.asarray(cv2.cvtColor(rv, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
     ours = StereoMatcher(pipeline.stereo).raw(lv, rv)
     bare = sgbm.compute(lv, rv)
     if not np.array_equal(ours, bare):
@@ -138,7 +135,7 @@ def check_floor_matcher(pairs: list[tuple[bytes, bytes]], pipeline: DepthPipelin
 
 
 def _decode(data: bytes) -> NDArray[np.uint8]:
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), FLOOR_DECODE)
     if img is None:
         raise SystemExit("a benchmark frame does not decode")
     return np.asarray(img, dtype=np.uint8)
@@ -261,7 +258,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     recording = ensure_mjpeg_recording(spec)
     pairs = load_jpeg_pairs(recording)
     rig = load_rig(recording / "calibration.yaml")
-    flags = cv2.IMREAD_UNCHANGED  # what rig.capture.frame.Frame.image decodes with
+    flags = FLOOR_DECODE
     configs = _configs(quick)
     if args.sizes:
         configs = []

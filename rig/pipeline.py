@@ -404,11 +404,19 @@ class DepthPipeline:
             return self.finish(self.match(self.rectify(left, right)), seq, ts_ns)
 
     # ----- outputs -----------------------------------------------------------------------------
-    def point_cloud(self, frame: DepthFrame, stride: int = 1) -> tuple[NDArray[np.float32], U8]:
+    def point_cloud(
+        self, frame: DepthFrame, stride: int = 1, *, image: U8 | None = None
+    ) -> tuple[NDArray[np.float32], U8]:
         """Points (N, 3) float32 in the rig frame and their colours (N, 3) uint8 RGB (gray
-        images give gray colours), every ``stride``-th pixel of each axis."""
+        images give gray colours), every ``stride``-th pixel of each axis. Colours come from
+        ``image`` (the left VPC image, (H, W[, 3]) uint8) or else ``frame.left_vpc``."""
         pts, idx = depth_points(frame.depth, self.pair.camera, self.pair.T_rig_vpc[self.pair.left], stride)
-        img = frame.left_vpc
+        img = frame.left_vpc if image is None else image
+        if img.shape[:2] != frame.depth.shape:
+            raise PipelineError(
+                f"point_cloud: colour image is {img.shape[1]}x{img.shape[0]}, depth is "
+                f"{frame.depth.shape[1]}x{frame.depth.shape[0]}"
+            )
         if img.ndim == 2:
             colors = np.repeat(img.reshape(-1)[idx][:, None], 3, axis=1)
         else:

@@ -15,11 +15,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
 
 from rig.capture.frame import Frame
 from rig.pipeline import DepthFrame
 
-__all__ = ["EncodeCache", "EncodeCounter", "FrameResult", "ResultStore"]
+__all__ = ["EncodeCache", "EncodeCounter", "FrameResult", "ResultStore", "VpcRenderer"]
 
 
 class EncodeCounter:
@@ -68,11 +69,16 @@ class EncodeCache:
             return cached
 
 
+VpcRenderer = Callable[[str, Frame], NDArray[np.uint8]]
+"""``(camera, raw frame) → that camera's VPC image`` from the frame's full (colour) image."""
+
+
 @dataclass(frozen=True, eq=False)
 class FrameResult:
     """One processed pair. ``index`` counts published results (1, 2, …); ``seq``/``ts_ns`` are
     the pair's (left camera's); ``left``/``right`` the raw frames as the cameras delivered them;
-    ``published_ns`` when the worker published it (time.monotonic_ns)."""
+    ``published_ns`` when the worker published it (time.monotonic_ns). ``render_vpc`` makes the
+    colour VPC images on request (:meth:`vpc_image`)."""
 
     index: int
     frame: DepthFrame
@@ -81,6 +87,12 @@ class FrameResult:
     published_ns: int
     latency_ms: float
     cache: EncodeCache = field(default_factory=EncodeCache)
+    render_vpc: VpcRenderer | None = None
+    # Made on request and kept with the result (carried over by dataclasses.replace).
+    _vpc_images: dict[str, NDArray[np.uint8]] = field(default_factory=dict, repr=False)
+    _vpc_locks: dict[str, threading.Lock] = field(
+        default_factory=lambda: {"left": threading.Lock(), "right": threading.Lock()}, repr=False
+    )
 
     def __post_init__(self) -> None:
         # Shared read-only by every client thread: make accidental writes fail loudly. (Not the
@@ -98,6 +110,24 @@ class FrameResult:
 
     def raw_frame(self, camera: str) -> Frame:
         return self.left if camera == "left" else self.right
+
+    def vpc_image(self, camera: str) -> NDArray[np.uint8]:
+        """``camera``'s (``left``/``right``) VPC image as the camera sees it: colour for colour
+        cameras. The worker computes depth from luma only (``frame.left_vpc`` is gray); this
+        image is made from the raw frame by ``render_vpc`` when first asked for, once per
+        result whoever asks, and read-only. Without a renderer, the frame's own VPC image."""
+        if self.render_vpc is None:
+            return self.frame.left_vpc if camera == "left" else self.frame.right_vpc
+        image = self._vpc_images.get(camera)
+        if image is not None:
+            return image
+        with self._vpc_locks[camera]:
+            image = self._vpc_images.get(camera)
+            if image is None:
+                image = self.render_vpc(camera, self.raw_frame(camera))
+                image.setflags(write=False)
+                self._vpc_images[camera] = image
+            return image
 
     def valid_fraction(self) -> float:
         return float(np.count_nonzero(self.frame.valid)) / max(1, self.frame.valid.size)

@@ -2,8 +2,8 @@
 result, as a three-stage pipeline on three threads so that consecutive frames overlap on a
 multi-core CPU (OpenCV and numpy release the GIL):
 
-1. ``rig-depth-prepare``: take the newest pair, decode both frames (unless the capture did) and
-   remap them to the VPC pair, one frame per thread (:meth:`DepthPipeline.rectify_camera`);
+1. ``rig-depth-prepare``: take the newest pair, decode both frames' luma (unless the capture did)
+   and remap them to the VPC pair, one frame per thread (:meth:`DepthPipeline.rectify_camera`);
 2. ``rig-depth-match``: the stereo matcher (:meth:`DepthPipeline.match`);
 3. ``rig-depth-worker``: refinement, filters, depth (:meth:`DepthPipeline.finish`) and publishing.
 
@@ -37,7 +37,7 @@ from rig.pipeline import DepthFrame, DepthPipeline, MatchedPair, RectifiedPair
 from rig.priority import apply_to_current_thread
 from service.store import FrameResult, ResultStore
 
-__all__ = ["DepthWorker", "PairSource", "WorkerStats"]
+__all__ = ["DepthWorker", "PairSource", "WorkerStats", "render_vpc"]
 
 log = logging.getLogger("service.worker")
 
@@ -156,6 +156,13 @@ class _Ema:
 
     def add(self, ns: float) -> None:
         self.value_ns = ns if self.value_ns == 0.0 else self.value_ns + _EMA_ALPHA * (ns - self.value_ns)
+
+
+def render_vpc(pipeline: DepthPipeline, camera: str, frame: Frame) -> NDArray[Any]:
+    """The VPC image of ``camera`` (``left``/``right``) from its raw ``frame``'s full (colour)
+    image: what :meth:`FrameResult.vpc_image` asks for."""
+    name = pipeline.names[0 if camera == "left" else 1]
+    return pipeline.rectify_camera(name, frame.image)[0]
 
 
 class DepthWorker:
@@ -279,7 +286,7 @@ class DepthWorker:
         left_name, right_name = pipe.names
         if self._decoder is None:
             t0 = time.perf_counter()
-            left, right = pair.left.image, pair.right.image
+            left, right = pair.left.gray, pair.right.gray
             decode_ms = (time.perf_counter() - t0) * 1e3
             return pipe.rectify(left, right), decode_ms
         # Each frame decoded (unless the capture did) and remapped on its own thread: JPEG
@@ -294,7 +301,7 @@ class DepthWorker:
 
     def _decode_rectify(self, name: str, frame: Frame) -> tuple[NDArray[Any], NDArray[Any], float, float]:
         t0 = time.perf_counter()
-        image = frame.image
+        image = frame.gray
         t1 = time.perf_counter()
         vpc, gray = self.pipeline.rectify_camera(name, image)
         t2 = time.perf_counter()
@@ -347,6 +354,7 @@ class DepthWorker:
             published_ns=0,
             latency_ms=0.0,
             cache=self.store.new_cache(),
+            render_vpc=functools.partial(render_vpc, self.pipeline),
         )
         # Encode what clients polled on the previous frame *before* this one becomes visible: a
         # poll then always finds its bytes ready (no request waits on the encode, none takes a

@@ -134,7 +134,9 @@ class SupervisorConfig(BaseModel):
     max_future_ms: float = Field(
         20.0, ge=0.0, description="host-clock timestamps later than their arrival by this are rejected"
     )
-    decode: bool = Field(True, description="decode every frame in the capture thread (else markers only)")
+    decode: bool = Field(
+        True, description="decode every frame's luma in the capture thread (else only check markers)"
+    )
     fps_window_s: float = Field(2.0, gt=0.0)
 
 

@@ -2,7 +2,7 @@
 
 State machine: ``starting`` → ``available`` ⇄ ``unavailable(reason)`` → ``ended`` / ``stopped``,
 logged once per change of (state, reason). The capture thread opens the camera, reads frames,
-validates them (structure, optionally a full decode), checks host-clock timestamps and hands
+validates them (structure, optionally a decode of the luma), checks host-clock timestamps and hands
 good frames to the sink. A separate watchdog thread marks the camera unavailable when no frame
 has arrived for ``watchdog_s`` (OpenCV's ``read()`` can keep "succeeding" after an unplug, and a
 blocked read cannot report anything) and asks for a reconnect after ``reconnect_after_s``.
@@ -256,7 +256,7 @@ class CameraSupervisor:
         try:
             frame.check_structure()
             if self.config.decode:
-                frame.image  # noqa: B018 - decode once here, cached for the consumer
+                frame.gray  # noqa: B018 - decode (the luma depth needs) once here, cached for the consumer
         except CorruptFrameError as err:
             with self._lock:
                 self.counters.frames_corrupt += 1

@@ -144,7 +144,7 @@ async def get_pointcloud(
     pipeline = runtime.pipeline
 
     def produce() -> bytes:
-        points, colors = pipeline.point_cloud(result.frame, stride)
+        points, colors = pipeline.point_cloud(result.frame, stride, image=result.vpc_image("left"))
         return ply_bytes(points, colors)
 
     body = await cached_body(result, f"pointcloud:{stride}", produce)

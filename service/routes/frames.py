@@ -34,8 +34,10 @@ async def get_frame(
     quality = settings.server.jpeg_quality
     headers = frame_headers(result, **{"X-Camera": camera, "X-View": view})
     if view == "vpc":
-        image = result.frame.left_vpc if camera == "left" else result.frame.right_vpc
-        body = await cached_body(result, f"vpc:{camera}", lambda: encode_jpeg(image, quality))
+        # Colour VPC images are made on request (the worker works on luma only).
+        body = await cached_body(
+            result, f"vpc:{camera}", lambda: encode_jpeg(result.vpc_image(camera), quality)
+        )
         return Response(body, media_type="image/jpeg", headers=headers)
     raw = result.raw_frame(camera)
     # X-Frame-Seq/X-Timestamp-Ns stay the pair's (as on every endpoint); this camera's own:

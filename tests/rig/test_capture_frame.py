@@ -42,6 +42,52 @@ def test_image_is_decoded_once_and_matches_opencv() -> None:
     assert f.extension == ".png"
 
 
+def imdecode(data: bytes, flags: int) -> np.ndarray:
+    return np.asarray(cv2.imdecode(np.frombuffer(data, np.uint8), flags))
+
+
+@pytest.mark.parametrize("ext,fmt", [(".jpg", "jpeg"), (".png", "png")])
+@pytest.mark.parametrize("colour_first", [False, True])
+def test_gray_is_the_luma_decode_whatever_was_decoded_before(ext: str, fmt: str, colour_first: bool) -> None:
+    data = encode(frame_image("left", 7), ext)
+    f = Frame("left", 7, 0, fmt, host_ns=0, raw=data)  # type: ignore[arg-type]
+    if colour_first:
+        assert f.image.ndim == 3
+    gray = f.gray
+    assert f.decoded and f.gray is gray and gray.dtype == np.uint8
+    # OpenCV's gray decode (for JPEG the coded Y component, not a BGR → gray of the colour image).
+    np.testing.assert_array_equal(gray, imdecode(data, cv2.IMREAD_GRAYSCALE))
+    assert f.image.ndim == 3  # the colour image stays available, decoded on its own
+    if fmt == "jpeg":
+        # Close to the colour image's conversion (which goes through upsampled chroma and
+        # clipped RGB, so it differs most at saturated colour edges), but not computed from it.
+        diff = np.abs(gray.astype(int) - cv2.cvtColor(f.image, cv2.COLOR_BGR2GRAY).astype(int))
+        assert diff.mean() < 1.0 and np.percentile(diff, 99) <= 6 and diff.any()
+
+
+def test_gray_of_a_gray_jpeg_is_its_image() -> None:
+    data = encode(cv2.cvtColor(frame_image("right", 2), cv2.COLOR_BGR2GRAY), ".jpg")
+    f = Frame("right", 2, 0, "jpeg", host_ns=0, raw=data)
+    np.testing.assert_array_equal(f.gray, f.image)
+
+
+def test_gray_of_a_decoded_frame_is_opencvs_conversion() -> None:
+    img = frame_image("left", 4)
+    f = Frame.from_image("left", 4, 0, img, host_ns=0)
+    np.testing.assert_array_equal(f.gray, cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+    flat = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    assert Frame.from_image("left", 5, 0, flat, host_ns=0).gray is flat
+
+
+def test_corrupt_frame_raises_for_gray_too() -> None:
+    data = encode(frame_image("left", 9), ".jpg")
+    f = Frame("left", 9, 0, "jpeg", host_ns=0, raw=data[: len(data) // 2], source="x/000009.jpg")
+    for view in ("gray", "image", "gray"):
+        with pytest.raises(CorruptFrameError, match=r"camera left: frame 9 \(x/000009.jpg\): JPEG truncated"):
+            getattr(f, view)
+    assert not f.decoded
+
+
 def test_corrupt_frame_raises_every_time_naming_camera_and_seq() -> None:
     data = encode(frame_image("left", 9), ".jpg")
     plan = FaultPlan()
