@@ -22,7 +22,13 @@ from starlette.routing import compile_path
 from starlette.types import Receive, Scope, Send
 
 from rig.errors import ConfigError, DiskFullError, RigError
-from service.errors import RecordingConflict, RecordingNameError, RecordingNotFound, ServiceError
+from service.errors import (
+    ConfidenceOff,
+    RecordingConflict,
+    RecordingNameError,
+    RecordingNotFound,
+    ServiceError,
+)
 from service.fast_path import answer_hot_request
 from service.routes import (
     calibration,
@@ -49,6 +55,7 @@ API_VERSION = "1"
 _STATUS = {
     RecordingNameError: 422,
     RecordingConflict: 409,
+    ConfidenceOff: 409,
     RecordingNotFound: 404,
     ConfigError: 422,
     DiskFullError: 507,

@@ -28,7 +28,14 @@ from numpy.typing import NDArray
 from service.errors import ApiError
 from service.schemas import CalibrationModel, ConfigModel, HealthModel, RecordingInfo
 
-__all__ = ["DepthResult", "DisparityResult", "FrameResult", "PointCloudResult", "RigClient"]
+__all__ = [
+    "ConfidenceResult",
+    "DepthResult",
+    "DisparityResult",
+    "FrameResult",
+    "PointCloudResult",
+    "RigClient",
+]
 
 
 @dataclass(frozen=True)
@@ -45,6 +52,13 @@ class DepthResult:
 @dataclass(frozen=True)
 class DisparityResult:
     disparity: NDArray[np.float32]
+    seq: int
+    ts_ns: int
+
+
+@dataclass(frozen=True)
+class ConfidenceResult:
+    confidence: NDArray[np.float32]  # [0, 1], 0 where depth is invalid
     seq: int
     ts_ns: int
 
@@ -171,6 +185,17 @@ class RigClient:
             disp = units.astype(np.float32) * np.float32(float(r.headers["X-Disparity-Scale"]))
             disp[units == 0] = np.nan
         return DisparityResult(disp, seq, ts)
+
+    def confidence(self, format: Literal["npy", "png"] = "npy") -> ConfidenceResult:
+        """Latest confidence map in [0, 1] (0 where depth is invalid)."""
+        r = self._request("GET", "/confidence", params={"format": format})
+        seq, ts = _frame_meta(r)
+        if format == "npy":
+            conf = _load_npy(r.content).astype(np.float32, copy=False)
+        else:
+            units = _decode_image(r.content, "/confidence")
+            conf = units.astype(np.float32) * np.float32(float(r.headers["X-Confidence-Scale"]))
+        return ConfidenceResult(conf, seq, ts)
 
     def frames(self, camera: str, view: Literal["raw", "vpc"] = "vpc") -> FrameResult:
         r = self._request("GET", f"/frames/{camera}", params={"view": view})

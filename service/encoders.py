@@ -19,9 +19,12 @@ from numpy.typing import NDArray
 from rig.errors import PipelineError
 
 __all__ = [
+    "CONFIDENCE_PNG_SCALE",
     "DISPARITY_PNG_SCALE",
     "PNG_COMPRESSION_DEFAULT",
     "colorize_depth",
+    "confidence_png",
+    "confidence_to_png8",
     "depth_png",
     "depth_to_png16",
     "disparity_png",
@@ -35,6 +38,8 @@ __all__ = [
 F32 = NDArray[np.float32]
 #: Disparity PNGs store 1/16 px units (OpenCV's fixed point), 0 = invalid.
 DISPARITY_PNG_SCALE = 1.0 / 16.0
+#: Confidence PNGs store 1/255 units (255 = 1), 0 = invalid or no confidence at all.
+CONFIDENCE_PNG_SCALE = 1.0 / 255.0
 PNG_COMPRESSION_DEFAULT = 1
 
 
@@ -208,3 +213,17 @@ def depth_png(depth: F32, scale_m: float, compression: int = PNG_COMPRESSION_DEF
 def disparity_png(disparity: F32, compression: int = PNG_COMPRESSION_DEFAULT) -> bytes:
     """``/disparity``'s default body: 16-bit PNG in 1/16 px, 0 = invalid."""
     return encode_png(disparity_to_png16(disparity), compression)
+
+
+def confidence_to_png8(confidence: F32) -> NDArray[np.uint8]:
+    """Confidence (H, W) float32 in [0, 1] → uint8 ``rint(255·c)``; NaN (none there) → 0."""
+    units = np.multiply(confidence, np.float32(255.0), dtype=np.float32)
+    np.nan_to_num(units, copy=False, nan=0.0)
+    np.clip(units, 0.0, 255.0, out=units)
+    np.rint(units, out=units)
+    return units.astype(np.uint8)
+
+
+def confidence_png(confidence: F32, compression: int = PNG_COMPRESSION_DEFAULT) -> bytes:
+    """``/confidence``'s default body: 8-bit PNG in 1/255, 0 = invalid."""
+    return encode_png(confidence_to_png8(confidence), compression)

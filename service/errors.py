@@ -6,6 +6,7 @@ from typing import Any
 
 __all__ = [
     "ApiError",
+    "ConfidenceOff",
     "RecordingConflict",
     "RecordingNameError",
     "RecordingNotFound",
@@ -32,6 +33,10 @@ class ApiError(ServiceError):
         self.url = url
         where = f" {url}" if url else ""
         super().__init__(f"HTTP {status}{where}: {detail}" if status else f"request{where} failed: {detail}")
+
+
+class ConfidenceOff(ServiceError):
+    """The frame has no confidence map: ``stereo.confidence`` is off."""
 
 
 class RecordingNameError(ServiceError, ValueError):

@@ -26,7 +26,7 @@ from rig.capture.health import CaptureHealth
 from rig.heap import heap_stats
 from rig.pipeline import DepthPipeline
 from rig.recording import Recording
-from service.encoders import depth_png, disparity_png, npy_bytes
+from service.encoders import confidence_png, depth_png, disparity_png, npy_bytes
 from service.errors import SettingsError
 from service.host import HostInfo, host_info
 from service.metrics import MetricsSnapshot, ServiceMetrics
@@ -110,13 +110,16 @@ class Runtime:
         )
         self.metrics = ServiceMetrics(self.metrics_snapshot)
         scale, level = settings.server.depth_scale_m, settings.server.png_compression
-        # The /depth and /disparity bodies by cache key: the routes encode them on request and
-        # the worker ahead of the clients that poll them (one table, so they cannot disagree).
+        # The /depth, /disparity and /confidence bodies by cache key: the routes encode them on
+        # request and the worker ahead of the clients that poll them (one table, so they cannot
+        # disagree).
         self.frame_bodies: dict[str, Callable[[FrameResult], bytes]] = {
             "depth_png": lambda r: depth_png(r.frame.depth, scale, level),
             "depth_npy": lambda r: npy_bytes(r.frame.depth),
             "disparity_png": lambda r: disparity_png(r.frame.disparity, level),
             "disparity_npy": lambda r: npy_bytes(r.frame.disparity),
+            "confidence_png": lambda r: confidence_png(r.confidence(), level),
+            "confidence_npy": lambda r: npy_bytes(r.confidence()),
         }
         self.worker = DepthWorker(
             capture,

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 
 from rig.capture.frame import Frame
 from rig.pipeline import DepthFrame
+from service.errors import ConfidenceOff
 
 __all__ = ["EncodeCache", "EncodeCounter", "FrameResult", "ResultStore", "VpcRenderer"]
 
@@ -110,6 +111,15 @@ class FrameResult:
 
     def raw_frame(self, camera: str) -> Frame:
         return self.left if camera == "left" else self.right
+
+    def confidence(self) -> NDArray[np.float32]:
+        """The frame's confidence map (H, W) float32 in [0, 1], 0 where invalid; raises
+        :class:`ConfidenceOff` when the frame was made without one."""
+        if self.frame.confidence is None:
+            raise ConfidenceOff(
+                'confidence is off: PATCH /config {"stereo": {"confidence": true}} turns it on'
+            )
+        return self.frame.confidence
 
     def vpc_image(self, camera: str) -> NDArray[np.uint8]:
         """``camera``'s (``left``/``right``) VPC image as the camera sees it: colour for colour

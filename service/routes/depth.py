@@ -1,4 +1,4 @@
-"""Depth, disparity, colourised depth and point cloud of the latest frame."""
+"""Depth, disparity, confidence, colourised depth and point cloud of the latest frame."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from service.deps import (
     frame_headers,
 )
 from service.encoders import (
+    CONFIDENCE_PNG_SCALE,
     DISPARITY_PNG_SCALE,
     colorize_depth,
     encode_jpeg,
@@ -33,12 +34,18 @@ router = APIRouter(tags=["depth"])
 NPY = "application/x-npy"
 PLY = "application/x-ply"
 ArrayFormat = Literal["png", "npy"]
-ArrayEndpoint = Literal["depth", "disparity"]
+ArrayEndpoint = Literal["depth", "disparity", "confidence"]
+_SCALE_HEADERS: dict[str, str] = {
+    "depth": "X-Depth-Scale",
+    "disparity": "X-Disparity-Scale",
+    "confidence": "X-Confidence-Scale",
+}
+_PNG_SCALES: dict[str, float] = {"disparity": DISPARITY_PNG_SCALE, "confidence": CONFIDENCE_PNG_SCALE}
 
 
 @dataclass(frozen=True)
 class ArrayBody:
-    """How ``GET /depth`` or ``GET /disparity`` answers in one ``format``: the runtime's frame
+    """How ``GET /depth``, ``/disparity`` or ``/confidence`` answers in one ``format``: the runtime's frame
     body (``Runtime.frame_bodies`` key), its media type and the scale header. Shared by the
     routes and :mod:`service.fast_path`, so both give the same response."""
 
@@ -54,9 +61,9 @@ def array_body(endpoint: ArrayEndpoint, format: ArrayFormat, depth_scale_m: floa
     elif endpoint == "depth":
         scale = f"{depth_scale_m:g}"
     else:
-        scale = f"{DISPARITY_PNG_SCALE:g}"
-    header = "X-Depth-Scale" if endpoint == "depth" else "X-Disparity-Scale"
-    return ArrayBody(f"{endpoint}_{format}", NPY if format == "npy" else "image/png", {header: scale})
+        scale = f"{_PNG_SCALES[endpoint]:g}"
+    media_type = NPY if format == "npy" else "image/png"
+    return ArrayBody(f"{endpoint}_{format}", media_type, {_SCALE_HEADERS[endpoint]: scale})
 
 
 async def _array_response(
@@ -105,6 +112,34 @@ async def get_disparity(
     format: Annotated[ArrayFormat, Query(description="png (16-bit, 1/16 px) or npy (float32 px)")] = "png",
 ) -> Response:
     return await _array_response("disparity", format, result, runtime, settings)
+
+
+@router.get(
+    "/confidence",
+    response_class=Response,
+    summary="Latest confidence map (how far each depth pixel can be trusted)",
+    responses={
+        **binary_response_doc(
+            "png: uint8 in 1/255 (X-Confidence-Scale), 255 = 1; npy: float32 in [0, 1]. "
+            "exp(−σ_d / stereo.confidence_sigma) of the disparity's predicted standard deviation; "
+            "0 where depth is invalid. Aligned with /depth.",
+            "image/png",
+            NPY,
+        ),
+        409: {
+            "description": "stereo.confidence is off",
+            "content": {"application/json": {"schema": {"type": "object"}}},
+        },
+    },
+)
+async def get_confidence(
+    result: ResultDep,
+    runtime: RuntimeDep,
+    settings: SettingsDep,
+    format: Annotated[ArrayFormat, Query(description="png (8-bit) or npy (float32)")] = "png",
+) -> Response:
+    result.confidence()  # 409 with the fix when this frame has none
+    return await _array_response("confidence", format, result, runtime, settings)
 
 
 async def colorized_body(runtime: Runtime, result: FrameResult) -> bytes:

@@ -81,6 +81,35 @@ def test_disparity_formats_and_relation_to_depth(shared_server: LiveServer) -> N
     assert valid_png.any() and np.all(png.disparity[valid_png] * 16 == np.rint(png.disparity[valid_png] * 16))
 
 
+def test_confidence_is_aligned_with_depth_and_ranks_its_errors(
+    shared_server: LiveServer, small_recording: SmallRecording
+) -> None:
+    with RigClient(shared_server.base_url) as c:
+        conf, depth = same_frame(lambda: c.confidence("npy"), lambda: c.depth("npy"))
+        png, npy = same_frame(lambda: c.confidence("png"), lambda: c.confidence("npy"))
+        cal = c.calibration()
+    r = httpx.get(shared_server.base_url + "/confidence")
+    assert r.headers["content-type"] == "image/png" and float(
+        r.headers["X-Confidence-Scale"]
+    ) == pytest.approx(1 / 255)
+    c_map, d = conf.confidence, depth.depth
+    assert c_map.dtype == np.float32 and c_map.shape == d.shape and np.isfinite(c_map).all()
+    assert c_map.min() >= 0.0 and c_map.max() <= 1.0
+    valid = np.isfinite(d)
+    assert np.all(c_map[~valid] == 0.0)  # no confidence without depth
+    assert np.mean(c_map[valid] > 0.0) > 0.9
+    # The PNG is the same map in 1/255 steps.
+    assert np.abs(png.confidence - npy.confidence).max() <= 0.5 / 255 + 1e-6
+    # It ranks the errors: against the render's ground truth, the more confident half of the
+    # pixels has the smaller disparity error.
+    fb = cal.vpc.fx * cal.baseline_m
+    gt = small_recording.gt_depth
+    both = valid & np.isfinite(gt)
+    err = np.abs(fb / d[both] - fb / gt[both])
+    high = c_map[both] >= np.median(c_map[both])
+    assert np.mean(err[high]) < 0.8 * np.mean(err[~high])
+
+
 def test_frames_raw_and_vpc(shared_server: LiveServer, small_recording: SmallRecording) -> None:
     rig = load_rig(small_recording.loop / "calibration.yaml")
     with RigClient(shared_server.base_url) as c:
@@ -246,9 +275,9 @@ def test_openapi_lists_every_endpoint(shared_server: LiveServer) -> None:
     spec = httpx.get(shared_server.base_url + "/openapi.json").json()
     paths = set(spec["paths"])
     assert paths >= {
-        "/health", "/livez", "/readyz", "/depth", "/disparity", "/depth/colorized", "/frames/{camera}",
-        "/pointcloud", "/calibration", "/config", "/recordings", "/recordings/{name}/stop", "/stream.mjpg",
-        "/metrics", "/",
+        "/health", "/livez", "/readyz", "/depth", "/disparity", "/confidence", "/depth/colorized",
+        "/frames/{camera}", "/pointcloud", "/calibration", "/config", "/recordings",
+        "/recordings/{name}/stop", "/stream.mjpg", "/metrics", "/",
     }  # fmt: skip
     depth = spec["paths"]["/depth"]["get"]["responses"]["200"]
     assert set(depth["content"]) == {"image/png", "application/x-npy"}

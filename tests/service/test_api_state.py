@@ -48,6 +48,29 @@ def test_state_changing_endpoints_need_the_token(start_server: StartServer) -> N
     assert live.runtime.pipeline.stereo.uniqueness_ratio == before["uniqueness_ratio"]
 
 
+def test_confidence_off_is_a_409_naming_the_setting(start_server: StartServer) -> None:
+    live = start_server()
+    latest = live.runtime.store
+
+    def frame_confidence_is(on: bool) -> bool:
+        result = latest.latest
+        return result is not None and (result.frame.confidence is not None) == on
+
+    with RigClient(live.base_url, token=TOKEN) as c:
+        assert c.confidence().confidence.shape == c.depth().depth.shape
+        c.patch_config(confidence=False)
+        wait_for(lambda: frame_confidence_is(False), 10, "a frame made without confidence")
+        for fmt in ("png", "npy"):
+            r = httpx.get(live.base_url + "/confidence", params={"format": fmt})
+            assert r.status_code == 409 and "stereo" in r.json()["detail"], r.text
+        with pytest.raises(ApiError) as info:
+            c.confidence()
+        assert info.value.status == 409
+        c.patch_config(confidence=True)
+        wait_for(lambda: frame_confidence_is(True), 10, "a frame made with confidence again")
+        assert c.confidence().confidence.max() > 0.0
+
+
 def test_patch_config_applies_validated_stereo_params(start_server: StartServer) -> None:
     live = start_server()
     with RigClient(live.base_url, token=TOKEN) as c:
