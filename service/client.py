@@ -195,6 +195,7 @@ class RigClient:
         else:
             units = _decode_image(r.content, "/confidence")
             conf = units.astype(np.float32) * np.float32(float(r.headers["X-Confidence-Scale"]))
+            np.minimum(conf, np.float32(1.0), out=conf)  # 255 = 1 (the header's 1/255 is rounded)
         return ConfidenceResult(conf, seq, ts)
 
     def frames(self, camera: str, view: Literal["raw", "vpc"] = "vpc") -> FrameResult:

@@ -100,6 +100,7 @@ def test_confidence_is_aligned_with_depth_and_ranks_its_errors(
     assert np.mean(c_map[valid] > 0.0) > 0.9
     # The PNG is the same map in 1/255 steps.
     assert np.abs(png.confidence - npy.confidence).max() <= 0.5 / 255 + 1e-6
+    assert png.confidence.max() <= 1.0
     # It ranks the errors: against the render's ground truth, the more confident half of the
     # pixels has the smaller disparity error.
     fb = cal.vpc.fx * cal.baseline_m
