@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from calibration.models import CameraModel, PinholeModel
 from rig.errors import LutError
 
-__all__ = ["CHUNK_ROWS", "INVALID_COORD", "Lut", "build_vpc_lut", "vpc_rays"]
+__all__ = ["CHUNK_ROWS", "INVALID_COORD", "Lut", "build_vpc_lut", "percent_valid", "vpc_rays"]
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
@@ -28,6 +28,18 @@ F64 = NDArray[np.float64]
 INVALID_COORD = -1.0
 # Rows per block when building a table (see build_vpc_lut).
 CHUNK_ROWS = 32
+
+
+def percent_valid(fraction: float) -> str:
+    """A valid fraction as a percentage for messages: one decimal, but never rounded to 100.0 %
+    while some pixels are invalid, nor to 0.0 % while some are valid (a warning that a VPC
+    leaves the lens's field would otherwise say "100.0% of its pixels are valid")."""
+    text = f"{100.0 * fraction:.1f}%"
+    if fraction < 1.0 and text == "100.0%":
+        return ">99.9%"
+    if fraction > 0.0 and text == "0.0%":
+        return "<0.1%"
+    return text
 
 
 @dataclass(frozen=True)

@@ -35,7 +35,7 @@ from rig.depth import depth_points, disparity_to_depth
 from rig.errors import ConfigError, PipelineError
 from rig.filters import TemporalFilter, fill_where, median_filter, visible_in_right
 from rig.heap import tune_allocator
-from rig.lut import Lut
+from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
 from rig.stereo import StereoMatcher, StereoParams
 from rig.subpixel import confidence_from_sigma, refine_rows, refinement_inputs
@@ -195,14 +195,14 @@ class DepthPipeline:
             if frac < 1.0:
                 log.warning(
                     "VPC (%dx%d, hfov %.1f°, yaw %.1f°, pitch %.1f°) leaves camera '%s''s field: "
-                    "only %.1f%% of its pixels are valid",
+                    "only %s of its pixels are valid",
                     self.vpc_config.width,
                     self.vpc_config.height,
                     self.vpc_config.hfov_deg,
                     self.vpc_config.yaw_deg,
                     self.vpc_config.pitch_deg,
                     name,
-                    100.0 * frac,
+                    percent_valid(frac),
                 )
         left_lut, right_lut = self.luts[self.pair.left], self.luts[self.pair.right]
         # Masks are only applied when they exclude something (the usual VPC sees all valid).

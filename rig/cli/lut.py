@@ -20,6 +20,7 @@ from rig.cli.vpc_options import (
     make_vpc_config,
 )
 from rig.errors import ConfigError
+from rig.lut import percent_valid
 from rig.lut_cache import LutCache, lut_key
 from rig.vpc import design_vpc_pair
 
@@ -74,14 +75,14 @@ def register(app: typer.Typer) -> None:
                 name,
                 str(got.path),
                 got.key[:16],
-                f"{100 * frac:.1f}%",
+                percent_valid(frac),
                 f"{ms:.1f}",
                 "cache (load)" if got.hit else "built",
             )
             if frac < 1.0:
                 err_console.print(
                     f"[yellow]warning:[/yellow] the VPC leaves camera '{name}''s field: only "
-                    f"{100 * frac:.1f}% of its pixels are valid",
+                    f"{percent_valid(frac)} of its pixels are valid",
                     highlight=False,
                 )
         console.print(table)

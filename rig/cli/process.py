@@ -39,6 +39,7 @@ from rig.cli.vpc_options import (
 )
 from rig.depth import depth_to_png_mm, write_ply
 from rig.errors import ConfigError, PipelineError, RecordingError
+from rig.lut import percent_valid
 from rig.pipeline import DepthPipeline
 from rig.recording import Recording
 from rig.stereo import StereoParams
@@ -103,7 +104,7 @@ def register(app: typer.Typer) -> None:
             if frac < 1.0:
                 err_console.print(
                     f"[yellow]warning:[/yellow] the VPC leaves camera '{name}''s field: "
-                    f"{100 * frac:.1f}% of its pixels are valid",
+                    f"{percent_valid(frac)} of its pixels are valid",
                     highlight=False,
                 )
         extra = (("cloud",) if ply else ()) + (("preview",) if preview else ())

@@ -11,7 +11,7 @@ import pytest
 from calibration.geometry import rot_x, rot_y
 from calibration.models import MODELS, KannalaBrandtModel, PinholeModel, create
 from rig.errors import LutError
-from rig.lut import INVALID_COORD, build_vpc_lut, vpc_rays
+from rig.lut import INVALID_COORD, build_vpc_lut, percent_valid, vpc_rays
 from tests.calibration.model_cases import ModelCase, model_cases
 
 
@@ -218,3 +218,19 @@ def test_fixed_point_remap_matches_float_remap_and_blacks_out_invalid() -> None:
     colour = lut.remap(np.dstack([img, img // 2, 255 - img]))
     assert colour.shape == (120, 160, 3) and (colour[~lut.valid] == 0).all()
     assert np.abs(colour[..., 0].astype(int) - fixed.astype(int)).max() == 0
+
+
+@pytest.mark.parametrize(
+    "fraction,text",
+    [
+        (1.0, "100.0%"),
+        (0.99996, ">99.9%"),  # 12 of 307 200 pixels invalid: not "100.0%"
+        (0.9995, ">99.9%"),
+        (0.9994, "99.9%"),
+        (0.5, "50.0%"),
+        (0.0004, "<0.1%"),
+        (0.0, "0.0%"),
+    ],
+)
+def test_percent_valid_never_rounds_to_all_or_nothing(fraction: float, text: str) -> None:
+    assert percent_valid(fraction) == text
