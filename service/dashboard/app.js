@@ -3,7 +3,7 @@
 "use strict";
 
 const HEALTH_PERIOD_MS = 400;
-const IMAGE_IDS = ["depth-img", "vpc-left", "vpc-right", "raw-left", "raw-right"];
+const IMAGE_IDS = ["depth-img", "confidence-img", "vpc-left", "vpc-right", "raw-left", "raw-right"];
 const CAMERAS = ["left", "right"];
 let lastSeq = null;
 let calibration = null;

@@ -53,9 +53,10 @@ def test_dashboard_live_in_chromium(start_server: Callable[..., LiveServer], tmp
             page.wait_for_function(
                 f"document.getElementById('depth-img').getAttribute('src') !== {first!r}", timeout=20_000
             )
-            for img in ("vpc-left", "vpc-right", "raw-left", "raw-right"):
+            for img in ("confidence-img", "vpc-left", "vpc-right", "raw-left", "raw-right"):
                 page.wait_for_function(f"document.getElementById('{img}').naturalWidth > 0", timeout=20_000)
             assert page.eval_on_selector("#depth-img", "e => e.naturalWidth") == 320
+            assert page.eval_on_selector("#confidence-img", "e => e.naturalWidth") == 320
             assert page.eval_on_selector("#raw-left", "e => e.naturalWidth") == 640
 
             # The VPC footprint is drawn on the fisheye overlay (canvas at the fisheye's size).
