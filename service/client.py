@@ -162,39 +162,37 @@ class RigClient:
     def ready(self) -> bool:
         return self._request("GET", "/readyz", ok=(200, 503)).status_code == 200
 
+    def _array(
+        self, path: str, format: Literal["npy", "png"], scale_header: str
+    ) -> tuple[NDArray[np.float32], NDArray[Any] | None, int, int, float]:
+        """GET an array endpoint (``/depth``, ``/disparity``, ``/confidence``) in ``format``:
+        float32 values (npy as sent; png units × the scale header), the png's units (None for
+        npy: for the caller's invalid marking), the frame's seq and timestamp, and the scale."""
+        r = self._request("GET", path, params={"format": format})
+        seq, ts = _frame_meta(r)
+        scale = float(r.headers[scale_header])
+        if format == "npy":
+            return _load_npy(r.content).astype(np.float32, copy=False), None, seq, ts, scale
+        units = _decode_image(r.content, path)
+        return units.astype(np.float32) * np.float32(scale), units, seq, ts, scale
+
     def depth(self, format: Literal["npy", "png"] = "npy") -> DepthResult:
         """Latest depth in metres (NaN invalid), whichever encoding is transferred."""
-        r = self._request("GET", "/depth", params={"format": format})
-        seq, ts = _frame_meta(r)
-        scale = float(r.headers["X-Depth-Scale"])
-        if format == "npy":
-            depth = _load_npy(r.content).astype(np.float32, copy=False)
-        else:
-            units = _decode_image(r.content, "/depth")
-            depth = units.astype(np.float32) * np.float32(scale)
+        depth, units, seq, ts, scale = self._array("/depth", format, "X-Depth-Scale")
+        if units is not None:
             depth[units == 0] = np.nan
         return DepthResult(depth, seq, ts, scale)
 
     def disparity(self, format: Literal["npy", "png"] = "npy") -> DisparityResult:
-        r = self._request("GET", "/disparity", params={"format": format})
-        seq, ts = _frame_meta(r)
-        if format == "npy":
-            disp = _load_npy(r.content).astype(np.float32, copy=False)
-        else:
-            units = _decode_image(r.content, "/disparity")
-            disp = units.astype(np.float32) * np.float32(float(r.headers["X-Disparity-Scale"]))
+        disp, units, seq, ts, _ = self._array("/disparity", format, "X-Disparity-Scale")
+        if units is not None:
             disp[units == 0] = np.nan
         return DisparityResult(disp, seq, ts)
 
     def confidence(self, format: Literal["npy", "png"] = "npy") -> ConfidenceResult:
         """Latest confidence map in [0, 1] (0 where depth is invalid)."""
-        r = self._request("GET", "/confidence", params={"format": format})
-        seq, ts = _frame_meta(r)
-        if format == "npy":
-            conf = _load_npy(r.content).astype(np.float32, copy=False)
-        else:
-            units = _decode_image(r.content, "/confidence")
-            conf = units.astype(np.float32) * np.float32(float(r.headers["X-Confidence-Scale"]))
+        conf, units, seq, ts, _ = self._array("/confidence", format, "X-Confidence-Scale")
+        if units is not None:
             np.minimum(conf, np.float32(1.0), out=conf)  # 255 = 1 (the header's 1/255 is rounded)
         return ConfidenceResult(conf, seq, ts)
 
