@@ -9,6 +9,7 @@ the IMU frame). cam0 = left, cam1 = right.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -115,7 +116,7 @@ def _ucm_to_mei(where: Field, p: dict[str, float]) -> dict[str, float]:
 def _read_pose(pose: Field) -> F64:
     t = [pose[k].number() for k in ("px", "py", "pz")]
     q = np.array([pose[k].number() for k in ("qx", "qy", "qz", "qw")])
-    norm = float(np.linalg.norm(q))
+    norm = math.hypot(*q)  # scaled: a malformed file's 1e200 does not overflow the squares
     if abs(norm - 1.0) > _QUATERNION_TOL:
         raise pose.error(f"quaternion (qx, qy, qz, qw) must have unit length, got |q| = {norm:.9g}")
     return make_transform(quaternion_to_rotation(q / norm), t)

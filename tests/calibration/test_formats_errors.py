@@ -263,6 +263,13 @@ CASES = [
         "rig",
     ),
     Broken(
+        "basalt-quaternion-huge",  # its squares overflow float64: still one clear error, no warning
+        json_file(setter("value0.T_imu_cam.1.qx", 1e200)),
+        "value0.T_imu_cam[1]",
+        "unit length, got |q| = 1e+200",
+        "rig",
+    ),
+    Broken(
         "basalt-px-text",
         json_file(setter("value0.T_imu_cam.0.px", "0.1")),
         "value0.T_imu_cam[0].px",
@@ -279,6 +286,7 @@ CASES = [
 ]
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # a user sees the error line and nothing else
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
 def test_malformed_file_raises_one_clear_error(tmp_path: Path, case: Broken) -> None:
     check_broken(tmp_path, case)
