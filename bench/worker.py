@@ -17,12 +17,18 @@ pairs published per second after a warm-up. Latency: pair arrival (the later fra
 before decoding) → depth published, per frame, with the cameras paced at 60 % of the measured
 throughput so that no pair waits behind another (the latency of a frame, not of a queue).
 
+**Same work** — the same frames through the library in a plain loop: ``cv2.imdecode`` ×2 to
+gray, then :meth:`rig.pipeline.DepthPipeline.process` with ours' stages (the finish stage's row
+bands on the pipeline's pool, as in ours). The floor is the issue's reference (decode, remap,
+matcher); the same-work loop is the reference for the stages the floor leaves out, so that
+``ours / same work`` is what the service's threads gain (or cost) on the work it really does.
+
 ``--stages floor`` runs ours with only the floor's work (plain SGBM: no refinement, confidence or
 median), which isolates what the service's threads and glue cost or gain; the default stages add
 the refinement that takes SGBM's ~0.2 px pixel-locking error to ~0.03 px.
 
-Each repeat runs the floor, ours unpaced and ours paced back to back (one load for all three);
-ratios are taken per repeat and the median is reported.
+Each repeat runs the floor, the same-work loop, ours unpaced and ours paced back to back (one
+load for all four); ratios are taken per repeat and the median is reported.
 Run: ``.venv/bin/python -m bench.worker`` (``--quick`` for a run of seconds).
 """
 
@@ -60,7 +66,7 @@ from rig.vpc import VpcConfig
 from service.runtime import Runtime
 from service.settings import CalibrationSettings, ServerSettings, Settings
 
-__all__ = ["FloorRun", "WorkerRun", "floor_matcher", "main", "run_floor", "run_worker"]
+__all__ = ["FloorRun", "WorkerRun", "floor_matcher", "main", "run_floor", "run_same_work", "run_worker"]
 
 FULL_SIZES = ((320, 240), (640, 480), (1280, 960))
 FULL_DISPARITIES = (64, 128)
@@ -98,29 +104,54 @@ def floor_matcher(params: StereoParams) -> Any:
     return create_opencv_matcher(params)
 
 
+def _timed_loop(pairs: list[tuple[bytes, bytes]], frames: int, step: Any) -> FloorRun:
+    """``step(left_bytes, right_bytes)`` (numpy views of the JPEGs) over ``frames`` pairs, cycling
+    through ``pairs``: per-frame times, frames per second and process CPU per frame."""
+    bufs = [(np.frombuffer(a, np.uint8), np.frombuffer(b, np.uint8)) for a, b in pairs]
+    times: list[float] = []
+    c_start, t_start = time.process_time(), time.perf_counter()
+    for i in range(frames):
+        bl, br = bufs[i % len(bufs)]
+        t0 = time.perf_counter()
+        step(bl, br)
+        times.append((time.perf_counter() - t0) * 1e3)
+    total = time.perf_counter() - t_start
+    cpu = time.process_time() - c_start
+    return FloorRun(times, frames / total, cpu * 1e3 / frames)
+
+
 def run_floor(
     pairs: list[tuple[bytes, bytes]], pipeline: DepthPipeline, sgbm: Any, frames: int, flags: int
 ) -> FloorRun:
     """The bare OpenCV loop (see module doc) over ``frames`` pairs (cycling through ``pairs``)."""
     left_lut, right_lut = (pipeline.luts[n] for n in pipeline.names)
     lm1, lm2, rm1, rm2 = left_lut.map1, left_lut.map2, right_lut.map1, right_lut.map2
-    bufs = [(np.frombuffer(a, np.uint8), np.frombuffer(b, np.uint8)) for a, b in pairs]
     decode: Any = cv2.imdecode  # typed loosely: the floor is the bare calls, no checks
     remap: Any = cv2.remap
-    times: list[float] = []
-    c_start, t_start = time.process_time(), time.perf_counter()
-    for i in range(frames):
-        bl, br = bufs[i % len(bufs)]
-        t0 = time.perf_counter()
+
+    def step(bl: Any, br: Any) -> None:
         left = decode(bl, flags)
         right = decode(br, flags)
         lv = remap(left, lm1, lm2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         rv = remap(right, rm1, rm2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         sgbm.compute(lv, rv)
-        times.append((time.perf_counter() - t0) * 1e3)
-    total = time.perf_counter() - t_start
-    cpu = time.process_time() - c_start
-    return FloorRun(times, frames / total, cpu * 1e3 / frames)
+
+    return _timed_loop(pairs, frames, step)
+
+
+def run_same_work(
+    pairs: list[tuple[bytes, bytes]], pipeline: DepthPipeline, frames: int, flags: int
+) -> FloorRun:
+    """The same work as ours in a plain loop: decode both frames, then
+    :meth:`DepthPipeline.process` (remap, matcher and every configured stage, one call after the
+    other; the finish stage's row bands on the pipeline's own pool) — the library as a script
+    would call it, without the service's stage threads."""
+    decode: Any = cv2.imdecode
+
+    def step(bl: Any, br: Any) -> None:
+        pipeline.process(decode(bl, flags), decode(br, flags))
+
+    return _timed_loop(pairs, frames, step)
 
 
 def check_floor_matcher(pairs: list[tuple[bytes, bytes]], pipeline: DepthPipeline, sgbm: Any) -> None:
@@ -278,11 +309,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "disp",
         "floor ms",
         "floor fps",
+        "same-work ms",
         "ours fps",
-        "throughput ×",
+        "throughput × floor / same",
         "ours latency ms p50 (p95)",
-        "latency ×",
-        "CPU ms/frame floor / ours",
+        "latency × floor / same",
+        "CPU ms/frame floor / same / ours",
         "ours stages ms (mean)",
     ):
         table.add_column(col, justify="right")
@@ -298,7 +330,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             # Size the floor run to about the worker run's duration.
             probe = run_floor(pairs, pipeline, sgbm, 3, flags)
             n_floor = max(5, int(seconds * probe.fps))
+            n_same = max(5, int(seconds * run_same_work(pairs, pipeline, 3, flags).fps))
             floors: list[FloorRun] = []
+            sames: list[FloorRun] = []
             ours: list[WorkerRun] = []
             fast = bench_settings(
                 recording,
@@ -311,10 +345,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             )
             lat_runs: list[WorkerRun] = []
             lat_ratios: list[float] = []
+            lat_ratios_same: list[float] = []
             pace = 0.0
             for _ in range(repeat):
                 # Floor, ours unpaced, ours paced back to back: each repeat shares one load.
                 floor = run_floor(pairs, pipeline, sgbm, n_floor, flags)
+                same = run_same_work(pairs, pipeline, n_same, flags)
                 fast_run = run_worker(fast, seconds, warmup)
                 pace = round(max(1.0, LATENCY_PACE_FRACTION * fast_run.fps), 2)
                 paced = bench_settings(
@@ -328,19 +364,26 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 )
                 lat_run = run_worker(paced, seconds, warmup)
                 floors.append(floor)
+                sames.append(same)
                 ours.append(fast_run)
                 lat_runs.append(lat_run)
                 if lat_run.latency_ms:
                     lat_ratios.append(median(lat_run.latency_ms) / median(floor.frame_ms))
+                    lat_ratios_same.append(median(lat_run.latency_ms) / median(same.frame_ms))
             ours_fps = median(r.fps for r in ours)
             floor_ms = median(median(f.frame_ms) for f in floors)
             floor_fps = median(f.fps for f in floors)
             thr_ratio = median(o.fps / f.fps for o, f in zip(ours, floors, strict=True))
+            same_ms = median(median(f.frame_ms) for f in sames)
+            same_fps = median(f.fps for f in sames)
+            thr_same = median(o.fps / f.fps for o, f in zip(ours, sames, strict=True))
             lat = [x for r in lat_runs for x in r.latency_ms]
             lat_s = summary(lat)
             lat_ratio = median(lat_ratios)
+            lat_same = median(lat_ratios_same)
             stages = {k: median(r.stage_ms.get(k, math.nan) for r in lat_runs) for k in lat_runs[0].stage_ms}
             floor_cpu = median(f.cpu_ms for f in floors)
+            same_cpu = median(f.cpu_ms for f in sames)
             ours_cpu = median(o.cpu_ms for o in ours)
             errors = sum(r.errors for r in ours + lat_runs)
             row = {
@@ -348,21 +391,29 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 "disparities": disp,
                 "floor_ms_per_frame": floor_ms,
                 "floor_fps": floor_fps,
+                "same_work_ms_per_frame": same_ms,
+                "same_work_fps": same_fps,
                 "ours_fps": ours_fps,
                 "throughput_ratio": thr_ratio,
+                "throughput_ratio_same_work": thr_same,
                 "latency_pace_fps_last": pace,
                 "ours_latency_ms": lat_s,
                 "latency_ratio": lat_ratio,
+                "latency_ratio_same_work": lat_same,
                 "ours_stage_ms": stages,
                 "floor_cpu_ms_per_frame": floor_cpu,
+                "same_work_cpu_ms_per_frame": same_cpu,
                 "ours_cpu_ms_per_frame": ours_cpu,
                 "worker_errors": errors,
                 "runs": {
                     "floor_fps": [f.fps for f in floors],
                     "floor_ms": [median(f.frame_ms) for f in floors],
+                    "same_work_fps": [f.fps for f in sames],
                     "ours_fps": [o.fps for o in ours],
                     "throughput_ratio": [o.fps / f.fps for o, f in zip(ours, floors, strict=True)],
+                    "throughput_ratio_same_work": [o.fps / f.fps for o, f in zip(ours, sames, strict=True)],
                     "latency_ratio": lat_ratios,
+                    "latency_ratio_same_work": lat_ratios_same,
                 },
             }
             rows.append(row)
@@ -374,18 +425,20 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 str(disp),
                 f"{floor_ms:.1f}",
                 f"{floor_fps:.1f}",
+                f"{same_ms:.1f}",
                 f"{ours_fps:.1f}",
-                f"{thr_ratio:.2f}",
+                f"{thr_ratio:.2f} / {thr_same:.2f}",
                 f"{lat_s['p50']:.1f} ({lat_s['p95']:.1f})",
-                f"{lat_ratio:.2f}",
-                f"{floor_cpu:.1f} / {ours_cpu:.1f}",
+                f"{lat_ratio:.2f} / {lat_same:.2f}",
+                f"{floor_cpu:.1f} / {same_cpu:.1f} / {ours_cpu:.1f}",
                 stage_text,
             )
             if errors:
                 console.print(f"[red]warning:[/red] the worker reported {errors} failed frame(s) at {w}×{h}")
     console.print(
-        "throughput × = ours fps / floor fps (target ≥ 1.0, aim 1.3); latency × = ours p50 latency "
-        "(arrival → published, unsaturated) / floor ms per frame (target ≤ 1.2)"
+        "throughput × = ours fps / floor fps (target ≥ 1.0, aim 1.3), and / the same-work loop's fps; "
+        "latency × = ours p50 latency (arrival → published, unsaturated) / floor ms per frame "
+        "(target ≤ 1.2), and / the same-work loop's ms per frame"
     )
     return finish(
         "worker",

@@ -32,6 +32,10 @@ def test_worker_bench_compares_the_service_worker_with_the_floor(bench_env: Path
     assert row["worker_errors"] == 0
     assert row["ours_latency_ms"]["n"] > 0 and row["ours_latency_ms"]["p50"] > 0
     assert math.isfinite(row["throughput_ratio"]) and math.isfinite(row["latency_ratio"])
+    # The same-work loop (the pipeline called in a plain loop) is timed alongside the floor.
+    assert row["same_work_fps"] > 0 and row["same_work_ms_per_frame"] > 0
+    assert math.isfinite(row["throughput_ratio_same_work"]) and math.isfinite(row["latency_ratio_same_work"])
+    assert len(row["runs"]["same_work_fps"]) == len(row["runs"]["floor_fps"]) == doc["repeat"]
     assert set(row["ours_stage_ms"]) >= {"decode", "remap", "match", "refine", "total"}
 
 
