@@ -143,6 +143,6 @@ class TemporalFilter:
                 blend = valid & (np.abs(prev - disparity) <= self.reset)
             a = np.float32(self.alpha)
             out = np.where(blend, a * prev + (np.float32(1.0) - a) * disparity, disparity).astype(np.float32)
-        out[~valid] = np.nan
+        fill_where(out, np.nan, ~valid)
         self._state = out
         return out

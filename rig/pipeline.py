@@ -287,7 +287,7 @@ class DepthPipeline:
             if self._right_mask is not None:
                 valid = visible_in_right(disparity, valid, self._right_mask)
             if self._left_mask is not None or self._right_mask is not None:
-                disparity[~valid] = np.nan
+                fill_where(disparity, np.nan, ~valid)
             return MatchedPair(rect, matcher, disparity, valid, (time.perf_counter() - t0) * 1e3)
 
     def finish(self, matched: MatchedPair, seq: int = 0, ts_ns: int = 0) -> DepthFrame:

@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from rig.errors import PipelineError
-from rig.stereo import SGBM_MODES, StereoMatcher, StereoParams
+from rig.stereo import SGBM_MODES, StereoMatcher, StereoParams, create_opencv_matcher
 from rig.subpixel import confidence_from_sigma, refine_disparity, refine_rows, refinement_inputs
 
 U8 = NDArray[np.uint8]
@@ -114,6 +114,26 @@ def test_matchers_find_the_shift(algorithm: int) -> None:
     d = res.disparity[ROI][res.valid[ROI]]
     assert res.valid[ROI].mean() > 0.9
     assert abs(np.median(d) - 23.4) < 0.35
+
+
+@pytest.mark.parametrize("min_disparity", [0, 8])
+def test_disparity_is_opencvs_fixed_point_with_nan_exactly_where_invalid(min_disparity: int) -> None:
+    left, right = shifted_pair(23.4)
+    params = StereoParams(min_disparity=min_disparity, disparity_range=64)
+    fixed = create_opencv_matcher(params).compute(left, right)  # the bare OpenCV call
+    matcher = StereoMatcher(params)
+    res = matcher.match(left, right)
+    expected_valid = fixed >= min_disparity * 16
+    assert 0.2 < expected_valid.mean() < 1.0  # both kinds of pixel are there
+    np.testing.assert_array_equal(res.valid, expected_valid)
+    np.testing.assert_array_equal(np.isnan(res.disparity), ~expected_valid)
+    np.testing.assert_array_equal(res.disparity[expected_valid], fixed[expected_valid] / np.float32(16.0))
+    # The right view's disparity (the LR check's) marks its invalid pixels the same way.
+    right_disp = matcher.right_disparity(left, right)
+    flipped = create_opencv_matcher(params).compute(
+        np.ascontiguousarray(right[:, ::-1]), np.ascontiguousarray(left[:, ::-1])
+    )[:, ::-1]
+    np.testing.assert_array_equal(np.isnan(right_disp), flipped < min_disparity * 16)
 
 
 def test_matcher_rejects_bad_images() -> None:
