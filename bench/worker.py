@@ -348,7 +348,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             lat_ratios_same: list[float] = []
             pace = 0.0
             for _ in range(repeat):
-                # Floor, ours unpaced, ours paced back to back: each repeat shares one load.
+                # Floor, same work, ours unpaced, ours paced back to back: each repeat shares one load.
                 floor = run_floor(pairs, pipeline, sgbm, n_floor, flags)
                 same = run_same_work(pairs, pipeline, n_same, flags)
                 fast_run = run_worker(fast, seconds, warmup)
