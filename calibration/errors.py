@@ -21,7 +21,15 @@ class CalibrationError(Exception):
 
 
 class ModelError(CalibrationError, ValueError):
-    """A camera model was asked for with an unknown name or invalid parameters."""
+    """A camera model was asked for with an unknown name or invalid parameters.
+
+    ``param`` names the parameter at fault when there is one (``"width"``, ``"poly"``, ...), so a
+    file reader can name the field that holds it.
+    """
+
+    def __init__(self, message: str, param: str | None = None) -> None:
+        super().__init__(message)
+        self.param = param
 
 
 class CalibrationFileError(CalibrationError):

@@ -13,9 +13,23 @@ from calibration.errors import ModelError
 from calibration.geometry import invert_transform
 from calibration.models import CameraModel
 
-__all__ = ["Rig"]
+__all__ = ["MAX_TRANSLATION", "Rig"]
 
 F64 = NDArray[np.float64]
+
+# Largest translation component accepted in a pose: far beyond any stereo rig in any unit files use
+# (metres; OpenCV stereo files keep their calibration's, often mm), far enough from float64's range
+# that baselines and the rig frame built from them cannot overflow (a 1e200 entry would).
+MAX_TRANSLATION = 1e6
+
+
+def _check_translation(t: F64, what: str) -> None:
+    """ModelError unless every entry of the translation ``t`` (3,) is within ±MAX_TRANSLATION."""
+    if np.abs(t).max() > MAX_TRANSLATION:
+        raise ModelError(
+            f"{what} translation {[float(f'{x:.6g}') for x in t]} is beyond ±{MAX_TRANSLATION:g} "
+            "(a stereo rig's cameras are centimetres apart)"
+        )
 
 
 @dataclass
@@ -33,10 +47,15 @@ class Rig:
             if T.shape != (4, 4) or not np.isfinite(T).all():
                 raise ModelError(f"T_rig_cam of camera '{name}' must be a finite 4x4 matrix")
             R = T[:3, :3]
-            if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+            if (
+                np.abs(R).max() > 1.0 + 1e-6
+                or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
+                or np.linalg.det(R) < 0
+            ):
                 raise ModelError(f"T_rig_cam of camera '{name}' is not a rigid transform")
             if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]):
                 raise ModelError(f"T_rig_cam of camera '{name}' must end with row [0, 0, 0, 1]")
+            _check_translation(T[:3, 3], f"T_rig_cam of camera '{name}':")
             self.T_rig_cam[name] = T
 
     @property
@@ -86,8 +105,13 @@ class Rig:
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise ModelError("T_right_left must be a finite 4x4 matrix")
         R, t = T[:3, :3], T[:3, 3]
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
+        if (
+            np.abs(R).max() > 1.0 + 1e-6
+            or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
+            or np.linalg.det(R) <= 0
+        ):
             raise ModelError("T_right_left is not a rigid transform")
+        _check_translation(t, "T_right_left:")
         # Everything below is expressed in the left camera's frame.
         center_right = -R.T @ t
         baseline = float(np.linalg.norm(center_right))

@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 from calibration.errors import CalibrationFailed, ModelError
 from calibration.lm import NormalEquations, levenberg_marquardt
 from calibration.models.base import CameraModel
+from calibration.models.scaramuzza import ScaramuzzaModel
 
 __all__ = [
     "BundleResult",
@@ -57,7 +58,9 @@ _BOUNDS: dict[tuple[str, str] | str, tuple[float, float]] = {
     ("double_sphere", "xi"): (-1.0, 1.0),
     ("eucm", "alpha"): (0.0, 1.0),
     ("eucm", "beta"): (1e-9, np.inf),
-    ("scaramuzza", "c"): (1e-6, np.inf),
+    ("scaramuzza", "c"): (1e-6, ScaramuzzaModel.MAX_STRETCH),
+    ("scaramuzza", "d"): (-ScaramuzzaModel.MAX_STRETCH, ScaramuzzaModel.MAX_STRETCH),
+    ("scaramuzza", "e"): (-ScaramuzzaModel.MAX_STRETCH, ScaramuzzaModel.MAX_STRETCH),
 }
 
 
@@ -70,6 +73,10 @@ def param_bounds(model: CameraModel) -> tuple[F64, F64]:
         b = _BOUNDS.get((model.name, n), _BOUNDS.get(n))
         if b is not None:
             lo[i], hi[i] = b
+    if isinstance(model, ScaramuzzaModel):  # its centre's range depends on the image size
+        for n, size in (("cx", model.width), ("cy", model.height)):
+            i = names.index(n)
+            lo[i], hi[i] = -size, 2 * size
     return lo, hi
 
 

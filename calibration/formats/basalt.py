@@ -87,7 +87,7 @@ def _read_camera(cam: Field, res: Field) -> CameraModel:
     model, names = _TYPES[camera_type]
     values_field = cam["intrinsics"]
     params = {n: values_field[n].number() for n in names}
-    width, height = (f.integer(minimum=1) for f in res.items(2))
+    width, height = (f.image_extent() for f in res.items(2))
     if camera_type == "ucm":
         params = _ucm_to_mei(values_field, params)
     return build_model(values_field, model, width, height, **params)

@@ -39,8 +39,8 @@ def read_camodocal(doc: Document) -> CalibrationContent:
     root = Field(doc.path, doc.tree)
     type_field = root["model_type"]
     model_type = type_field.string()
-    width = root["image_width"].integer(minimum=1)
-    height = root["image_height"].integer(minimum=1)
+    width = root["image_width"].image_extent()
+    height = root["image_height"].image_extent()
     name_field = root.get("camera_name")
     name = name_field.string() if name_field is not None and isinstance(name_field.value, str) else ""
     model: CameraModel
@@ -124,6 +124,7 @@ def _read_scaramuzza(root: Field, width: int, height: int) -> CameraModel:
         "scaramuzza",
         width,
         height,
+        {"poly": poly_field, "invpol": root["inv_poly_parameters"]},
         poly=poly,
         invpol=invpol,
         cx=affine["cx"].number(),

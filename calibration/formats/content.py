@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,16 +50,27 @@ class CalibrationContent:
         return self.cameras[key]
 
 
-def build_model(where: Field, model: str, width: int, height: int, **params: Any) -> CameraModel:
+def build_model(
+    where: Field,
+    model: str,
+    width: int,
+    height: int,
+    fields: Mapping[str, Field] | None = None,
+    /,
+    **params: Any,
+) -> CameraModel:
     """Create a model, turning a ModelError (unknown model, bad parameter) into a file error
-    naming ``where``, the field that holds the camera's parameters."""
+    naming ``where``, the field that holds the camera's parameters, or the entry of ``fields``
+    (model parameter name -> field) for the parameter the error names, when the file keeps it
+    elsewhere."""
     cls = MODELS.get(model)
     if cls is None:
         raise where.error(f"camera model {model!r} is not available; known: {', '.join(sorted(MODELS))}")
     try:
         return cls(width, height, params.pop("fov_deg", None), **params)
     except ModelError as err:
-        raise where.error(str(err)) from err
+        at = (fields or {}).get(err.param or "", where)
+        raise at.error(str(err)) from err
     except (ValueError, ArithmeticError) as err:
         # A model should say ModelError; still, bad numbers from a file must not become a traceback.
         raise where.error(f"{model}: unusable parameters ({type(err).__name__}: {err})") from err

@@ -22,6 +22,8 @@ import yaml
 from numpy.typing import NDArray
 
 from calibration.errors import CalibrationFileError
+from calibration.models.base import MAX_IMAGE_SIZE_PX
+from calibration.rig import MAX_TRANSLATION
 
 __all__ = ["MAX_FILE_BYTES", "Document", "Field", "TaggedMatrix", "read_document"]
 
@@ -264,14 +266,20 @@ class Field:
             raise self.error(f"must be finite, got {f}")
         return f
 
-    def integer(self, minimum: int | None = None) -> int:
+    def integer(self, minimum: int | None = None, maximum: int | None = None) -> int:
         f = self.number()
         if f != int(f):
             raise self.error(f"must be an integer, got {f!r}")
         i = int(f)
         if minimum is not None and i < minimum:
             raise self.error(f"must be at least {minimum}, got {i}")
+        if maximum is not None and i > maximum:
+            raise self.error(f"must be at most {maximum}, got {f:.15g}")  # no 200-digit integers
         return i
+
+    def image_extent(self) -> int:
+        """An image width or height in pixels: 1 to the models' ``MAX_IMAGE_SIZE_PX``."""
+        return self.integer(minimum=1, maximum=MAX_IMAGE_SIZE_PX)
 
     def string(self) -> str:
         if not isinstance(self.value, str):
@@ -361,6 +369,11 @@ class Field:
         """A rigid 4x4 transform: orthonormal rotation with det +1, last row [0, 0, 0, 1]."""
         T = self.matrix((4, 4))
         check_rigid(self, T[:3, :3])
+        if np.abs(T[:3, 3]).max() > MAX_TRANSLATION:
+            raise self.error(
+                f"translation {[float(f'{x:.6g}') for x in T[:3, 3]]} is beyond ±{MAX_TRANSLATION:g} "
+                "(a stereo rig's cameras are centimetres apart)"
+            )
         if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
             raise self.error("last row must be [0, 0, 0, 1]")
         return T
@@ -373,7 +386,12 @@ class Field:
 
 def check_rigid(field: Field, R: F64) -> None:
     """Raise naming ``field`` unless R (3, 3) is a proper rotation."""
-    if not np.allclose(R @ R.T, np.eye(3), atol=_ROTATION_TOL) or np.linalg.det(R) <= 0:
+    # Entries of a rotation are at most 1: checked first, R Rᵀ of huge entries would overflow.
+    if (
+        np.abs(R).max() > 1.0 + _ROTATION_TOL
+        or not np.allclose(R @ R.T, np.eye(3), atol=_ROTATION_TOL)
+        or np.linalg.det(R) <= 0
+    ):
         raise field.error("rotation part is not a proper rotation matrix (orthonormal, det +1)")
 
 

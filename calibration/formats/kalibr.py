@@ -101,7 +101,7 @@ def _read_camera(cam: Field) -> CameraModel:
         raise (coeffs_field or cam).error(
             f"distortion_model {distortion!r} needs {need} distortion_coeffs, got {len(coeffs)}"
         )
-    width, height = (f.integer(minimum=1) for f in cam["resolution"].items(2))
+    width, height = (f.image_extent() for f in cam["resolution"].items(2))
     params = dict(zip(intrinsic_names, intrinsics, strict=True)) | dict(
         zip(distortion_names, coeffs, strict=True)
     )

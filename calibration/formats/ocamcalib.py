@@ -25,10 +25,14 @@ from calibration.errors import CalibrationFileError, ModelError
 from calibration.formats.content import CalibrationContent
 from calibration.formats.document import Document
 from calibration.models import MODELS, CameraModel
+from calibration.models.base import MAX_IMAGE_SIZE_PX
 
 __all__ = ["OCamCalibFile", "parse_ocamcalib", "read_ocamcalib", "to_scaramuzza"]
 
 _FIELDS = ("pol", "invpol", "center", "affine", "image size")
+# The line holding each scaramuzza parameter (names a ModelError's parameter in the file).
+_PARAM_FIELDS = {"poly": "pol", "invpol": "invpol", "cx": "center", "cy": "center", "c": "affine"}
+_PARAM_FIELDS |= {"d": "affine", "e": "affine", "width": "image size", "height": "image size"}
 _ONE_BASED = re.compile(r"starting from 1|matlab convention", re.IGNORECASE)
 
 
@@ -86,6 +90,13 @@ def parse_ocamcalib(doc: Document) -> OCamCalibFile:
         raise CalibrationFileError(
             doc.path, f"line {rows[4][0]}: height and width must be positive integers", "image size"
         )
+    if max(height_f, width_f) > MAX_IMAGE_SIZE_PX:
+        raise CalibrationFileError(
+            doc.path,
+            f"line {rows[4][0]}: height and width must be at most {MAX_IMAGE_SIZE_PX}, "
+            f"got {height_f:.15g} {width_f:.15g}",
+            "image size",
+        )
     if _ONE_BASED.search(rows[2][1]):
         xc, yc = xc - 1.0, yc - 1.0  # MATLAB's first pixel is 1
     return OCamCalibFile(pol, invpol, xc, yc, c, d, e, int(height_f), int(width_f))
@@ -117,8 +128,12 @@ def to_scaramuzza(f: OCamCalibFile) -> dict[str, Any]:
     if f.c == 0.0:
         raise ModelError("affine c must not be zero")
     c = f.c
+    try:
+        poly = [-a * c ** (1 - i) for i, a in enumerate(f.pol)]
+    except OverflowError:  # c ** -k beyond float64 (c = 1e-300): nonsense, not a traceback
+        raise ModelError(f"affine c = {c:.6g} is out of range (real ones are near 1)", param="c") from None
     return {
-        "poly": [-a * c ** (1 - i) for i, a in enumerate(f.pol)],
+        "poly": poly,
         "invpol": [c * b for b in f.invpol],
         "cx": f.yc,
         "cy": f.xc,
@@ -135,5 +150,6 @@ def read_ocamcalib(doc: Document) -> CalibrationContent:
     try:
         model: CameraModel = MODELS["scaramuzza"](parsed.width, parsed.height, None, **to_scaramuzza(parsed))
     except ModelError as err:
-        raise CalibrationFileError(doc.path, f"not a usable OCamCalib model: {err}") from err
+        field = _PARAM_FIELDS.get(err.param or "")
+        raise CalibrationFileError(doc.path, f"not a usable OCamCalib model: {err}", field) from err
     return CalibrationContent(doc.path, "ocamcalib", {"cam0": model})

@@ -187,10 +187,10 @@ def _require(root: Field, keys: tuple[str, ...]) -> Field:
 def _image_size(root: Field, list_keys: tuple[str, ...]) -> tuple[int, int]:
     for wk, hk in _SIZE_PAIRS:
         if root.get(wk) is not None or root.get(hk) is not None:
-            return root[wk].integer(minimum=1), root[hk].integer(minimum=1)
+            return root[wk].image_extent(), root[hk].image_extent()
     f = _first(root, list_keys)
     if f is None:
         raise CalibrationFileError(root.path, "missing image size (image_width/image_height or image_size)")
     w, h = f.numbers(2)
     size = Field(f.path, [w, h], f.name)
-    return tuple(x.integer(minimum=1) for x in size.items(2))  # type: ignore[return-value]
+    return tuple(x.image_extent() for x in size.items(2))  # type: ignore[return-value]

@@ -56,8 +56,8 @@ def _read_camera(entry: Field) -> CameraModel:
     cls = MODELS.get(model)
     if cls is None:
         raise model_field.error(f"unknown camera model {model!r}; known: {', '.join(sorted(MODELS))}")
-    width = entry["width"].integer(minimum=1)
-    height = entry["height"].integer(minimum=1)
+    width = entry["width"].image_extent()
+    height = entry["height"].image_extent()
     fov = entry.get("fov_deg")
     params_field = entry["params"]
     known = cls.all_param_names()

@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from calibration.errors import ModelError
 
 __all__ = [
+    "MAX_IMAGE_SIZE_PX",
     "MODELS",
     "CameraModel",
     "Mask",
@@ -40,6 +41,10 @@ Mask = NDArray[np.bool_]
 _THETA_SLACK = 1e-12
 # Pixels on the image border survive a round trip's round-off.
 _EDGE_SLACK = 1e-9
+# Largest image width or height accepted (pixels): far beyond any real sensor (~15000 px), small
+# enough that image coordinates, their squares and the models' polynomials in them stay far from
+# float64 overflow (a 1e200-pixel "image" would load with infinite radii).
+MAX_IMAGE_SIZE_PX = 100_000
 
 
 class CameraModel(ABC):
@@ -61,12 +66,8 @@ class CameraModel(ABC):
     derived_params: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, width: int, height: int, fov_deg: float | None = None, **params: Any) -> None:
-        if isinstance(width, bool) or int(width) != width or int(width) <= 0:
-            raise ModelError(f"{self.name}: width must be a positive integer, got {width!r}")
-        if isinstance(height, bool) or int(height) != height or int(height) <= 0:
-            raise ModelError(f"{self.name}: height must be a positive integer, got {height!r}")
-        self.width = int(width)
-        self.height = int(height)
+        self.width = self._image_extent("width", width)
+        self.height = self._image_extent("height", height)
         unknown = sorted(set(params) - set(self.all_param_names()))
         if unknown:
             raise ModelError(f"{self.name}: unknown parameter(s) {', '.join(unknown)}")
@@ -83,9 +84,11 @@ class CameraModel(ABC):
             try:
                 value = float(raw)  # type: ignore[arg-type]
             except (TypeError, ValueError) as err:
-                raise ModelError(f"{self.name}: parameter {n} must be a number, got {raw!r}") from err
+                raise ModelError(
+                    f"{self.name}: parameter {n} must be a number, got {raw!r}", param=n
+                ) from err
             if not math.isfinite(value):
-                raise ModelError(f"{self.name}: parameter {n} must be finite, got {value}")
+                raise ModelError(f"{self.name}: parameter {n} must be finite, got {value}", param=n)
             values[n] = value
         self._values = values
         self._lists = lists
@@ -334,21 +337,38 @@ class CameraModel(ABC):
             and self._lists == other._lists
         )
 
+    def _image_extent(self, what: str, value: Any) -> int:
+        """``value`` as an image width/height in [1, MAX_IMAGE_SIZE_PX]; ModelError otherwise."""
+        try:
+            ok = not isinstance(value, bool) and int(value) == value
+        except (TypeError, ValueError, OverflowError):  # None, text, NaN, inf
+            ok = False
+        if not ok or int(value) <= 0:
+            raise ModelError(f"{self.name}: {what} must be a positive integer, got {value!r}", param=what)
+        if int(value) > MAX_IMAGE_SIZE_PX:
+            raise ModelError(
+                f"{self.name}: {what} must be at most {MAX_IMAGE_SIZE_PX} px, got {_short(value)}",
+                param=what,
+            )
+        return int(value)
+
     def _number_list(self, n: str, raw: object) -> tuple[float, ...]:
         """A list parameter as a tuple of finite floats (None -> empty); ModelError otherwise."""
         if raw is None:
             return ()
         bad_array = isinstance(raw, np.ndarray) and raw.ndim != 1
         if bad_array or isinstance(raw, str | bytes | Mapping) or not isinstance(raw, Sequence | np.ndarray):
-            raise ModelError(f"{self.name}: parameter {n} must be a list of numbers, got {raw!r}")
+            raise ModelError(f"{self.name}: parameter {n} must be a list of numbers, got {raw!r}", param=n)
         out: list[float] = []
         for i, x in enumerate(raw):
             try:
                 value = float(x)
             except (TypeError, ValueError) as err:
-                raise ModelError(f"{self.name}: parameter {n}[{i}] must be a number, got {x!r}") from err
+                raise ModelError(
+                    f"{self.name}: parameter {n}[{i}] must be a number, got {x!r}", param=n
+                ) from err
             if not math.isfinite(value):
-                raise ModelError(f"{self.name}: parameter {n}[{i}] must be finite, got {value}")
+                raise ModelError(f"{self.name}: parameter {n}[{i}] must be finite, got {value}", param=n)
             out.append(value)
         return tuple(out)
 
@@ -388,15 +408,62 @@ def pixels_from_ratio(
     return u, v
 
 
-def smallest_positive_root(coeffs_ascending: Sequence[float]) -> float:
-    """Smallest real root > 0 of ``c0 + c1 s + c2 s^2 + ...``; ``inf`` if there is none."""
-    c = np.trim_zeros(np.asarray(coeffs_ascending, dtype=np.float64), "b")
+def smallest_positive_root(coeffs_ascending: Sequence[float], what: str = "polynomial") -> float:
+    """Smallest real root > 0 of ``c0 + c1 s + c2 s^2 + ...``; ``inf`` if there is none.
+
+    When the companion matrix's ratios ``c_i / c_n`` would overflow, solves for ``s = 2^q t``
+    instead (see :func:`_scaled_for_roots`); when even that cannot hold the polynomial, raises
+    ModelError naming ``what``. Never a RuntimeWarning.
+    """
+    c = np.asarray(coeffs_ascending, dtype=np.float64).reshape(-1)
+    if not np.isfinite(c).all():
+        raise ModelError(f"{what}: coefficients must be finite, got {_short_list(c)}")
+    # Trailing zeros lower the degree; leading zeros are roots at 0, which are not positive.
+    c = np.trim_zeros(np.trim_zeros(c, "b"), "f")
     if c.size <= 1:
         return math.inf
-    roots = np.roots(c[::-1])
-    real = roots[(np.abs(roots.imag) <= 1e-9 * np.maximum(1.0, np.abs(roots.real)))].real
+    with np.errstate(over="ignore", under="ignore"):
+        overflows = not np.isfinite(c[:-1] / c[-1]).all()
+    q, scaled = _scaled_for_roots(c, what) if overflows else (0, c)
+    t = np.roots(scaled[::-1])
+    with np.errstate(over="ignore", under="ignore"):  # a root beyond float64 is no root in range
+        re, im = np.ldexp(t.real, q), np.ldexp(t.imag, q)
+    real = re[np.abs(im) <= 1e-9 * np.maximum(1.0, np.abs(re))]
     pos = real[real > 0]
     return float(pos.min()) if pos.size else math.inf
+
+
+def _scaled_for_roots(c: F64, what: str) -> tuple[int, F64]:
+    """(q, coefficients (n+1,) of ``Σ c_i (2^q t)^i / (2^(q n) c_n)`` up to a power of two) for
+    c_0, c_n non-zero: q from the Fujiwara bound puts every root at |t| <= 2 and makes every
+    coefficient smaller than the leading one. Middle ones that underflow are negligible next to
+    the solver's round-off, the constant term is not (it places the roots near 0): ModelError."""
+    n = c.size - 1
+    _, e = np.frexp(c)  # c_i = m_i 2^e_i exactly, 0.5 <= |m_i| < 1
+    q = int(np.ceil(max((e[i] - e[n]) / (n - i) for i in range(n) if c[i] != 0.0))) + 1
+    with np.errstate(under="ignore"):
+        scaled = np.ldexp(c, q * (np.arange(n + 1) - n) - e[n])
+    if abs(scaled[0]) < np.finfo(np.float64).tiny:
+        nz = np.abs(c[c != 0.0])
+        raise ModelError(
+            f"{what}: coefficients from {nz.min():.3g} to {nz.max():.3g} in magnitude are too far apart "
+            "to find its roots in float64"
+        )
+    return q, scaled
+
+
+def _short(x: Any) -> str:
+    """A number for a message: whole numbers below 1e15 in full, else 6 significant digits."""
+    try:
+        f = float(x)
+    except OverflowError:  # an integer beyond float range: no 400-digit messages
+        return f"~1e+{len(str(abs(int(x)))) - 1}"
+    return f"{f:.15g}" if abs(f) < 1e15 and f.is_integer() else f"{f:.6g}"
+
+
+def _short_list(values: NDArray[np.float64]) -> str:
+    """(N,) numbers for a message, 6 significant digits each."""
+    return "[" + ", ".join(f"{float(v):.6g}" for v in values) + "]"
 
 
 def _as_array(x: ArrayLike, cols: int, what: str) -> F64:

@@ -21,6 +21,11 @@ error over the valid field is at most :attr:`ScaramuzzaModel.INVPOL_TOLERANCE_PX
 Validity: ρ from 0 up to where θ(ρ) = atan2(ρ, poly(ρ)) stops increasing
 (``poly(ρ) − ρ·poly'(ρ) = 0``) or the largest ρ inside the image (at a corner), whichever is first.
 
+Parameter ranges (ModelError outside, generous: they catch nonsense such as a centre at 1e200 px,
+which would otherwise overflow): the centre within an image size of the image, |c|, |d|, |e| ≤ 10
+with ``c − d·e ≥ 0.01``, poly and poly' below 1e300 over the valid ρ, and a field of at least
+0.01° off axis.
+
 Parameter vector (:attr:`params`): ``poly[0] .. poly[n-1], cx, cy, c, d, e``; ``invpol`` is derived
 and refitted by :meth:`with_params` whenever the vector changes.
 """
@@ -70,38 +75,96 @@ class ScaramuzzaModel(CameraModel):
     # Seeds from a table of the exact ρ(θ) for calls of at least this many points (see _seed_rho).
     SEED_TABLE_MIN_POINTS = 4096
     SEED_TABLE_NODES = 4096
+    # Generous sanity bounds (real files: c ≈ 1, |d|, |e| ≈ 1e-3, determinant ≈ 1), far enough
+    # from float64's limits that A⁻¹ and the radii it gives stay moderate.
+    MAX_STRETCH = 10.0
+    MIN_STRETCH_DET = 1e-2
+    # Largest Σ max(i, 1)·|a_i|·ρ^i allowed over the field: room below float64's 1.8e308 for the
+    # products of projection (times sin θ, cos θ, ρ).
+    MAX_POLY_MAGNITUDE = 1e300
+    # Smallest field (degrees off axis) a model may cover: far below any real lens, even on a
+    # 1-pixel image; the coefficients of a smaller one are nonsense (e.g. a0 = 1e300).
+    MIN_FIELD_DEG = 0.01
 
     def _setup(self) -> None:
         poly = self._lists["poly"]
         v = self._values
         if len(poly) < 1:
-            raise ModelError(f"{self.name}: parameter poly must have at least one coefficient")
+            raise ModelError(f"{self.name}: parameter poly must have at least one coefficient", param="poly")
         if poly[0] <= 0.0:
             raise ModelError(
                 f"{self.name}: poly[0] (a0) must be > 0 (z forward); OCamCalib files store a0 < 0 "
-                f"with z backwards, got {poly[0]}"
+                f"with z backwards, got {poly[0]}",
+                param="poly",
             )
         self.poly = poly
-        self.dpoly = tuple(i * a for i, a in enumerate(poly))[1:]
         self.cx, self.cy, self.c, self.d, self.e = v["cx"], v["cy"], v["c"], v["d"], v["e"]
+        w, h = self.width, self.height
+        # Real centres lie near the image centre; far outside, the image corners' radii (and
+        # the polynomial's powers of them) would overflow.
+        for n, value, size in (("cx", self.cx, w), ("cy", self.cy, h)):
+            if not -size <= value <= 2 * size:
+                raise ModelError(
+                    f"{self.name}: distortion centre {n} must be within [{-size}, {2 * size}] "
+                    f"(at most an image size outside the image), got {value:.6g}",
+                    param=n,
+                )
+        for n, value in (("c", self.c), ("d", self.d), ("e", self.e)):
+            if abs(value) > self.MAX_STRETCH:
+                raise ModelError(
+                    f"{self.name}: stretch matrix entry {n} must be within ±{self.MAX_STRETCH:g} "
+                    f"(real ones are near the identity), got {value:.6g}",
+                    param=n,
+                )
         det = self.c - self.d * self.e
-        if det <= 0.0:
-            raise ModelError(f"{self.name}: stretch matrix determinant c - d*e must be > 0, got {det}")
+        if det < self.MIN_STRETCH_DET:
+            raise ModelError(
+                f"{self.name}: stretch matrix determinant c - d*e must be at least "
+                f"{self.MIN_STRETCH_DET:g}, got {det:.6g}"
+            )
         self.A = np.array([[self.c, self.d], [self.e, 1.0]])
         self.A_inv = np.linalg.inv(self.A)
-        w, h = self.width, self.height
         corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]])
         rho_corner = float(np.linalg.norm(self._undistorted(corners), axis=1).max())
         # dθ/dρ ∝ poly(ρ) − ρ·poly'(ρ) = Σ (1 − i) a_i ρ^i: θ increases until its first root.
-        rho_turn = smallest_positive_root([(1 - i) * a for i, a in enumerate(poly)])
+        try:
+            rho_turn = smallest_positive_root(
+                [(1 - i) * a for i, a in enumerate(poly)], what=f"{self.name}: poly's dθ/dρ polynomial"
+            )
+        except ModelError as err:
+            raise ModelError(str(err), param="poly") from None
         self.rho_max = min(rho_corner, rho_turn)
+        self._check_poly_range()
+        self.dpoly = tuple(i * a for i, a in enumerate(poly))[1:]
         self.theta_max_model = math.atan2(self.rho_max, float(_horner(poly, np.array([self.rho_max]))[0]))
+        if math.degrees(self.theta_max_model) < self.MIN_FIELD_DEG:
+            raise ModelError(
+                f"{self.name}: poly leaves a field of only {math.degrees(self.theta_max_model):.3g}° off "
+                f"axis (ρ up to {self.rho_max:.6g} px); its coefficients are out of range, got "
+                f"{[float(x) for x in poly]}",
+                param="poly",
+            )
         # Largest error of a fitted invpol (pixels); None when the invpol was given.
         self.invpol_error_px: float | None = None
         if not self._lists["invpol"]:
             self._lists["invpol"] = self._fit_invpol()
         self.invpol = self._lists["invpol"]
         self._table: tuple[float, tuple[F64, F64, F64, F64]] | None = None
+
+    def _check_poly_range(self) -> None:
+        """ModelError unless poly and its derivative stay below MAX_POLY_MAGNITUDE for ρ up to
+        ``rho_max``: Σ max(i, 1)·|a_i|·max(ρ, 1)^i bounds their values and Horner partial sums."""
+        a = np.abs(np.asarray(self.poly))
+        i = np.flatnonzero(a)  # zero terms: no 0 * inf
+        with np.errstate(over="ignore"):
+            size = float(np.sum(a[i] * np.maximum(i, 1) * max(self.rho_max, 1.0) ** i))
+        if not size <= self.MAX_POLY_MAGNITUDE:  # also NaN
+            raise ModelError(
+                f"{self.name}: poly coefficients are too large: poly(ρ) or poly'(ρ) would exceed "
+                f"{self.MAX_POLY_MAGNITUDE:g} for ρ up to {self.rho_max:.6g} px, got "
+                f"{[float(x) for x in self.poly]}",
+                param="poly",
+            )
 
     def _undistorted(self, pixels: F64) -> F64:
         """(N, 2) pixels -> (N, 2) (u', v') = A⁻¹ (p − centre)."""

@@ -123,6 +123,12 @@ CASES = [
         "must be finite",
     ),
     Broken(
+        "rig-width-1e200",  # finite, but no image is that large (MAX_IMAGE_SIZE_PX)
+        yaml_file(rig_doc, setter("cameras.left.width", 1e200)),
+        "cameras.left.width",
+        "must be at most 100000, got 1e+200",
+    ),
+    Broken(
         "rig-list-for-scalar",
         yaml_file(rig_doc, setter("cameras.left.params.cx", [1.0, 2.0])),
         "cameras.left.params.cx",
@@ -145,6 +151,18 @@ CASES = [
         yaml_file(rig_doc, setter("cameras.right.T_rig_cam", ROT_SCALED)),
         "cameras.right.T_rig_cam",
         "not a proper rotation",
+    ),
+    Broken(
+        "rig-T-rotation-huge",  # R Rᵀ would overflow: still one clear error, no warning
+        yaml_file(rig_doc, setter("cameras.right.T_rig_cam.0.1", 1e200)),
+        "cameras.right.T_rig_cam",
+        "not a proper rotation",
+    ),
+    Broken(
+        "rig-T-translation-huge",  # the baseline's norm would overflow: one clear error, no warning
+        yaml_file(rig_doc, setter("cameras.right.T_rig_cam.0.3", 1e200)),
+        "cameras.right.T_rig_cam",
+        "translation [1e+200, 0.0, 0.0] is beyond ±1e+06",
     ),
     Broken(
         "rig-T-nan",
@@ -236,6 +254,13 @@ CASES = [
         "last row must be [0, 0, 0, 1]",
         "rig",
     ),
+    Broken(
+        "kalibr-T-translation-huge",
+        yaml_file(kalibr_doc, setter("cam1.T_cn_cnm1.0.3", 1e200)),
+        "cam1.T_cn_cnm1",
+        "translation [1e+200,",
+        "rig",
+    ),
     # ----- basalt -----
     Broken(
         "basalt-camera-type",
@@ -260,6 +285,13 @@ CASES = [
         json_file(setter("value0.T_imu_cam.1.qw", 3.0)),
         "value0.T_imu_cam[1]",
         "unit length",
+        "rig",
+    ),
+    Broken(
+        "basalt-translation-huge",  # the relative pose's baseline would overflow
+        json_file(setter("value0.T_imu_cam.1.px", 1e200)),
+        None,
+        "not a usable rig: T_right_left: translation [4.70963e+199,",
         "rig",
     ),
     Broken(

@@ -60,6 +60,43 @@ CASES = [
         "poly_parameters",
         "p0 must not be zero",
     ),
+    # Absurd magnitudes: one clear error, no overflow RuntimeWarning (see the filterwarnings below).
+    Broken(
+        "camodocal-ocam-cx-huge",
+        storage_file(CAMODOCAL_SCARAMUZZA, setter("affine_parameters.cx", 1e200), "c.yaml"),
+        "affine_parameters",
+        "scaramuzza: distortion centre cx must be within [-1600, 3200]",
+    ),
+    Broken(
+        "camodocal-ocam-width-huge",
+        storage_file(CAMODOCAL_SCARAMUZZA, setter("image_width", 1e200), "c.yaml"),
+        "image_width",
+        "must be at most 100000, got 1e+200",
+    ),
+    Broken(
+        "camodocal-ocam-ad-huge",
+        storage_file(CAMODOCAL_SCARAMUZZA, setter("affine_parameters.ad", 1e300), "c.yaml"),
+        "affine_parameters",
+        "stretch matrix entry d must be within ±10",
+    ),
+    Broken(
+        "camodocal-ocam-p2-huge",  # np.roots of dθ/dρ would overflow
+        storage_file(CAMODOCAL_SCARAMUZZA, setter("poly_parameters.p2", 1e300), "c.yaml"),
+        "poly_parameters",
+        "coefficients from 1.74e-09 to 1e+300 in magnitude are too far apart",
+    ),
+    Broken(
+        "camodocal-ocam-p4-huge",
+        storage_file(CAMODOCAL_SCARAMUZZA, setter("poly_parameters.p4", 1e300), "c.yaml"),
+        "poly_parameters",
+        "poly coefficients are too large",
+    ),
+    Broken(
+        "camodocal-ocam-p0-huge",  # consistent, but sees 1e-296° off axis
+        storage_file(CAMODOCAL_SCARAMUZZA, setter("poly_parameters.p0", 1e300), "c.yaml"),
+        "poly_parameters",
+        "poly leaves a field of only",
+    ),
     # ----- OCamCalib -----
     Broken(
         "ocam-count",
@@ -80,6 +117,24 @@ CASES = [
     ),
     Broken(
         "ocam-size", text_file(OCAMCALIB_TEXT.replace("480 640", "480")), "image size", "expected 2 numbers"
+    ),
+    Broken(
+        "ocam-center-huge",
+        text_file(OCAMCALIB_TEXT.replace("261.744395 326.939156", "1e200 326.939156")),
+        "center",
+        "distortion centre cy must be within [-480, 960]",
+    ),
+    Broken(
+        "ocam-affine-tiny",  # c ** -3 of the conversion overflows
+        text_file(OCAMCALIB_TEXT.replace("1.001968 0.001400", "1e-300 0.001400")),
+        "affine",
+        "affine c = 1e-300 is out of range",
+    ),
+    Broken(
+        "ocam-size-huge",
+        text_file(OCAMCALIB_TEXT.replace("480 640", "480 1e200")),
+        "image size",
+        "height and width must be at most 100000",
     ),
     Broken(
         "ocam-affine-zero",
@@ -164,6 +219,7 @@ CASES = [
 ]
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # a user sees the error line and nothing else
 @pytest.mark.parametrize("case", CASES, ids=[c.id for c in CASES])
 def test_malformed_file_raises_one_clear_error(tmp_path: Path, case: Broken) -> None:
     check_broken(tmp_path, case)

@@ -13,6 +13,7 @@ import yaml
 
 from calibration.errors import ModelError
 from calibration.models import MODELS, CameraModel, ScaramuzzaModel, create
+from calibration.models.base import smallest_positive_root
 from calibration.models.radtan import RadTan
 from tests.calibration.model_cases import ModelCase, model_cases
 
@@ -261,6 +262,105 @@ def test_bad_omnidirectional_parameters_raise_model_error(
 ) -> None:
     with pytest.raises(ModelError, match=match):
         create(name, 640, 480, **params)
+
+
+# ----- absurd magnitudes: a ModelError naming the parameter, never an overflow warning --------------
+PINHOLE = dict(fx=320.0, fy=321.0, cx=319.5, cy=239.5)
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+@pytest.mark.parametrize(
+    "name, width, height, params, match, param",
+    [
+        ("pinhole", 100_001, 480, PINHOLE, "pinhole: width must be at most 100000 px, got 100001", "width"),
+        ("pinhole", 640, 1e200, PINHOLE, r"pinhole: height must be at most 100000 px, got 1e\+200", "height"),
+        (
+            "scaramuzza",
+            1e155,
+            480,
+            SCARA,
+            r"scaramuzza: width must be at most 100000 px, got 1e\+155",
+            "width",
+        ),
+        ("pinhole", 640, 10**400, PINHOLE, r"height must be at most 100000 px, got ~1e\+400", "height"),
+        ("pinhole", float("inf"), 480, PINHOLE, "width must be a positive integer, got inf", "width"),
+        (
+            "scaramuzza",
+            640,
+            480,
+            SCARA | {"cx": 1e200},
+            r"scaramuzza: distortion centre cx must be within \[-640, 1280\] .*, got 1e\+200",
+            "cx",
+        ),
+        (
+            "scaramuzza",
+            640,
+            480,
+            SCARA | {"cy": -481.0},
+            r"scaramuzza: distortion centre cy must be within \[-480, 960\] .*, got -481",
+            "cy",
+        ),
+        ("scaramuzza", 640, 480, SCARA | {"d": 1e300}, "stretch matrix entry d must be within ±10", "d"),
+        (
+            "scaramuzza",
+            640,
+            480,
+            SCARA | {"c": 1e-300, "d": 0.0},
+            "determinant c - d\\*e must be at least",
+            None,
+        ),
+        (
+            "scaramuzza",
+            640,
+            480,
+            SCARA | {"poly": [260.0, 0.0, 1e300, 1.9e-7, -1.9e-11]},  # ratio 1e300/5.7e-11 overflows
+            "poly's dθ/dρ polynomial: coefficients from .* too far apart",
+            "poly",
+        ),
+        ("scaramuzza", 640, 480, SCARA | {"poly": [260.0, 1e300]}, "poly coefficients are too large", "poly"),
+        (
+            "scaramuzza",
+            640,
+            480,
+            SCARA | {"poly": [1e300, 0.0, -1e-3]},
+            "poly leaves a field of only",
+            "poly",
+        ),
+    ],
+)
+def test_out_of_range_parameters_raise_model_error(
+    name: str, width: Any, height: Any, params: dict[str, Any], match: str, param: str | None
+) -> None:
+    with pytest.raises(ModelError, match=match) as info:
+        create(name, width, height, **params)
+    assert info.value.param == param
+
+
+def test_range_limits_accept_their_bounds() -> None:
+    """The bounds are inclusive, and far from real cameras: the extremes still load."""
+    assert create("pinhole", 100_000, 100_000, **PINHOLE).width == 100_000
+    for cx, cy in ((-640.0, -480.0), (1280.0, 960.0)):
+        m = create("scaramuzza", 640, 480, **(SCARA | {"cx": cx, "cy": cy}))
+        assert m.max_theta > 0.0 and np.isfinite(m.rho_max)
+    m = create("scaramuzza", 640, 480, **(SCARA | {"c": 10.0, "d": -10.0, "e": 10.0}))
+    assert m.max_theta > 0.0
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+def test_smallest_positive_root_scales_instead_of_overflowing() -> None:
+    # c_0 / c_2 = 1e400 overflows float64, the roots ±1e200 do not.
+    assert smallest_positive_root([-1e200, 0.0, 1e-200]) == pytest.approx(1e200, rel=1e-12)
+    assert smallest_positive_root([2.0, -3.0, 1.0]) == pytest.approx(1.0, rel=1e-12)
+    assert smallest_positive_root([0.0, 0.0, 2.0, -3.0, 1.0]) == pytest.approx(
+        1.0, rel=1e-12
+    )  # s² (s-1)(s-2)
+    assert smallest_positive_root([1.0, 1.0]) == math.inf
+    assert smallest_positive_root([5.0, 0.0]) == math.inf
+    # Roots -1e-300 and ~-1e600: no scaling holds both.
+    with pytest.raises(ModelError, match=r"lens: coefficients from 1e-300 to 1e\+300 .* too far apart"):
+        smallest_positive_root([1.0, 1e300, 1e-300], what="lens")
+    with pytest.raises(ModelError, match="must be finite"):
+        smallest_positive_root([1.0, math.inf])
 
 
 # ----- iterative inversions converge to a tolerance, and say so when they cannot ------------------------
