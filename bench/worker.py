@@ -41,7 +41,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -73,6 +73,8 @@ FULL_DISPARITIES = (64, 128)
 LATENCY_PACE_FRACTION = 0.6
 # What rig.capture.frame.Frame.gray, the worker's decode, decodes JPEG with.
 FLOOR_DECODE = cv2.IMREAD_GRAYSCALE
+# ``--decode``: cameras.supervisor.decode of each choice.
+DECODE_MODES: dict[str, bool | Literal["auto"]] = {"auto": "auto", "capture": True, "worker": False}
 # Stereo parameters of ``--stages``: the service's defaults, or none of our stages after the matcher.
 STAGES: dict[str, dict[str, Any]] = {
     "default": {},
@@ -180,7 +182,7 @@ def bench_settings(
     scratch: Path,
     *,
     pace: str | float,
-    decode_in_capture: bool,
+    decode: bool | Literal["auto"],
 ) -> Settings:
     fast = pace == "fast"
     cams = {
@@ -196,9 +198,9 @@ def bench_settings(
         # Unpaced: the cameras wait for the worker (nothing dropped, one pair ready in advance).
         pairing=PairingConfig(backpressure=True, pair_buffer=1) if fast else PairingConfig(),
         # A camera waiting under back-pressure delivers nothing: not a stall for the watchdog.
-        supervisor=SupervisorConfig(decode=decode_in_capture, watchdog_s=120.0, reconnect_after_s=240.0)
+        supervisor=SupervisorConfig(decode=decode, watchdog_s=120.0, reconnect_after_s=240.0)
         if fast
-        else SupervisorConfig(decode=decode_in_capture),
+        else SupervisorConfig(decode=decode),
     )
     return Settings(
         server=ServerSettings(recordings_dir=scratch / "recordings"),
@@ -258,10 +260,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--seconds", type=float, default=None, help="measured time per worker run")
     parser.add_argument(
         "--decode",
-        choices=("capture", "worker"),
-        default="capture",
-        help="where frames are decoded: the camera threads (service default for cameras) or the "
-        "worker's prepare stage (what the demo does)",
+        choices=tuple(DECODE_MODES),
+        default="auto",
+        help="where frames are decoded (cameras.supervisor.decode): auto (the service's default: "
+        "the camera threads while the worker waits for a pair, else the worker), capture (every "
+        "frame in the camera threads) or worker (only the pairs the worker takes)",
     )
     parser.add_argument("--gray", action="store_true", help="gray JPEG frames instead of colour 4:2:2")
     parser.add_argument(
@@ -341,7 +344,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 tmp / "lut",
                 tmp,
                 pace="fast",
-                decode_in_capture=args.decode == "capture",
+                decode=DECODE_MODES[args.decode],
             )
             lat_runs: list[WorkerRun] = []
             lat_ratios: list[float] = []
@@ -360,7 +363,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                     tmp / "lut",
                     tmp,
                     pace=pace,
-                    decode_in_capture=args.decode == "capture",
+                    decode=DECODE_MODES[args.decode],
                 )
                 lat_run = run_worker(paced, seconds, warmup)
                 floors.append(floor)

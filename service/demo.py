@@ -223,8 +223,6 @@ def replay_overrides(recording: Path, calibration: Path, pace: float | str) -> d
         "cameras": {
             "left": {**camera, "camera": "left"},
             "right": {**camera, "camera": "right"},
-            # Decode only the pairs the worker takes, not every frame in the camera threads.
-            "supervisor": {"decode": False},
         },
         "calibration": {"path": str(calibration)},
     }

@@ -69,7 +69,15 @@ class _RuntimeCollector(Collector):
         yield per_camera(
             "rig_camera_frames_dropped", "lost + unpaired + evicted frames", lambda c: c.frames_dropped, True
         )
-        yield per_camera("rig_camera_frames_corrupt", "undecodable frames", lambda c: c.frames_corrupt, True)
+        yield per_camera(
+            "rig_camera_frames_corrupt", "frames the capture found broken", lambda c: c.frames_corrupt, True
+        )
+        yield per_camera(
+            "rig_camera_frames_undecodable",
+            "received frames that did not decode when the depth worker took them",
+            lambda c: c.frames_undecodable,
+            True,
+        )
         yield per_camera("rig_camera_reconnects", "successful reconnects", lambda c: c.reconnects, True)
         yield per_camera(
             "rig_camera_timestamp_errors",

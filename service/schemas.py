@@ -65,7 +65,10 @@ class CameraHealthModel(BaseModel):
     frames_received: int
     frames_dropped: int = Field(description="lost + unpaired + evicted")
     frames_lost: int
-    frames_corrupt: int
+    frames_corrupt: int = Field(description="frames the capture thread found broken (never paired)")
+    frames_undecodable: int = Field(
+        description="received frames that did not decode when the depth worker took them"
+    )
     timestamp_errors: int
     reconnects: int
     last_frame_age_ms: float | None

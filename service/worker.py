@@ -12,8 +12,9 @@ frame N is matched. Frames stay fresh: the prepare stage takes a pair from the c
 in time* — when the match stage is expected to be free by the time the pair is remapped — so a
 slow pipeline drops older pairs in the capture (counted there as skipped) instead of holding a
 stale one. Publishing is a reference swap; clients encode what they need from the published
-result in their own threads. A failing frame (corrupt image, wrong size) is counted and reported,
-and the worker goes on.
+result in their own threads. A failing frame is counted and reported, and the worker goes on: one
+that does not decode against its camera (``frames_undecodable``), any other failure (a wrong
+size, say) as the worker's error.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from typing import Any, Generic, Protocol, TypeVar
 from numpy.typing import NDArray
 
 from rig.capture.frame import Frame, FramePair
-from rig.errors import RigError
+from rig.errors import CorruptFrameError, RigError
 from rig.pipeline import DepthFrame, DepthPipeline, MatchedPair, RectifiedPair
 from rig.priority import apply_to_current_thread
 from service.store import FrameResult, ResultStore
@@ -53,6 +54,9 @@ T = TypeVar("T")
 
 class PairSource(Protocol):
     def next_pair(self, timeout_s: float, *, newest: bool = True) -> FramePair | None: ...
+
+    def report_undecodable(self, frame: Frame, err: Exception) -> None:
+        """A frame of a pair taken from this source did not decode (the camera's fault)."""
 
 
 @dataclass(frozen=True)
@@ -276,7 +280,10 @@ class DepthWorker:
         if self._on_pair is not None:
             self._on_pair(pair)
         t0 = time.perf_counter_ns()
-        rect, decode_ms = self._rectify(pair)
+        try:
+            rect, decode_ms = self._rectify(pair)
+        except CorruptFrameError:
+            return  # counted against its camera (_luma); the worker itself is fine
         self._prepare_time.add(time.perf_counter_ns() - t0)
         self._to_match.put(_Prepared(pair, rect, decode_ms))
 
@@ -286,7 +293,7 @@ class DepthWorker:
         left_name, right_name = pipe.names
         if self._decoder is None:
             t0 = time.perf_counter()
-            left, right = pair.left.gray, pair.right.gray
+            left, right = self._luma(pair.left), self._luma(pair.right)
             decode_ms = (time.perf_counter() - t0) * 1e3
             return pipe.rectify(left, right), decode_ms
         # Each frame decoded (unless the capture did) and remapped on its own thread: JPEG
@@ -301,11 +308,20 @@ class DepthWorker:
 
     def _decode_rectify(self, name: str, frame: Frame) -> tuple[NDArray[Any], NDArray[Any], float, float]:
         t0 = time.perf_counter()
-        image = frame.gray
+        image = self._luma(frame)
         t1 = time.perf_counter()
         vpc, gray = self.pipeline.rectify_camera(name, image)
         t2 = time.perf_counter()
         return vpc, gray, (t1 - t0) * 1e3, (t2 - t1) * 1e3
+
+    def _luma(self, frame: Frame) -> NDArray[Any]:
+        """The frame's luma (decoded now unless the capture thread did); a frame that does not
+        decode is reported to the source, which counts it against its camera."""
+        try:
+            return frame.gray
+        except CorruptFrameError as err:
+            self.source.report_undecodable(frame, err)
+            raise
 
     def _match_loop(self) -> None:
         t0 = 0

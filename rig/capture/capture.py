@@ -71,11 +71,17 @@ class StereoCapture:
         self._cond = threading.Condition()
         self._pairs: deque[FramePair] = deque()
         self._taken = self._skipped = self._evicted = 0
+        self._waiting = 0  # consumers waiting in next_pair (read unlocked by the decode choice)
         self._ended: set[str] = set()
         self._started = self._stopped = False
         self._supervisors = {
             n: CameraSupervisor(
-                cam, config.supervisor, self._on_frame, on_change=self._on_state_change, clock=clock
+                cam,
+                config.supervisor,
+                self._on_frame,
+                on_change=self._on_state_change,
+                consumer_waiting=self._consumer_waiting,
+                clock=clock,
             )
             for n, cam in self._cameras.items()
         }
@@ -125,6 +131,11 @@ class StereoCapture:
         self._check_name(name)
         return self._supervisors[name]
 
+    def report_undecodable(self, frame: Frame, err: Exception) -> None:
+        """The consumer could not decode ``frame`` (one of the pairs it took): counted against
+        the frame's camera (:meth:`CameraSupervisor.report_undecodable`)."""
+        self.supervisor(frame.camera).report_undecodable(str(err))
+
     def inject(self, name: str, fault: Fault) -> None:
         """Inject a fault into a camera that supports it (file cameras); ConfigError otherwise."""
         cam = self.camera(name)
@@ -147,7 +158,11 @@ class StereoCapture:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0 or self._stopped or self._pairer.exhausted:
                     return None
-                self._cond.wait(remaining)
+                self._waiting += 1
+                try:
+                    self._cond.wait(remaining)
+                finally:
+                    self._waiting -= 1
             if newest:
                 pair = self._pairs.pop()
                 self._skipped += len(self._pairs)
@@ -157,6 +172,10 @@ class StereoCapture:
             self._taken += 1
             self._cond.notify_all()  # room for a camera thread waiting under backpressure
             return pair
+
+    def _consumer_waiting(self) -> bool:
+        """Whether a consumer is waiting in :meth:`next_pair` (it takes the next pair formed)."""
+        return self._waiting > 0
 
     def _on_frame(self, frame: Frame) -> None:
         # Runs in a camera's capture thread. One push completes at most one pair (before it,

@@ -134,8 +134,13 @@ class SupervisorConfig(BaseModel):
     max_future_ms: float = Field(
         20.0, ge=0.0, description="host-clock timestamps later than their arrival by this are rejected"
     )
-    decode: bool = Field(
-        True, description="decode every frame's luma in the capture thread (else only check markers)"
+    decode: bool | Literal["auto"] = Field(
+        "auto",
+        description=(
+            "decode frames' luma in the capture thread: true = every frame, false = none (only check "
+            "markers; the depth worker decodes the pairs it takes), auto = while the depth worker "
+            "waits for a pair (it takes the next one, so the decode is off its path)"
+        ),
     )
     fps_window_s: float = Field(2.0, gt=0.0)
 

@@ -5,6 +5,10 @@ Counter definitions (per camera; all exact for file cameras, which makes them te
 - ``frames_received``: frames that passed validation and timestamp checks and went to pairing.
 - ``frames_corrupt``: frames whose bytes failed the structural check or did not decode; they
   never reach pairing.
+- ``frames_undecodable``: received frames whose luma did not decode when the depth worker took
+  them. Which thread decodes a frame follows ``SupervisorConfig.decode``: the capture thread's
+  failures count in ``frames_corrupt`` (with ``decode: true`` all of them: this stays 0), the
+  worker's here.
 - ``timestamp_errors``: frames rejected because a host-clock timestamp was more than
   ``max_clock_offset_ms`` from the arrival time or did not increase; each triggers a reconnect.
 - ``frames_lost``: gaps in the camera's ``seq`` (frames the camera or driver never delivered).
@@ -43,6 +47,7 @@ class CameraHealth:
     last_ts_ns: int | None
     frames_received: int
     frames_corrupt: int
+    frames_undecodable: int
     frames_lost: int
     frames_unpaired: int
     frames_evicted: int

@@ -2,7 +2,7 @@
 
 State machine: ``starting`` → ``available`` ⇄ ``unavailable(reason)`` → ``ended`` / ``stopped``,
 logged once per change of (state, reason). The capture thread opens the camera, reads frames,
-validates them (structure, optionally a decode of the luma), checks host-clock timestamps and hands
+validates them (structure, and a decode of the luma per ``decode``), checks host-clock timestamps and hands
 good frames to the sink. A separate watchdog thread marks the camera unavailable when no frame
 has arrived for ``watchdog_s`` (OpenCV's ``read()`` can keep "succeeding" after an unplug, and a
 blocked read cannot report anything) and asks for a reconnect after ``reconnect_after_s``.
@@ -38,6 +38,7 @@ log = logging.getLogger("rig.capture")
 class SupervisorCounters:
     frames_received: int = 0
     frames_corrupt: int = 0
+    frames_undecodable: int = 0
     frames_lost: int = 0
     timestamp_errors: int = 0
     reconnects: int = 0
@@ -55,9 +56,11 @@ class CameraSupervisor:
         sink: Callable[[Frame], None],
         *,
         on_change: Callable[[], None] | None = None,
+        consumer_waiting: Callable[[], bool] | None = None,
         clock: Callable[[], int] = time.monotonic_ns,
     ) -> None:
         self.camera = camera
+        self._consumer_waiting = consumer_waiting
         self.name = camera.name
         self.config = config
         self._sink = sink
@@ -110,6 +113,14 @@ class CameraSupervisor:
 
     def request_reconnect(self) -> None:
         self._reconnect.set()
+
+    def report_undecodable(self, message: str) -> None:
+        """A frame of this camera that passed the capture's checks did not decode when its
+        consumer took it (with ``decode: false`` the capture thread checks only the structure):
+        counted in ``frames_undecodable`` and kept as the last error, like a corrupt frame."""
+        with self._lock:
+            self.counters.frames_undecodable += 1
+        self._error(message, unavailable=False)
 
     # ----- state -------------------------------------------------------------------------------
     def _transition(self, state: CameraState, reason: str | None, error: str | None = None) -> None:
@@ -255,7 +266,7 @@ class CameraSupervisor:
             self._last_seq = frame.seq
         try:
             frame.check_structure()
-            if self.config.decode:
+            if self._decode_here():
                 frame.gray  # noqa: B018 - decode (the luma depth needs) once here, cached for the consumer
         except CorruptFrameError as err:
             with self._lock:
@@ -277,6 +288,16 @@ class CameraSupervisor:
             self.counters.frames_received += 1
         self._transition("available", None)
         self._sink(frame)
+
+    def _decode_here(self) -> bool:
+        """Whether this thread decodes the frame (``decode``): ``auto`` does while the consumer
+        waits for a pair, which it will take, so the decode costs it nothing; a consumer that is
+        busy skips most frames, and decodes only those it takes itself. Without a consumer to
+        ask, ``auto`` decodes every frame."""
+        mode = self.config.decode
+        if mode == "auto":
+            return self._consumer_waiting is None or self._consumer_waiting()
+        return bool(mode)
 
     def _timestamp_problem(self, frame: Frame) -> str | None:
         # A capture time cannot lie after the frame's arrival (same clock), nor long before it.
@@ -321,6 +342,7 @@ class CameraSupervisor:
                 last_ts_ns=self._last_ts,
                 frames_received=c.frames_received,
                 frames_corrupt=c.frames_corrupt,
+                frames_undecodable=c.frames_undecodable,
                 frames_lost=c.frames_lost,
                 frames_unpaired=0,
                 frames_evicted=0,

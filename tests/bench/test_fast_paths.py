@@ -199,6 +199,10 @@ class _ListSource:
     def __init__(self, pairs: list[FramePair]) -> None:
         self._pairs = list(pairs)
         self._lock = threading.Lock()
+        self.undecodable: list[tuple[str, int, str]] = []
+
+    def report_undecodable(self, frame: Frame, err: Exception) -> None:
+        self.undecodable.append((frame.camera, frame.seq, str(err)))
 
     def next_pair(self, timeout_s: float, *, newest: bool = True) -> FramePair | None:
         with self._lock:
@@ -224,9 +228,8 @@ def test_pipelined_worker_publishes_every_pair_in_order_and_survives_a_bad_one(
     pairs = [_jpeg_pair(shot, k, corrupt=k == 2) for k in range(6)]
     store = ResultStore()
     seen: list[int] = []
-    worker = DepthWorker(
-        _ListSource(pairs), pipe, store, on_result=lambda r, t: seen.append(r.seq), poll_s=0.02
-    )
+    source = _ListSource(pairs)
+    worker = DepthWorker(source, pipe, store, on_result=lambda r, t: seen.append(r.seq), poll_s=0.02)
     worker.start()
     try:
         deadline = time.monotonic() + 60.0
@@ -238,7 +241,10 @@ def test_pipelined_worker_publishes_every_pair_in_order_and_survives_a_bad_one(
         worker.stop()
     assert not worker.is_alive()
     assert seen == [0, 1, 3, 4, 5], "in order, the corrupt pair dropped"
-    assert stats.errors == 1 and "frame 2" in (stats.last_error or "")
+    # The frame that did not decode is the camera's fault, reported to the source, not the worker's.
+    assert [(cam, seq) for cam, seq, _ in source.undecodable] == [("right", 2)]
+    assert "frame 2" in source.undecodable[0][2] and "truncated" in source.undecodable[0][2]
+    assert stats.errors == 0 and stats.last_error is None
     assert set(stats.stage_ms) >= {"decode", "remap", "match", "refine", "filters", "depth", "total"}
     assert stats.stage_ms["decode"] > 0  # the worker decoded (the frames came undecoded)
     latest = store.latest

@@ -78,4 +78,4 @@ def test_demo_overrides_load_as_settings(tmp_path: Path) -> None:
         assert cam.kind == "file" and cam.recording == loop and cam.loop and cam.pace == 30.0
         assert cam.timestamps == "live" and cam.camera == name
     assert s.calibration.path == loop / "calibration.yaml"
-    assert s.cameras.supervisor.decode is False  # the worker decodes only the pairs it takes
+    assert s.cameras.supervisor.decode == "auto"  # the service default: nothing decoded in vain

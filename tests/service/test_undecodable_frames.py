@@ -1,0 +1,106 @@
+"""A frame that passes the capture's structural check but does not decode: file cameras →
+StereoCapture → DepthWorker, as in the service. Whichever thread decodes it (the capture's with
+``decode: true``, the worker's with ``decode: false``), it is counted against its camera, named in
+its ``last_error``, and no depth is made from it; the worker reports no error of its own."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from rig.capture.capture import StereoCapture
+from rig.capture.config import PairingConfig
+from rig.capture.frame import encoded_problem
+from rig.pipeline import DepthPipeline
+from rig.recording import RecordingWriter
+from rig.stereo import StereoParams
+from rig.vpc import VpcConfig
+from service.store import ResultStore
+from service.worker import DepthWorker
+from tests.rig.capture_fixtures import FAST_SUPERVISOR, PERIOD_NS, T0_NS, replay_config
+from tests.rig.stereo_renders import StereoShot, plane_shot
+
+PAIRS = 6
+BAD_SEQ = 3
+VPC = VpcConfig(width=320, height=240)
+
+
+def _jpeg(img: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    assert ok
+    return bytes(buf.tobytes())
+
+
+def _undecodable(data: bytes) -> bytes:
+    """The JPEG with its frame header (SOF0) saying 0×0 pixels: every marker is in place, so it
+    passes the structural check, but libjpeg refuses it."""
+    out = bytearray(data)
+    sof = out.find(b"\xff\xc0")
+    assert sof > 0
+    out[sof + 5 : sof + 9] = b"\x00\x00\x00\x00"
+    bad = bytes(out)
+    assert encoded_problem(bad, "jpeg") is None
+    assert cv2.imdecode(np.frombuffer(bad, np.uint8), cv2.IMREAD_GRAYSCALE) is None
+    return bad
+
+
+@pytest.fixture(scope="module")
+def shot() -> StereoShot:
+    return plane_shot(5.0, scale=0.5, vpc=VPC)
+
+
+@pytest.fixture(scope="module")
+def recording(shot: StereoShot, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("undecodable") / "rec"
+    left, right = _jpeg(shot.left), _jpeg(shot.right)
+    with RecordingWriter(root, meta={"source": "test"}) as w:
+        for seq in range(PAIRS):
+            ts = T0_NS + seq * PERIOD_NS
+            w.write_pair(seq, ts, ts, left, _undecodable(right) if seq == BAD_SEQ else right, ext=".jpg")
+    return root
+
+
+@pytest.fixture(scope="module")
+def pipe(shot: StereoShot, tmp_path_factory: pytest.TempPathFactory) -> DepthPipeline:
+    luts = tmp_path_factory.mktemp("lut")
+    return DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=64), cache_dir=luts)
+
+
+@pytest.mark.parametrize("decode", [False, True], ids=["worker-decodes", "capture-decodes"])
+def test_an_undecodable_frame_is_counted_against_its_camera(
+    recording: Path, pipe: DepthPipeline, decode: bool
+) -> None:
+    # Unpaced replay with back-pressure and one pair buffered: the worker takes every pair.
+    config = replay_config(
+        recording,
+        pace="fast",
+        timestamps="recorded",
+        supervisor=FAST_SUPERVISOR.model_copy(update={"decode": decode}),
+        pairing=PairingConfig(backpressure=True, pair_buffer=1),
+    )
+    seen: list[int] = []
+    capture = StereoCapture(config).start()
+    worker = DepthWorker(capture, pipe, ResultStore(), on_result=lambda r, t: seen.append(r.seq), poll_s=0.02)
+    worker.start()
+    try:
+        deadline = time.monotonic() + 60.0
+        while not (capture.finished and len(seen) >= PAIRS - 1) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        health, stats = capture.health(), worker.stats()
+    finally:
+        worker.stop()
+        capture.stop()
+    assert seen == [s for s in range(PAIRS) if s != BAD_SEQ], "no depth from the bad pair, none lost"
+    right, left = health.cameras["right"], health.cameras["left"]
+    counted = (right.frames_corrupt, right.frames_undecodable)
+    assert counted == ((1, 0) if decode else (0, 1))
+    assert (left.frames_corrupt, left.frames_undecodable) == (0, 0)
+    assert f"frame {BAD_SEQ}" in (right.last_error or "") and "does not decode" in (right.last_error or "")
+    assert right.state != "unavailable" and left.last_error is None
+    # Received: the worker only sees frames that reached pairing; the capture's decode stops it before.
+    assert right.frames_received == PAIRS - (1 if decode else 0)
+    assert stats.errors == 0 and stats.last_error is None
