@@ -98,6 +98,7 @@ function showHealth(h) {
     $(`cam-${name}-reason`).textContent = cam.connected ? "" : (cam.reason || cam.last_error || "");
     $(`cam-${name}-fps`).textContent = fmt(cam.fps, 1);
     $(`cam-${name}-dropped`).textContent = cam.frames_dropped;
+    $(`cam-${name}-broken`).textContent = cam.frames_corrupt + cam.frames_undecodable;
     $(`cam-${name}-age`).textContent =
       cam.last_frame_age_ms === null ? "–" : fmt(cam.last_frame_age_ms, 0) + " ms ago";
     $(`banner-${name}`).hidden = cam.connected;

@@ -71,6 +71,19 @@ def test_dashboard_live_in_chromium(start_server: Callable[..., LiveServer], tmp
             assert float(page.text_content("#fps") or "0") > 0
             page.screenshot(path=str(tmp_path / "dashboard-ok.png"), full_page=True)
 
+            # Three broken frames from the right camera: counted in its row, the camera stays up.
+            assert page.text_content("#cam-right-broken") == "0"
+            r = httpx.post(
+                live.base_url + "/cameras/right/faults",
+                json={"fault": {"kind": "corrupt", "count": 3}},
+                headers={"Authorization": f"Bearer {TOKEN}"},
+            )
+            assert r.status_code == 202
+            page.wait_for_function(
+                "document.getElementById('cam-right-broken').textContent === '3'", timeout=20_000
+            )
+            assert page.text_content("#cam-right-state") == "available"
+
             # Stop the left camera: the page says so, with the reason.
             r = httpx.post(
                 live.base_url + "/cameras/left/faults",
