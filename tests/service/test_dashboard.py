@@ -1,5 +1,6 @@
 """The dashboard in a real headless Chromium (Debian's, driven by Playwright): it loads, its
-images refresh, the footprint is drawn, and a stopped camera shows up as unavailable."""
+images refresh, the footprint is drawn, broken frames are counted and a stopped camera shows up
+as unavailable."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -71,29 +73,25 @@ def test_dashboard_live_in_chromium(start_server: Callable[..., LiveServer], tmp
             assert float(page.text_content("#fps") or "0") > 0
             page.screenshot(path=str(tmp_path / "dashboard-ok.png"), full_page=True)
 
+            def inject_until(camera: str, fault: dict[str, Any], element: str, text: str) -> None:
+                """Inject ``fault`` over the API and wait until the page shows ``text`` there."""
+                r = httpx.post(
+                    f"{live.base_url}/cameras/{camera}/faults",
+                    json={"fault": fault},
+                    headers={"Authorization": f"Bearer {TOKEN}"},
+                )
+                assert r.status_code == 202
+                page.wait_for_function(
+                    f"document.getElementById({element!r}).textContent === {text!r}", timeout=20_000
+                )
+
             # Three broken frames from the right camera: counted in its row, the camera stays up.
             assert page.text_content("#cam-right-broken") == "0"
-            r = httpx.post(
-                live.base_url + "/cameras/right/faults",
-                json={"fault": {"kind": "corrupt", "count": 3}},
-                headers={"Authorization": f"Bearer {TOKEN}"},
-            )
-            assert r.status_code == 202
-            page.wait_for_function(
-                "document.getElementById('cam-right-broken').textContent === '3'", timeout=20_000
-            )
+            inject_until("right", {"kind": "corrupt", "count": 3}, "cam-right-broken", "3")
             assert page.text_content("#cam-right-state") == "available"
 
             # Stop the left camera: the page says so, with the reason.
-            r = httpx.post(
-                live.base_url + "/cameras/left/faults",
-                json={"fault": {"kind": "disconnect", "duration_s": 120}},
-                headers={"Authorization": f"Bearer {TOKEN}"},
-            )
-            assert r.status_code == 202
-            page.wait_for_function(
-                "document.getElementById('cam-left-state').textContent === 'unavailable'", timeout=20_000
-            )
+            inject_until("left", {"kind": "disconnect", "duration_s": 120}, "cam-left-state", "unavailable")
             assert "disconnected" in (page.text_content("#cam-left-reason") or "")
             assert page.is_visible("#banner-left") and not page.is_visible("#banner-right")
             assert page.text_content("#cam-right-state") == "available"
