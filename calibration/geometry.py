@@ -7,6 +7,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "invert_transform",
+    "is_rotation",
     "make_transform",
     "rot_x",
     "rot_y",
@@ -56,6 +57,15 @@ def transform_points(T: ArrayLike, points: ArrayLike) -> F64:
     T = np.asarray(T, dtype=np.float64)
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     return p @ T[:3, :3].T + T[:3, 3]
+
+
+def is_rotation(R: ArrayLike, tol: float = 1e-6) -> bool:
+    """Whether R (3, 3) is a proper rotation: orthonormal within ``tol`` (``np.allclose``), det +1.
+    Entries beyond 1 + tol are refused first: R Rᵀ of a malformed file's 1e200 would overflow."""
+    R = np.asarray(R, dtype=np.float64)
+    return bool(
+        np.abs(R).max() <= 1.0 + tol and np.allclose(R @ R.T, np.eye(3), atol=tol) and np.linalg.det(R) > 0
+    )
 
 
 def rotation_angle(R: ArrayLike) -> float:

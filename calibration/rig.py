@@ -10,10 +10,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from calibration.errors import ModelError
-from calibration.geometry import invert_transform
+from calibration.geometry import invert_transform, is_rotation
 from calibration.models import CameraModel
 
-__all__ = ["MAX_TRANSLATION", "Rig"]
+__all__ = ["MAX_TRANSLATION", "Rig", "translation_problem"]
 
 F64 = NDArray[np.float64]
 
@@ -23,13 +23,22 @@ F64 = NDArray[np.float64]
 MAX_TRANSLATION = 1e6
 
 
+def translation_problem(t: F64) -> str | None:
+    """What is wrong with the translation ``t`` (3,) of a pose, or None: an entry beyond
+    ±MAX_TRANSLATION. (File readers name the field; the rig's checks say which pose.)"""
+    if np.abs(t).max() <= MAX_TRANSLATION:
+        return None
+    return (
+        f"translation {[float(f'{x:.6g}') for x in t]} is beyond ±{MAX_TRANSLATION:g} "
+        "(a stereo rig's cameras are centimetres apart)"
+    )
+
+
 def _check_translation(t: F64, what: str) -> None:
-    """ModelError unless every entry of the translation ``t`` (3,) is within ±MAX_TRANSLATION."""
-    if np.abs(t).max() > MAX_TRANSLATION:
-        raise ModelError(
-            f"{what} translation {[float(f'{x:.6g}') for x in t]} is beyond ±{MAX_TRANSLATION:g} "
-            "(a stereo rig's cameras are centimetres apart)"
-        )
+    """ModelError naming ``what`` unless the translation ``t`` (3,) is in range."""
+    problem = translation_problem(t)
+    if problem is not None:
+        raise ModelError(f"{what} {problem}")
 
 
 @dataclass
@@ -46,12 +55,7 @@ class Rig:
             T = np.asarray(T, dtype=np.float64)
             if T.shape != (4, 4) or not np.isfinite(T).all():
                 raise ModelError(f"T_rig_cam of camera '{name}' must be a finite 4x4 matrix")
-            R = T[:3, :3]
-            if (
-                np.abs(R).max() > 1.0 + 1e-6
-                or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
-                or np.linalg.det(R) < 0
-            ):
+            if not is_rotation(T[:3, :3]):
                 raise ModelError(f"T_rig_cam of camera '{name}' is not a rigid transform")
             if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]):
                 raise ModelError(f"T_rig_cam of camera '{name}' must end with row [0, 0, 0, 1]")
@@ -105,11 +109,7 @@ class Rig:
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise ModelError("T_right_left must be a finite 4x4 matrix")
         R, t = T[:3, :3], T[:3, 3]
-        if (
-            np.abs(R).max() > 1.0 + 1e-6
-            or not np.allclose(R @ R.T, np.eye(3), atol=1e-6)
-            or np.linalg.det(R) <= 0
-        ):
+        if not is_rotation(R):
             raise ModelError("T_right_left is not a rigid transform")
         _check_translation(t, "T_right_left:")
         # Everything below is expressed in the left camera's frame.

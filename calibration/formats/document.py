@@ -22,8 +22,9 @@ import yaml
 from numpy.typing import NDArray
 
 from calibration.errors import CalibrationFileError
+from calibration.geometry import is_rotation
 from calibration.models.base import MAX_IMAGE_SIZE_PX
-from calibration.rig import MAX_TRANSLATION
+from calibration.rig import translation_problem
 
 __all__ = ["MAX_FILE_BYTES", "Document", "Field", "TaggedMatrix", "read_document"]
 
@@ -369,11 +370,9 @@ class Field:
         """A rigid 4x4 transform: orthonormal rotation with det +1, last row [0, 0, 0, 1]."""
         T = self.matrix((4, 4))
         check_rigid(self, T[:3, :3])
-        if np.abs(T[:3, 3]).max() > MAX_TRANSLATION:
-            raise self.error(
-                f"translation {[float(f'{x:.6g}') for x in T[:3, 3]]} is beyond ±{MAX_TRANSLATION:g} "
-                "(a stereo rig's cameras are centimetres apart)"
-            )
+        problem = translation_problem(T[:3, 3])
+        if problem is not None:
+            raise self.error(problem)
         if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
             raise self.error("last row must be [0, 0, 0, 1]")
         return T
@@ -386,12 +385,7 @@ class Field:
 
 def check_rigid(field: Field, R: F64) -> None:
     """Raise naming ``field`` unless R (3, 3) is a proper rotation."""
-    # Entries of a rotation are at most 1: checked first, R Rᵀ of huge entries would overflow.
-    if (
-        np.abs(R).max() > 1.0 + _ROTATION_TOL
-        or not np.allclose(R @ R.T, np.eye(3), atol=_ROTATION_TOL)
-        or np.linalg.det(R) <= 0
-    ):
+    if not is_rotation(R, _ROTATION_TOL):
         raise field.error("rotation part is not a proper rotation matrix (orthonormal, det +1)")
 
 
