@@ -6,8 +6,9 @@
 
 ``process`` is three stages that a pipelined caller (the service's worker) may run on three
 threads, frame N+1's stage 1 while frame N is in stage 2 or 3: :meth:`rectify` (LUT remap + gray;
-thread-safe), :meth:`match` (the OpenCV matcher; serialised) and :meth:`finish` (refinement,
-filters, confidence, depth; serialised, in frame order for the temporal filter).
+thread-safe), :meth:`match` (the OpenCV matcher's parallel part; serialised) and :meth:`finish`
+(its speckle removal, refinement, filters, confidence, depth; serialised, in frame order for the
+temporal filter).
 
 Thread safety: ``process`` may be called from several threads (a lock serialises them);
 ``update_stereo`` may be called from any thread: it builds a new matcher and swaps it in
@@ -37,8 +38,8 @@ from rig.filters import TemporalFilter, fill_where, median_filter, visible_in_ri
 from rig.heap import tune_allocator
 from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
-from rig.stereo import StereoMatcher, StereoParams
-from rig.subpixel import confidence_from_sigma, refine_rows, refinement_inputs
+from rig.stereo import DisparityResult, StereoMatcher, StereoParams, UnfilteredDisparity
+from rig.subpixel import Normalisation, confidence_from_sigma, refine_rows, refinement_inputs
 from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
 
 __all__ = ["DepthFrame", "DepthPipeline", "MatchedPair", "RectifiedPair", "tune_allocator"]
@@ -109,13 +110,13 @@ class RectifiedPair:
 
 @dataclass
 class MatchedPair:
-    """Output of :meth:`DepthPipeline.match`: raw disparity (H, W) float32 px (NaN invalid),
-    its mask, and the matcher that made it (its parameters drive :meth:`DepthPipeline.finish`)."""
+    """Output of :meth:`DepthPipeline.match`: the matcher's output before its speckle removal
+    and the matcher that made it (its parameters drive :meth:`DepthPipeline.finish`, which
+    removes the speckles in place: a second ``finish`` of the same pair finds none left)."""
 
     rectified: RectifiedPair
     matcher: StereoMatcher
-    disparity: F32
-    valid: NDArray[np.bool_]
+    unfiltered: UnfilteredDisparity
     match_ms: float
 
 
@@ -274,26 +275,32 @@ class DepthPipeline:
         return RectifiedPair(left_vpc, right_vpc, left_gray, right_gray, (time.perf_counter() - t0) * 1e3)
 
     def match(self, rect: RectifiedPair) -> MatchedPair:
-        """Stage 2 of :meth:`process`: raw disparity of the current matcher, LUT masks applied.
+        """Stage 2 of :meth:`process`: the current matcher's OpenCV call (its parallel part; the
+        speckle removal after it is :meth:`finish`'s, so that it overlaps the next pair's call).
         Callers are serialised (an OpenCV matcher keeps scratch buffers)."""
         with self._match_lock:
             with self._swap_lock:
                 matcher = self._matcher
             t0 = time.perf_counter()
-            raw = matcher.match(rect.left_gray, rect.right_gray)
-            disparity, valid = raw.disparity, raw.valid
-            if self._left_mask is not None:
-                valid &= self._left_mask
-            if self._right_mask is not None:
-                valid = visible_in_right(disparity, valid, self._right_mask)
-            if self._left_mask is not None or self._right_mask is not None:
-                fill_where(disparity, np.nan, ~valid)
-            return MatchedPair(rect, matcher, disparity, valid, (time.perf_counter() - t0) * 1e3)
+            unfiltered = matcher.compute(rect.left_gray, rect.right_gray)
+            return MatchedPair(rect, matcher, unfiltered, (time.perf_counter() - t0) * 1e3)
+
+    def _disparity(self, matched: MatchedPair) -> DisparityResult:
+        """The matcher's disparity of ``matched`` (speckles removed), LUT masks applied."""
+        raw = matched.matcher.finish(matched.unfiltered)
+        disparity, valid = raw.disparity, raw.valid
+        if self._left_mask is not None:
+            valid &= self._left_mask
+        if self._right_mask is not None:
+            valid = visible_in_right(disparity, valid, self._right_mask)
+        if self._left_mask is not None or self._right_mask is not None:
+            fill_where(disparity, np.nan, ~valid)
+        return DisparityResult(disparity, valid)
 
     def finish(self, matched: MatchedPair, seq: int = 0, ts_ns: int = 0) -> DepthFrame:
-        """Stage 3 of :meth:`process`: refinement, filters, confidence and depth with the
-        parameters of the matcher that made ``matched``. Call in frame order (the temporal
-        filter's history); callers are serialised.
+        """Stage 3 of :meth:`process`: the matcher's speckle removal, then refinement, filters,
+        confidence and depth with the parameters of the matcher that made ``matched``. Call in
+        frame order (the temporal filter's history); callers are serialised.
 
         Everything but the temporal filter is row-local, so it runs in horizontal bands across
         the cores (:func:`rig.bands.run_in_bands`, margins so every row sees what one pass would
@@ -303,17 +310,26 @@ class DepthPipeline:
         with self._finish_lock:
             p = matched.matcher.params
             rect = matched.rectified
-            disparity, valid = matched.disparity, matched.valid
-            h = disparity.shape[0]
             pool = refine_pool()
-            t0 = time.perf_counter()
             refine = p.subpixel or p.confidence
+            t0 = time.perf_counter()
+            # The refinement's image normalisation needs no disparity: it runs on the pool
+            # while this thread removes the matcher's speckles (single-threaded).
+            normalised = Normalisation(rect.left_gray, rect.right_gray, pool) if refine else None
+            t_norm = time.perf_counter()
+            raw = self._disparity(matched)
+            disparity, valid = raw.disparity, raw.valid
+            h = disparity.shape[0]
+            t_raw = time.perf_counter()
+            match_ms = matched.match_ms + (t_raw - t_norm) * 1e3
             margin = (p.subpixel_window // 2 if refine else 0) + p.median // 2
             cols = _active_columns(valid, margin)
             inputs = None
             if refine:
-                inputs = refinement_inputs(rect.left_gray, rect.right_gray, disparity, pool, cols=cols)
-            prep_ms = (time.perf_counter() - t0) * 1e3
+                inputs = refinement_inputs(
+                    rect.left_gray, rect.right_gray, disparity, cols=cols, normalised=normalised
+                )
+            prep_ms = (time.perf_counter() - t_raw + t_norm - t0) * 1e3
             temporal = p.temporal_alpha > 0.0
             if matched.matcher is not self._temporal_owner:
                 # New parameters: history made under the old ones is not averaged in.
@@ -366,7 +382,7 @@ class DepthPipeline:
                 stage["filters"] += (time.perf_counter() - t3) * 1e3
                 for key, ms in self._depth_rows(out, 0, h).items():
                     stage[key] += ms
-        timings = {"remap": rect.remap_ms, "match": matched.match_ms, **stage}
+        timings = {"remap": rect.remap_ms, "match": match_ms, **stage}
         # Processing time, not wall time: pipelined stages may wait between each other.
         timings["total"] = sum(timings.values())
         return DepthFrame(

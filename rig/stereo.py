@@ -33,7 +33,14 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from rig.errors import PipelineError
 from rig.filters import fill_where, left_right_consistent
 
-__all__ = ["SGBM_MODES", "DisparityResult", "StereoMatcher", "StereoParams", "create_opencv_matcher"]
+__all__ = [
+    "SGBM_MODES",
+    "DisparityResult",
+    "StereoMatcher",
+    "StereoParams",
+    "UnfilteredDisparity",
+    "create_opencv_matcher",
+]
 
 U8 = NDArray[np.uint8]
 F32 = NDArray[np.float32]
@@ -124,6 +131,17 @@ class DisparityResult:
     valid: NDArray[np.bool_]
 
 
+@dataclass
+class UnfilteredDisparity:
+    """OpenCV's fixed-point disparities of one pair (1/16 px, int16) before the speckle removal:
+    the left view's (H, W) and, with ``lr_check``, the mirrored pair's (H, W), still mirrored.
+    Made by :meth:`StereoMatcher.compute`, turned into a :class:`DisparityResult` by
+    :meth:`StereoMatcher.finish`."""
+
+    left: NDArray[np.int16]
+    mirrored: NDArray[np.int16] | None = None
+
+
 def create_opencv_matcher(p: StereoParams) -> Any:
     """The bare OpenCV matcher (``cv2.StereoBM`` or ``cv2.StereoSGBM``) configured by ``p``."""
     if p.stereo_algorithm == 0:
@@ -157,17 +175,32 @@ def create_opencv_matcher(p: StereoParams) -> Any:
 class StereoMatcher:
     """OpenCV matcher built from :class:`StereoParams`; ``match`` runs it (and the LR check).
 
-    Not safe for concurrent ``match`` calls (OpenCV matchers keep scratch buffers); the
-    pipeline swaps whole instances instead of mutating one.
+    ``match`` is :meth:`compute` (the OpenCV matcher's parallel part) then :meth:`finish` (SGBM's
+    speckle removal, single-threaded, and the float conversion), so that a pipelined caller can
+    run the next pair's ``compute`` while this one is finished. ``StereoSGBM.compute`` ends with
+    that same ``filterSpeckles`` call on one core (~10 ms of a 1280×960 frame); the result is the
+    bare matcher's bit for bit (tested for every mode).
+
+    ``compute`` is not safe for concurrent calls (OpenCV matchers keep scratch buffers); the
+    pipeline swaps whole instances instead of mutating one. ``finish`` is.
     """
 
     def __init__(self, params: StereoParams | None = None) -> None:
         self.params = params or StereoParams()
-        self._matcher = create_opencv_matcher(self.params)
-        self._right_matcher: Any = None
+        # SGBM's speckles are removed in finish(), so OpenCV's own pass is off. StereoBM's pass
+        # differs from a later filterSpeckles call (it is cheap there anyway): BM keeps its own.
+        self._deferred_speckles = self.params.stereo_algorithm == 1 and self.params.speckle_size > 0
+        deferred = {"speckle_size": 0} if self._deferred_speckles else {}
+        self._matcher = create_opencv_matcher(self.params.model_copy(update=deferred))
 
-    def raw(self, left: U8, right: U8) -> NDArray[np.int16]:
-        """OpenCV's fixed-point disparity (H, W) int16 in 1/16 px."""
+    def _compute(self, left: U8, right: U8) -> NDArray[np.int16]:
+        try:
+            out: NDArray[np.int16] = self._matcher.compute(left, right)
+        except cv2.error as err:
+            raise PipelineError(f"stereo matcher refused the pair: {' '.join(str(err).split())}") from err
+        return out
+
+    def _check(self, left: U8, right: U8) -> None:
         if left.shape != right.shape or left.ndim != 2 or left.dtype != np.uint8:
             raise PipelineError(
                 f"matcher needs two gray uint8 images of one size, got {left.shape}/{left.dtype} "
@@ -178,35 +211,66 @@ class StereoMatcher:
                 f"image width {left.shape[1]} leaves no column for disparity_range "
                 f"{self.params.disparity_range} + min_disparity {self.params.min_disparity}"
             )
-        try:
-            out: NDArray[np.int16] = self._matcher.compute(left, right)
-        except cv2.error as err:
-            raise PipelineError(f"stereo matcher refused the pair: {' '.join(str(err).split())}") from err
+
+    def compute(self, left: U8, right: U8) -> UnfilteredDisparity:
+        """The OpenCV matcher on gray images (H, W) uint8 (and on the mirrored pair with
+        ``lr_check``), speckles not yet removed."""
+        self._check(left, right)
+        mirrored = self._compute_mirrored(left, right) if self.params.lr_check else None
+        return UnfilteredDisparity(self._compute(left, right), mirrored)
+
+    def _compute_mirrored(self, left: U8, right: U8) -> NDArray[np.int16]:
+        # In mirrored images the right view becomes the reference.
+        return self._compute(np.ascontiguousarray(right[:, ::-1]), np.ascontiguousarray(left[:, ::-1]))
+
+    def remove_speckles(self, fixed: NDArray[np.int16]) -> None:
+        """OpenCV's speckle removal on a fixed-point disparity (H, W) int16 from :meth:`compute`,
+        in place: the pass ``StereoSGBM`` makes at the end of its ``compute`` when
+        ``speckle_size`` > 0 (``StereoBM`` makes its own in :meth:`compute`)."""
+        p = self.params
+        if self._deferred_speckles:
+            cv2.filterSpeckles(fixed, (p.min_disparity - 1) * 16, p.speckle_size, 16 * p.speckle_range)
+
+    def raw(self, left: U8, right: U8) -> NDArray[np.int16]:
+        """OpenCV's fixed-point disparity (H, W) int16 in 1/16 px: the bare matcher's output."""
+        self._check(left, right)
+        out = self._compute(left, right)
+        self.remove_speckles(out)
         return out
 
-    def match(self, left: U8, right: U8) -> DisparityResult:
+    def finish(self, unfiltered: UnfilteredDisparity) -> DisparityResult:
         """Disparity of the left image (H, W) float32 px, NaN where the matcher gave none;
-        with ``lr_check`` also NaN where the right image's disparity disagrees."""
-        fixed = self.raw(left, right)
+        with ``lr_check`` also NaN where the right image's disparity disagrees. Consumes
+        ``unfiltered`` (its arrays are filtered in place)."""
+        fixed = unfiltered.left
+        self.remove_speckles(fixed)
         valid = fixed >= self.params.min_disparity * 16
         disp = fixed.astype(np.float32)
         disp *= np.float32(1.0 / 16.0)
-        if self.params.lr_check:
-            right_disp = self.right_disparity(left, right)
+        if unfiltered.mirrored is not None:
+            right_disp = self._right_from_mirrored(unfiltered.mirrored)
             # Mirrored, the right view's unmatched band (the first min + range columns) is on
             # the right: no evidence there.
-            blind = left.shape[1] - (self.params.min_disparity + self.params.disparity_range)
+            blind = fixed.shape[1] - (self.params.min_disparity + self.params.disparity_range)
             valid &= left_right_consistent(disp, valid, right_disp, self.params.lr_max_diff, blind)
         # OpenCV's masked copy: numpy's boolean assignment branches per pixel (~6 ms on a
         # 1280×960 frame against ~0.3), and this is on every frame's critical path.
         fill_where(disp, np.nan, ~valid)
         return DisparityResult(disp, valid)
 
-    def right_disparity(self, left: U8, right: U8) -> F32:
-        """Disparity of the right image (H, W) float32 px (NaN invalid), by matching the
-        mirrored pair: in mirrored images the right view becomes the reference."""
-        flipped = self.raw(np.ascontiguousarray(right[:, ::-1]), np.ascontiguousarray(left[:, ::-1]))
-        fixed = flipped[:, ::-1]
+    def match(self, left: U8, right: U8) -> DisparityResult:
+        """:meth:`compute` then :meth:`finish`."""
+        return self.finish(self.compute(left, right))
+
+    def _right_from_mirrored(self, mirrored: NDArray[np.int16]) -> F32:
+        self.remove_speckles(mirrored)
+        fixed = mirrored[:, ::-1]
         disp = fixed.astype(np.float32) * np.float32(1.0 / 16.0)
         fill_where(disp, np.nan, fixed < self.params.min_disparity * 16)
         return disp
+
+    def right_disparity(self, left: U8, right: U8) -> F32:
+        """Disparity of the right image (H, W) float32 px (NaN invalid), by matching the
+        mirrored pair: in mirrored images the right view becomes the reference."""
+        self._check(left, right)
+        return self._right_from_mirrored(self._compute_mirrored(left, right))

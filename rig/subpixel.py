@@ -26,7 +26,7 @@ least-squares prediction of the disparity's standard deviation ``σ_d = sqrt(Σ_
 from __future__ import annotations
 
 import functools
-from concurrent.futures import Executor
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass
 
 import cv2
@@ -37,6 +37,7 @@ from rig.bands import run_in_bands
 from rig.filters import copy_where, fill_where
 
 __all__ = [
+    "Normalisation",
     "Refinement",
     "RefinementInputs",
     "confidence_from_sigma",
@@ -144,23 +145,40 @@ class RefinementInputs:
         )
 
 
+class Normalisation:
+    """Both gray images' local contrast normalisation, started at construction: on a ``pool``
+    (both images at once, while the caller does something else) or else here. :meth:`result`
+    gives (L, R) (H, W) float32."""
+
+    def __init__(self, left: U8, right: U8, pool: Executor | None = None) -> None:
+        self._pending: list[Future[F32] | F32] = []
+        for img in (left, right):
+            try:
+                self._pending.append(_normalise(img) if pool is None else pool.submit(_normalise, img))
+            except RuntimeError:  # the pool was shut down (replaced) meanwhile
+                self._pending.append(_normalise(img))
+
+    def result(self) -> tuple[F32, F32]:
+        L, R = (p.result() if isinstance(p, Future) else p for p in self._pending)
+        return L, R
+
+
 def refinement_inputs(
-    left: U8, right: U8, disparity: F32, pool: Executor | None = None, *, cols: slice = slice(None)
+    left: U8,
+    right: U8,
+    disparity: F32,
+    pool: Executor | None = None,
+    *,
+    cols: slice = slice(None),
+    normalised: Normalisation | None = None,
 ) -> RefinementInputs:
     """:class:`RefinementInputs` for gray VPC images (H, W) uint8 and the matcher's disparity;
-    with a ``pool`` the two images are normalised in parallel. ``cols`` (step 1): the columns to
+    with a ``pool`` the two images are normalised in parallel, unless ``normalised`` (their
+    :class:`Normalisation`, started earlier) is given. ``cols`` (step 1): the columns to
     refine, of which ``L``, ``gL`` and ``d_clean`` are made. (The images are normalised whole:
     OpenCV's box filter rounds its last few columns differently from the rest, so a window of
     them would not be exactly the whole frame's.)"""
-    if pool is None:
-        L, R = _normalise(left), _normalise(right)
-    else:
-        try:
-            right_future = pool.submit(_normalise, right)
-        except RuntimeError:  # the pool was shut down (replaced) meanwhile
-            return refinement_inputs(left, right, disparity, cols=cols)
-        L = _normalise(left)
-        R = right_future.result()
+    L, R = (normalised or Normalisation(left, right, pool)).result()
     d_clean: F32 = np.asarray(cv2.patchNaNs(disparity[:, cols].copy(), 0.0), dtype=np.float32)  # NaN -> 0
     x0 = cols.indices(left.shape[1])[0]
     return RefinementInputs(L[:, cols], R, _x_derivative(L)[:, cols], _x_derivative(R), d_clean, x0)

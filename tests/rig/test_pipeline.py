@@ -86,7 +86,7 @@ def test_finish_on_the_active_columns_is_exactly_the_whole_frame(
     its first disparity_range columns invalid): bit for bit what the whole frame gives."""
     pipe = DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=64, **stereo), cache_dir=tmp_path)  # type: ignore[arg-type]
     matched = pipe.match(pipe.rectify(shot.left, shot.right))
-    cols = pipeline_module._active_columns(matched.valid, 9)
+    cols = pipeline_module._active_columns(pipe._disparity(matched).valid, 9)
     assert cols.start >= 64 - 9, "nothing to leave out"
     window = [pipe.finish(matched, i) for i in range(2)]
     monkeypatch.setattr(pipeline_module, "_active_columns", lambda valid, margin: slice(0, valid.shape[1]))

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from rig.errors import PipelineError
+from rig.filters import left_right_consistent
 from rig.stereo import SGBM_MODES, StereoMatcher, StereoParams, create_opencv_matcher
 from rig.subpixel import confidence_from_sigma, refine_disparity, refine_rows, refinement_inputs
 
@@ -134,6 +135,64 @@ def test_disparity_is_opencvs_fixed_point_with_nan_exactly_where_invalid(min_dis
         np.ascontiguousarray(right[:, ::-1]), np.ascontiguousarray(left[:, ::-1])
     )[:, ::-1]
     np.testing.assert_array_equal(np.isnan(right_disp), flipped < min_disparity * 16)
+
+
+def speckled_pair() -> tuple[U8, U8]:
+    """A shifted pair (disparity 19.3) with 8×8 patches of the left image copied from the right
+    one 45 px away: small blobs of a consistent wrong disparity, speckles for the matcher's
+    speckle removal to remove."""
+    left, right = shifted_pair(19.3, h=160, w=260, noise=2.0)
+    rng = np.random.default_rng(7)
+    left = left.copy()
+    for y, x in rng.integers((10, 110), (140, 240), size=(30, 2)):
+        left[y : y + 8, x : x + 8] = right[y : y + 8, x - 45 : x - 37]
+    return left, right
+
+
+@pytest.mark.parametrize(
+    "stereo",
+    [
+        {"stereo_algorithm": 0, "correlation_window_size": 9},
+        *({"sgbm_mode": mode} for mode in SGBM_MODES),
+        {"min_disparity": -8, "speckle_size": 40, "speckle_range": 4},
+        {"min_disparity": 4, "speckle_size": 200, "speckle_range": 1},
+        {"lr_check": True},
+    ],
+    ids=lambda s: ",".join(f"{k}={v}" for k, v in s.items()),
+)
+def test_speckles_removed_after_compute_are_the_bare_matchers(stereo: dict[str, object]) -> None:
+    """:meth:`StereoMatcher.compute` leaves SGBM's speckle removal to
+    :meth:`~StereoMatcher.finish` (so a pipeline overlaps it with the next pair's match): the
+    result is the bare OpenCV matcher's, bit for bit, for every matcher."""
+    left, right = speckled_pair()
+    params = StereoParams(disparity_range=64, **stereo)
+    bare = create_opencv_matcher(params).compute(left, right)
+    matcher = StereoMatcher(params)
+    unfiltered = matcher.compute(left, right)
+    removed = (unfiltered.left != bare).sum()
+    if params.stereo_algorithm == 0:
+        assert removed == 0, "StereoBM removes its speckles itself"
+        without = create_opencv_matcher(params.model_copy(update={"speckle_size": 0}))
+        removed = (without.compute(left, right) != bare).sum()
+    assert removed > 50, "no speckles to remove: the test pair proves nothing"
+    np.testing.assert_array_equal(matcher.raw(left, right), bare)
+    res = matcher.finish(unfiltered)
+    filtered = unfiltered.left.copy()  # finish filtered it in place; a second pass changes nothing
+    matcher.remove_speckles(unfiltered.left)
+    np.testing.assert_array_equal(unfiltered.left, filtered)
+    valid = bare >= params.min_disparity * 16
+    disparity = bare / np.float32(16.0)
+    if params.lr_check:  # against the bare matcher's view of the mirrored pair
+        mirrored = create_opencv_matcher(params).compute(
+            np.ascontiguousarray(right[:, ::-1]), np.ascontiguousarray(left[:, ::-1])
+        )[:, ::-1]
+        right_disp = np.where(mirrored >= params.min_disparity * 16, mirrored / np.float32(16.0), np.nan)
+        np.testing.assert_array_equal(matcher.right_disparity(left, right), right_disp)
+        blind = left.shape[1] - params.disparity_range
+        valid &= left_right_consistent(disparity, valid, right_disp.astype(np.float32), 1.0, blind)
+    np.testing.assert_array_equal(res.valid, valid)
+    np.testing.assert_array_equal(res.disparity[valid], disparity[valid])
+    assert np.isnan(res.disparity[~valid]).all()
 
 
 def test_matcher_rejects_bad_images() -> None:
