@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from calibration.geometry import is_rotation
 from calibration.models import CameraModel, PinholeModel
 from rig.errors import LutError
 
@@ -93,7 +94,7 @@ def _check_rotation(R_cam_vpc: ArrayLike) -> F64:
     R = np.asarray(R_cam_vpc, dtype=np.float64)
     if R.shape != (3, 3) or not np.isfinite(R).all():
         raise LutError(f"R_cam_vpc must be a finite 3x3 rotation, got shape {R.shape}")
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+    if not is_rotation(R):
         raise LutError("R_cam_vpc is not a rotation matrix")
     return R
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from calibration.geometry import is_rotation
 from calibration.models import CameraModel
 from rig.errors import SimulationError
 from rig.sim.rays import camera_rays
@@ -83,7 +84,7 @@ def _check(
     if T.shape != (4, 4) or not np.isfinite(T).all():
         raise SimulationError(f"render: T_world_cam must be a finite 4x4 matrix, got shape {T.shape}")
     R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
+    if not is_rotation(R):
         raise SimulationError("render: T_world_cam is not a rigid transform")
     if isinstance(supersample, bool) or int(supersample) != supersample or not (1 <= supersample <= 16):
         raise SimulationError(f"render: supersample must be an integer in [1, 16], got {supersample!r}")

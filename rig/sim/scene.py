@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from calibration.geometry import make_transform, rot_y
+from calibration.geometry import is_rotation, make_transform, rot_y
 from rig.errors import SimulationError
 from rig.sim.textures import CheckerTexture, Texture, make_texture, texture_name
 
@@ -55,7 +55,7 @@ class TexturedRect:
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise SimulationError(f"rect {self.name!r}: T_world_rect must be a finite 4x4 matrix")
         R = T[:3, :3]
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-9) or np.linalg.det(R) <= 0:
+        if not is_rotation(R, tol=1e-9):
             raise SimulationError(f"rect {self.name!r}: T_world_rect is not a rigid transform")
         w, h = (float(v) for v in self.size_m)
         if not (w > 0 and h > 0 and math.isfinite(w) and math.isfinite(h)):

@@ -182,9 +182,12 @@ def test_vpc_that_sees_nothing_of_the_lens_is_an_error() -> None:
         build_vpc_lut(kb190(), rot_y(math.pi), vpc(64, 48, 60.0))
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_bad_rotation_is_an_error() -> None:
     with pytest.raises(LutError, match="rotation"):
         build_vpc_lut(kb190(), np.diag([1.0, 1.0, -1.0]), vpc(64, 48, 60.0))
+    with pytest.raises(LutError, match="rotation"):  # R·Rᵀ would overflow: refused before
+        build_vpc_lut(kb190(), np.full((3, 3), 1e200), vpc(64, 48, 60.0))
     with pytest.raises(LutError, match="3x3"):
         vpc_rays(vpc(64, 48, 60.0), np.eye(4))
 

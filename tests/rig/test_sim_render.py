@@ -261,6 +261,7 @@ def test_chessboard_corners_layout() -> None:
     )
 
 
+@pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_render_rejects_bad_arguments() -> None:
     cam = pinhole()
     scene = plane_scene(1.0, texture_px=64)
@@ -277,6 +278,10 @@ def test_render_rejects_bad_arguments() -> None:
         render(scene, cam, np.eye(3))
     with pytest.raises(SimulationError, match="rigid"):
         render(scene, cam, np.diag([2.0, 1.0, 1.0, 1.0]))
+    with pytest.raises(SimulationError, match="rigid"):
+        render(scene, cam, np.diag([1e200, 1e200, 1e200, 1.0]))
+    with pytest.raises(SimulationError, match="rigid"):
+        TexturedRect(np.diag([1e200, 1.0, 1.0, 1.0]), (1.0, 1.0), scene.rects[0].texture, "huge")
     with pytest.raises(SimulationError):
         plane_scene(-1.0)
     with pytest.raises(SimulationError):
