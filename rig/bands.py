@@ -7,9 +7,12 @@ shortens a stage on every frame's critical path (its CPU time stays the same, pl
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import Executor
+from concurrent.futures import Executor, Future
+from typing import Any, TypeVar
 
-__all__ = ["BandFn", "run_in_bands"]
+__all__ = ["BandFn", "run_in_bands", "submit_or_run"]
+
+T = TypeVar("T")
 
 BandFn = Callable[[int, int, int, int], None]
 """``fn(a, b, r0, r1)``: compute output rows ``[r0, r1)`` from input rows ``[a, b)``."""
@@ -29,14 +32,26 @@ def run_in_bands(fn: BandFn, height: int, bands: int, margin: int, pool: Executo
         (max(0, r0 - margin), min(height, r0 + step + margin), r0, min(height, r0 + step))
         for r0 in range(0, height, step)
     ]
-    futures = []
-    for span in spans[:-1]:
-        try:
-            futures.append(pool.submit(fn, *span))
-        except RuntimeError:  # the pool was shut down (replaced) meanwhile: do it here
-            fn(*span)
+    futures = [submit_or_run(pool, fn, *span) for span in spans[:-1]]
     try:
         fn(*spans[-1])
     finally:
         for future in futures:
             future.result()
+
+
+def submit_or_run(pool: Executor | None, fn: Callable[..., T], *args: Any) -> Future[T]:
+    """``pool.submit(fn, *args)``; or, with no pool or one shut down meanwhile (the finish
+    stage's pool is replaced when the depth threads' priority changes), ``fn(*args)`` run here,
+    its result or exception in a done future."""
+    if pool is not None:
+        try:
+            return pool.submit(fn, *args)
+        except RuntimeError:
+            pass
+    done: Future[T] = Future()
+    try:
+        done.set_result(fn(*args))
+    except Exception as err:
+        done.set_exception(err)
+    return done

@@ -26,14 +26,14 @@ least-squares prediction of the disparity's standard deviation ``σ_d = sqrt(Σ_
 from __future__ import annotations
 
 import functools
-from concurrent.futures import Executor, Future
+from concurrent.futures import Executor
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from rig.bands import run_in_bands
+from rig.bands import run_in_bands, submit_or_run
 from rig.filters import copy_where, fill_where
 
 __all__ = [
@@ -151,16 +151,11 @@ class Normalisation:
     gives (L, R) (H, W) float32."""
 
     def __init__(self, left: U8, right: U8, pool: Executor | None = None) -> None:
-        self._pending: list[Future[F32] | F32] = []
-        for img in (left, right):
-            try:
-                self._pending.append(_normalise(img) if pool is None else pool.submit(_normalise, img))
-            except RuntimeError:  # the pool was shut down (replaced) meanwhile
-                self._pending.append(_normalise(img))
+        self._left = submit_or_run(pool, _normalise, left)
+        self._right = submit_or_run(pool, _normalise, right)
 
     def result(self) -> tuple[F32, F32]:
-        L, R = (p.result() if isinstance(p, Future) else p for p in self._pending)
-        return L, R
+        return self._left.result(), self._right.result()
 
 
 def refinement_inputs(

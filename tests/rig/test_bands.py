@@ -1,5 +1,5 @@
 """rig.bands.run_in_bands: every output row exactly once, margins clipped to the image, and the
-work still done when the pool has been shut down (replaced) meanwhile."""
+work still done when the pool has been shut down (replaced) meanwhile; submit_or_run likewise."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from rig.bands import run_in_bands
+from rig.bands import run_in_bands, submit_or_run
 
 
 def _record(height: int, bands: int, margin: int, pool: ThreadPoolExecutor | None) -> list[tuple[int, ...]]:
@@ -42,3 +42,22 @@ def test_a_shut_down_pool_still_gets_every_band_done() -> None:
     pool.shutdown()
     calls = _record(100, 4, 3, pool)
     assert [c[2:] for c in calls] == [(0, 25), (25, 50), (50, 75), (75, 100)]
+
+
+def test_submit_or_run_runs_here_without_a_live_pool() -> None:
+    def where(x: int) -> tuple[int, str]:
+        return x * 2, threading.current_thread().name
+
+    with ThreadPoolExecutor(1, thread_name_prefix="pool") as pool:
+        assert submit_or_run(pool, where, 3).result() == (6, "pool_0")
+    here = threading.current_thread().name
+    for gone in (None, pool):  # no pool; the pool shut down
+        done = submit_or_run(gone, where, 4)
+        assert done.done() and done.result() == (8, here)
+
+    def fail() -> None:
+        raise ValueError("bad band")
+
+    failed = submit_or_run(None, fail)  # raised where the result is asked for, as from a pool
+    with pytest.raises(ValueError, match="bad band"):
+        failed.result()
