@@ -244,9 +244,7 @@ class StereoMatcher:
         ``unfiltered`` (its arrays are filtered in place)."""
         fixed = unfiltered.left
         self.remove_speckles(fixed)
-        valid = fixed >= self.params.min_disparity * 16
-        disp = fixed.astype(np.float32)
-        disp *= np.float32(1.0 / 16.0)
+        disp, valid = self._in_pixels(fixed)
         if unfiltered.mirrored is not None:
             right_disp = self._right_from_mirrored(unfiltered.mirrored)
             # Mirrored, the right view's unmatched band (the first min + range columns) is on
@@ -262,11 +260,18 @@ class StereoMatcher:
         """:meth:`compute` then :meth:`finish`."""
         return self.finish(self.compute(left, right))
 
+    def _in_pixels(self, fixed: NDArray[np.int16]) -> tuple[F32, NDArray[np.bool_]]:
+        """A fixed-point disparity (H, W) as float32 px (invalid pixels not yet NaN) and its
+        validity: OpenCV marks invalid pixels below ``min_disparity``."""
+        valid = fixed >= self.params.min_disparity * 16
+        disp = fixed.astype(np.float32)
+        disp *= np.float32(1.0 / 16.0)
+        return disp, valid
+
     def _right_from_mirrored(self, mirrored: NDArray[np.int16]) -> F32:
         self.remove_speckles(mirrored)
-        fixed = mirrored[:, ::-1]
-        disp = fixed.astype(np.float32) * np.float32(1.0 / 16.0)
-        fill_where(disp, np.nan, fixed < self.params.min_disparity * 16)
+        disp, valid = self._in_pixels(mirrored[:, ::-1])
+        fill_where(disp, np.nan, ~valid)
         return disp
 
     def right_disparity(self, left: U8, right: U8) -> F32:
