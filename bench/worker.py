@@ -27,8 +27,14 @@ matcher); the same-work loop is the reference for the stages the floor leaves ou
 median), which isolates what the service's threads and glue cost or gain; the default stages add
 the refinement that takes SGBM's ~0.2 px pixel-locking error to ~0.03 px.
 
-Each repeat runs the floor, the same-work loop, ours unpaced and ours paced back to back (one
-load for all four); ratios are taken per repeat and the median is reported.
+Throughput is timed in alternating short windows of one run (:mod:`bench.alternating`): ours'
+runtime stays up and is paused while the floor runs, and each ratio compares a window of each,
+seconds apart (the VM's speed drifts between minutes). Its median and interquartile range over
+``--windows`` pairs are reported, with the process CPU per frame and the cores kept busy: the
+*CPU ceiling* is the rate ours' CPU per frame would allow with every core busy, against the
+floor's rate (a throughput ratio above it is impossible on the machine). Each latency repeat runs
+the floor, the same-work loop and ours paced back to back; those ratios are taken per repeat and
+the median is reported.
 Run: ``.venv/bin/python -m bench.worker`` (``--quick`` for a run of seconds).
 """
 
@@ -48,6 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 from rich.table import Table
 
+from bench.alternating import Window, WorkerSession
 from bench.common import (
     add_common_arguments,
     console,
@@ -254,10 +261,190 @@ def _configs(quick: bool) -> list[tuple[int, int, int]]:
     return [(w, h, d) for (w, h) in FULL_SIZES for d in FULL_DISPARITIES]
 
 
+def _quartiles(values: list[float]) -> tuple[float, float]:
+    """The 25th and 75th percentiles of ``values`` (NaN for none)."""
+    if not values:
+        return math.nan, math.nan
+    q1, q3 = np.percentile(np.asarray(values, dtype=np.float64), [25, 75])
+    return float(q1), float(q3)
+
+
+@dataclass(frozen=True)
+class Measure:
+    """How long and how often each figure is measured (see ``--help``)."""
+
+    windows: int
+    window_s: float
+    repeat: int
+    seconds: float
+    warmup_s: float
+
+
+def alternate_windows(
+    session: WorkerSession,
+    pairs: list[tuple[bytes, bytes]],
+    pipeline: DepthPipeline,
+    sgbm: Any,
+    n_floor: int,
+    m: Measure,
+) -> list[tuple[FloorRun, Window]]:
+    """``m.windows`` pairs of a floor window and one of ours, in alternating order, after a
+    discarded window of ours as warm-up."""
+    session.window(m.warmup_s)
+    out = []
+    for i in range(m.windows):
+        if i % 2 == 0:
+            ours = session.window(m.window_s)
+            floor = run_floor(pairs, pipeline, sgbm, n_floor, FLOOR_DECODE)
+        else:
+            floor = run_floor(pairs, pipeline, sgbm, n_floor, FLOOR_DECODE)
+            ours = session.window(m.window_s)
+        out.append((floor, ours))
+    return out
+
+
+def measure_config(
+    w: int,
+    h: int,
+    disp: int,
+    *,
+    stages: str,
+    decode: bool | Literal["auto"],
+    recording: Path,
+    pairs: list[tuple[bytes, bytes]],
+    rig: Any,
+    tmp: Path,
+    m: Measure,
+    cpus: int,
+) -> dict[str, Any]:
+    """One row of the table: throughput in alternating windows, latency and the same-work loop in
+    ``m.repeat`` back-to-back repeats."""
+    vpc = VpcConfig(width=w, height=h)
+    stereo = StereoParams(disparity_range=disp, **STAGES[stages])
+    pipeline = DepthPipeline(rig, vpc, stereo, cache_dir=tmp / "lut")
+    sgbm = floor_matcher(stereo)
+    check_floor_matcher(pairs, pipeline, sgbm)
+    flags = FLOOR_DECODE
+    # Size the floor's runs to about ours' windows and runs.
+    probe = run_floor(pairs, pipeline, sgbm, 3, flags)
+    n_window = max(5, int(m.window_s * probe.fps))
+    n_floor = max(5, int(m.seconds * probe.fps))
+    n_same = max(5, int(m.seconds * run_same_work(pairs, pipeline, 3, flags).fps))
+
+    def settings(pace: str | float) -> Settings:
+        return bench_settings(recording, vpc, stereo, tmp / "lut", tmp, pace=pace, decode=decode)
+
+    with WorkerSession(settings("fast")) as session:
+        windows = alternate_windows(session, pairs, pipeline, sgbm, n_window, m)
+    floors: list[FloorRun] = []
+    sames: list[FloorRun] = []
+    lat_runs: list[WorkerRun] = []
+    lat_ratios: list[float] = []
+    lat_ratios_same: list[float] = []
+    ours_fps = median(o.fps for _, o in windows)
+    pace = round(max(1.0, LATENCY_PACE_FRACTION * ours_fps), 2)
+    for _ in range(m.repeat):
+        # Floor, same work and ours paced back to back: each repeat shares one load.
+        floor = run_floor(pairs, pipeline, sgbm, n_floor, flags)
+        same = run_same_work(pairs, pipeline, n_same, flags)
+        lat_run = run_worker(settings(pace), m.seconds, m.warmup_s)
+        floors.append(floor)
+        sames.append(same)
+        lat_runs.append(lat_run)
+        if lat_run.latency_ms:
+            lat_ratios.append(median(lat_run.latency_ms) / median(floor.frame_ms))
+            lat_ratios_same.append(median(lat_run.latency_ms) / median(same.frame_ms))
+    ratios = [o.fps / f.fps for f, o in windows]
+    # The rate ours' CPU per frame allows with every core busy, against the floor's.
+    ceilings = [cpus * 1e3 / o.cpu_ms / f.fps for f, o in windows]
+    same_fps = median(f.fps for f in sames)
+    stage_keys = lat_runs[0].stage_ms if lat_runs else {}
+    return {
+        "vpc": [w, h],
+        "disparities": disp,
+        "floor_ms_per_frame": median(median(f.frame_ms) for f, _ in windows),
+        "floor_fps": median(f.fps for f, _ in windows),
+        "same_work_ms_per_frame": median(median(f.frame_ms) for f in sames),
+        "same_work_fps": same_fps,
+        "ours_fps": ours_fps,
+        "throughput_ratio": median(ratios),
+        "throughput_ratio_iqr": list(_quartiles(ratios)),
+        "throughput_ratio_same_work": ours_fps / same_fps,
+        "cpu_ceiling_ratio": median(ceilings),
+        "latency_pace_fps": pace,
+        "ours_latency_ms": summary([x for r in lat_runs for x in r.latency_ms]),
+        "latency_ratio": median(lat_ratios),
+        "latency_ratio_same_work": median(lat_ratios_same),
+        "ours_stage_ms": {k: median(r.stage_ms.get(k, math.nan) for r in lat_runs) for k in stage_keys},
+        "floor_cpu_ms_per_frame": median(f.cpu_ms for f, _ in windows),
+        "same_work_cpu_ms_per_frame": median(f.cpu_ms for f in sames),
+        "ours_cpu_ms_per_frame": median(o.cpu_ms for _, o in windows),
+        "floor_cores_busy": median(f.cpu_ms * f.fps / 1e3 for f, _ in windows),
+        "ours_cores_busy": median(o.cores for _, o in windows),
+        "worker_errors": sum(o.errors for _, o in windows) + sum(r.errors for r in lat_runs),
+        "runs": {
+            "floor_fps": [f.fps for f, _ in windows],
+            "ours_fps": [o.fps for _, o in windows],
+            "throughput_ratio": ratios,
+            "cpu_ceiling_ratio": ceilings,
+            "latency_floor_ms": [median(f.frame_ms) for f in floors],
+            "same_work_fps": [f.fps for f in sames],
+            "latency_ratio": lat_ratios,
+            "latency_ratio_same_work": lat_ratios_same,
+        },
+    }
+
+
+def _table_row(row: dict[str, Any]) -> list[str]:
+    w, h = row["vpc"]
+    q1, q3 = row["throughput_ratio_iqr"]
+    lat = row["ours_latency_ms"]
+    stage_text = " ".join(
+        f"{k[:3]} {v:.1f}" for k, v in row["ours_stage_ms"].items() if k != "total" and not math.isnan(v)
+    )
+    return [
+        f"{w}×{h}",
+        str(row["disparities"]),
+        f"{row['floor_ms_per_frame']:.1f}",
+        f"{row['floor_fps']:.1f}",
+        f"{row['same_work_ms_per_frame']:.1f}",
+        f"{row['ours_fps']:.1f}",
+        f"{row['throughput_ratio']:.2f} ({q1:.2f}–{q3:.2f}) / {row['throughput_ratio_same_work']:.2f}",
+        f"{row['cpu_ceiling_ratio']:.2f}",
+        f"{lat['p50']:.1f} ({lat['p95']:.1f})",
+        f"{row['latency_ratio']:.2f} / {row['latency_ratio_same_work']:.2f}",
+        f"{row['floor_cpu_ms_per_frame']:.1f} / {row['same_work_cpu_ms_per_frame']:.1f} / "
+        f"{row['ours_cpu_ms_per_frame']:.1f}",
+        f"{row['floor_cores_busy']:.2f} / {row['ours_cores_busy']:.2f}",
+        stage_text,
+    ]
+
+
+TABLE_COLUMNS = (
+    "VPC",
+    "disp",
+    "floor ms",
+    "floor fps",
+    "same-work ms",
+    "ours fps",
+    "throughput × floor (IQR) / same",
+    "CPU ceiling × floor",
+    "ours latency ms p50 (p95)",
+    "latency × floor / same",
+    "CPU ms/frame floor / same / ours",
+    "cores busy floor / ours",
+    "ours stages ms (mean)",
+)
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(prog="python -m bench.worker", description=__doc__.split("\n\n")[0])
     add_common_arguments(parser)
-    parser.add_argument("--seconds", type=float, default=None, help="measured time per worker run")
+    parser.add_argument("--seconds", type=float, default=None, help="measured time per latency run")
+    parser.add_argument(
+        "--windows", type=int, default=None, help="floor / ours throughput window pairs per figure"
+    )
+    parser.add_argument("--window-seconds", type=float, default=None, help="length of each throughput window")
     parser.add_argument(
         "--decode",
         choices=tuple(DECODE_MODES),
@@ -279,9 +466,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     )
     args = parser.parse_args(argv)
     quick = args.quick
-    repeat = args.repeat or (1 if quick else 3)
-    seconds = args.seconds or (1.0 if quick else 4.0)
-    warmup = 0.5 if quick else 1.5
+    m = Measure(
+        windows=args.windows or (2 if quick else 8),
+        window_s=args.window_seconds or (0.5 if quick else 2.0),
+        repeat=args.repeat or (1 if quick else 3),
+        seconds=args.seconds or (1.0 if quick else 4.0),
+        warmup_s=0.5 if quick else 1.5,
+    )
     info = machine_info()
     print_machine(info, "worker path vs the bare OpenCV floor")
     spec = (
@@ -292,7 +483,6 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     recording = ensure_mjpeg_recording(spec)
     pairs = load_jpeg_pairs(recording)
     rig = load_rig(recording / "calibration.yaml")
-    flags = FLOOR_DECODE
     configs = _configs(quick)
     if args.sizes:
         configs = []
@@ -304,144 +494,39 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     console.print(
         f"input: {recording} ({len(pairs)} pairs, {kind} JPEG q{spec.quality}, "
         f"{sum(len(a) + len(b) for a, b in pairs) / len(pairs) / 2 / 1024:.0f} KiB/frame); decode in "
-        f"{args.decode}; {repeat} run(s) per figure, {seconds:g} s each"
+        f"{args.decode}; throughput: {m.windows} alternating window pairs of {m.window_s:g} s; latency: "
+        f"{m.repeat} run(s) of {m.seconds:g} s"
     )
     table = Table(title=f"per pair: floor (bare OpenCV) vs ours (service worker, {args.stages} stages)")
-    for col in (
-        "VPC",
-        "disp",
-        "floor ms",
-        "floor fps",
-        "same-work ms",
-        "ours fps",
-        "throughput × floor / same",
-        "ours latency ms p50 (p95)",
-        "latency × floor / same",
-        "CPU ms/frame floor / same / ours",
-        "ours stages ms (mean)",
-    ):
+    for col in TABLE_COLUMNS:
         table.add_column(col, justify="right")
     rows = []
     with tempfile.TemporaryDirectory(prefix="rig-bench-worker-") as tmp_name:
-        tmp = Path(tmp_name)
         for w, h, disp in configs:
-            vpc = VpcConfig(width=w, height=h)
-            stereo = StereoParams(disparity_range=disp, **STAGES[args.stages])
-            pipeline = DepthPipeline(rig, vpc, stereo, cache_dir=tmp / "lut")
-            sgbm = floor_matcher(stereo)
-            check_floor_matcher(pairs, pipeline, sgbm)
-            # Size the floor run to about the worker run's duration.
-            probe = run_floor(pairs, pipeline, sgbm, 3, flags)
-            n_floor = max(5, int(seconds * probe.fps))
-            n_same = max(5, int(seconds * run_same_work(pairs, pipeline, 3, flags).fps))
-            floors: list[FloorRun] = []
-            sames: list[FloorRun] = []
-            ours: list[WorkerRun] = []
-            fast = bench_settings(
-                recording,
-                vpc,
-                stereo,
-                tmp / "lut",
-                tmp,
-                pace="fast",
+            row = measure_config(
+                w,
+                h,
+                disp,
+                stages=args.stages,
                 decode=DECODE_MODES[args.decode],
+                recording=recording,
+                pairs=pairs,
+                rig=rig,
+                tmp=Path(tmp_name),
+                m=m,
+                cpus=info["cpus_usable"],
             )
-            lat_runs: list[WorkerRun] = []
-            lat_ratios: list[float] = []
-            lat_ratios_same: list[float] = []
-            pace = 0.0
-            for _ in range(repeat):
-                # Floor, same work, ours unpaced, ours paced back to back: each repeat shares one load.
-                floor = run_floor(pairs, pipeline, sgbm, n_floor, flags)
-                same = run_same_work(pairs, pipeline, n_same, flags)
-                fast_run = run_worker(fast, seconds, warmup)
-                pace = round(max(1.0, LATENCY_PACE_FRACTION * fast_run.fps), 2)
-                paced = bench_settings(
-                    recording,
-                    vpc,
-                    stereo,
-                    tmp / "lut",
-                    tmp,
-                    pace=pace,
-                    decode=DECODE_MODES[args.decode],
-                )
-                lat_run = run_worker(paced, seconds, warmup)
-                floors.append(floor)
-                sames.append(same)
-                ours.append(fast_run)
-                lat_runs.append(lat_run)
-                if lat_run.latency_ms:
-                    lat_ratios.append(median(lat_run.latency_ms) / median(floor.frame_ms))
-                    lat_ratios_same.append(median(lat_run.latency_ms) / median(same.frame_ms))
-            ours_fps = median(r.fps for r in ours)
-            floor_ms = median(median(f.frame_ms) for f in floors)
-            floor_fps = median(f.fps for f in floors)
-            thr_ratio = median(o.fps / f.fps for o, f in zip(ours, floors, strict=True))
-            same_ms = median(median(f.frame_ms) for f in sames)
-            same_fps = median(f.fps for f in sames)
-            thr_same = median(o.fps / f.fps for o, f in zip(ours, sames, strict=True))
-            lat = [x for r in lat_runs for x in r.latency_ms]
-            lat_s = summary(lat)
-            lat_ratio = median(lat_ratios)
-            lat_same = median(lat_ratios_same)
-            stages = {k: median(r.stage_ms.get(k, math.nan) for r in lat_runs) for k in lat_runs[0].stage_ms}
-            floor_cpu = median(f.cpu_ms for f in floors)
-            same_cpu = median(f.cpu_ms for f in sames)
-            ours_cpu = median(o.cpu_ms for o in ours)
-            errors = sum(r.errors for r in ours + lat_runs)
-            row = {
-                "vpc": [w, h],
-                "disparities": disp,
-                "floor_ms_per_frame": floor_ms,
-                "floor_fps": floor_fps,
-                "same_work_ms_per_frame": same_ms,
-                "same_work_fps": same_fps,
-                "ours_fps": ours_fps,
-                "throughput_ratio": thr_ratio,
-                "throughput_ratio_same_work": thr_same,
-                "latency_pace_fps_last": pace,
-                "ours_latency_ms": lat_s,
-                "latency_ratio": lat_ratio,
-                "latency_ratio_same_work": lat_same,
-                "ours_stage_ms": stages,
-                "floor_cpu_ms_per_frame": floor_cpu,
-                "same_work_cpu_ms_per_frame": same_cpu,
-                "ours_cpu_ms_per_frame": ours_cpu,
-                "worker_errors": errors,
-                "runs": {
-                    "floor_fps": [f.fps for f in floors],
-                    "floor_ms": [median(f.frame_ms) for f in floors],
-                    "same_work_fps": [f.fps for f in sames],
-                    "ours_fps": [o.fps for o in ours],
-                    "throughput_ratio": [o.fps / f.fps for o, f in zip(ours, floors, strict=True)],
-                    "throughput_ratio_same_work": [o.fps / f.fps for o, f in zip(ours, sames, strict=True)],
-                    "latency_ratio": lat_ratios,
-                    "latency_ratio_same_work": lat_ratios_same,
-                },
-            }
             rows.append(row)
-            stage_text = " ".join(
-                f"{k[:3]} {v:.1f}" for k, v in stages.items() if k != "total" and not math.isnan(v)
-            )
-            table.add_row(
-                f"{w}×{h}",
-                str(disp),
-                f"{floor_ms:.1f}",
-                f"{floor_fps:.1f}",
-                f"{same_ms:.1f}",
-                f"{ours_fps:.1f}",
-                f"{thr_ratio:.2f} / {thr_same:.2f}",
-                f"{lat_s['p50']:.1f} ({lat_s['p95']:.1f})",
-                f"{lat_ratio:.2f} / {lat_same:.2f}",
-                f"{floor_cpu:.1f} / {same_cpu:.1f} / {ours_cpu:.1f}",
-                stage_text,
-            )
-            if errors:
-                console.print(f"[red]warning:[/red] the worker reported {errors} failed frame(s) at {w}×{h}")
+            table.add_row(*_table_row(row))
+            if row["worker_errors"]:
+                failed = row["worker_errors"]
+                console.print(f"[red]warning:[/red] the worker reported {failed} failed frame(s) at {w}×{h}")
     console.print(
-        "throughput × = ours fps / floor fps (target ≥ 1.0, aim 1.3), and / the same-work loop's fps; "
-        "latency × = ours p50 latency (arrival → published, unsaturated) / floor ms per frame "
-        "(target ≤ 1.2), and / the same-work loop's ms per frame"
+        "throughput × = ours fps / floor fps per window pair, median (interquartile range) (target ≥ 1.0, "
+        "aim 1.3), and ours' median fps / the same-work loop's; CPU ceiling × = the fps ours' CPU per "
+        "frame allows with every core busy / the floor's fps (no throughput × can pass it); latency × = "
+        "ours p50 latency (arrival → published, unsaturated) / floor ms per frame (target ≤ 1.2), and / "
+        "the same-work loop's ms per frame"
     )
     return finish(
         "worker",
@@ -451,8 +536,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "spec": spec.__dict__,
             "decode": args.decode,
             "stages": args.stages,
-            "repeat": repeat,
-            "seconds": seconds,
+            "windows": m.windows,
+            "window_seconds": m.window_s,
+            "repeat": m.repeat,
+            "seconds": m.seconds,
             "rows": rows,
         },
         args.json,
