@@ -13,7 +13,7 @@ iteration; throughput = frames / time.
 cameras are file cameras replaying the recording (``FileCamera`` → ``StereoCapture`` →
 ``DepthWorker`` → ``DepthPipeline`` with its default stages: subpixel refinement, confidence,
 5×5 median). Throughput: unpaced replay (``pace: fast`` with back-pressure, one pair buffered),
-pairs published per second after a warm-up. Latency: pair arrival (the later frame's host time,
+pairs published per second. Latency: pair arrival (the later frame's host time,
 before decoding) → depth published, per frame, with the cameras paced at 60 % of the measured
 throughput so that no pair waits behind another (the latency of a frame, not of a queue).
 
@@ -27,14 +27,13 @@ matcher); the same-work loop is the reference for the stages the floor leaves ou
 median), which isolates what the service's threads and glue cost or gain; the default stages add
 the refinement that takes SGBM's ~0.2 px pixel-locking error to ~0.03 px.
 
-Throughput is timed in alternating short windows of one run (:mod:`bench.alternating`): ours'
-runtime stays up and is paused while the floor runs, and each ratio compares a window of each,
-seconds apart (the VM's speed drifts between minutes). Its median and interquartile range over
-``--windows`` pairs are reported, with the process CPU per frame and the cores kept busy: the
-*CPU ceiling* is the rate ours' CPU per frame would allow with every core busy, against the
-floor's rate (a throughput ratio above it is impossible on the machine). Each latency repeat runs
-the floor, the same-work loop and ours paced back to back; those ratios are taken per repeat and
-the median is reported.
+Throughput and latency are each timed in alternating short windows of one run
+(:mod:`bench.alternating`): ours' runtime stays up and is paused while the floor runs, and each
+ratio compares a window of each, seconds apart (the VM's speed drifts between minutes). Their
+medians and interquartile ranges over ``--windows`` pairs are reported, with the process CPU per
+frame and the cores kept busy: the *CPU ceiling* is the rate ours' CPU per frame would allow with
+every core busy, against the floor's rate (a throughput ratio above it is impossible on the
+machine). The same-work loop runs ``--repeat`` times after them.
 Run: ``.venv/bin/python -m bench.worker`` (``--quick`` for a run of seconds).
 """
 
@@ -43,7 +42,6 @@ from __future__ import annotations
 import argparse
 import math
 import tempfile
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -70,10 +68,9 @@ from rig.capture.config import CaptureConfig, FileCameraConfig, PairingConfig, S
 from rig.pipeline import DepthPipeline
 from rig.stereo import StereoMatcher, StereoParams, create_opencv_matcher
 from rig.vpc import VpcConfig
-from service.runtime import Runtime
 from service.settings import CalibrationSettings, ServerSettings, Settings
 
-__all__ = ["FloorRun", "WorkerRun", "floor_matcher", "main", "run_floor", "run_same_work", "run_worker"]
+__all__ = ["FloorRun", "floor_matcher", "main", "measure_config", "run_floor", "run_same_work"]
 
 FULL_SIZES = ((320, 240), (640, 480), (1280, 960))
 FULL_DISPARITIES = (64, 128)
@@ -94,16 +91,6 @@ class FloorRun:
     frame_ms: list[float]
     fps: float
     cpu_ms: float  # process CPU time per frame (all threads)
-
-
-@dataclass(frozen=True)
-class WorkerRun:
-    fps: float
-    frames: int
-    cpu_ms: float  # process CPU time per published frame (all threads, capture included)
-    latency_ms: list[float]
-    stage_ms: dict[str, float]
-    errors: int
 
 
 def floor_matcher(params: StereoParams) -> Any:
@@ -219,42 +206,6 @@ def bench_settings(
     )
 
 
-def run_worker(settings: Settings, seconds: float, warmup_s: float) -> WorkerRun:
-    """The service's runtime on ``settings`` for ``warmup_s`` + ``seconds``: published pairs per
-    second, and the arrival → publication latency of the results seen after the warm-up."""
-    runtime = Runtime.build(settings)
-    latencies: list[float] = []
-    measuring = threading.Event()
-    done = threading.Event()
-
-    def watch() -> None:  # a client of the result store, like /stream
-        index = 0
-        while not done.is_set():
-            result = runtime.store.wait_newer(index, 0.2)
-            if result is None:
-                continue
-            index = result.index
-            if measuring.is_set():
-                latencies.append(result.latency_ms)
-
-    watcher = threading.Thread(target=watch, name="bench-watch", daemon=True)
-    runtime.start()
-    watcher.start()
-    try:
-        time.sleep(warmup_s)
-        measuring.set()
-        s0, t0, c0 = runtime.worker.stats(), time.monotonic(), time.process_time()
-        time.sleep(seconds)
-        s1, t1, c1 = runtime.worker.stats(), time.monotonic(), time.process_time()
-    finally:
-        done.set()
-        runtime.stop()
-        watcher.join(2.0)
-    frames = s1.frames_processed - s0.frames_processed
-    cpu_ms = (c1 - c0) * 1e3 / frames if frames else math.nan
-    return WorkerRun(frames / (t1 - t0), frames, cpu_ms, latencies, dict(s1.stage_ms), s1.errors)
-
-
 def _configs(quick: bool) -> list[tuple[int, int, int]]:
     if quick:
         return [(160, 120, 32)]
@@ -273,11 +224,11 @@ def _quartiles(values: list[float]) -> tuple[float, float]:
 class Measure:
     """How long and how often each figure is measured (see ``--help``)."""
 
-    windows: int
+    windows: int  # floor / ours window pairs per figure, for throughput and again for latency
     window_s: float
-    repeat: int
-    seconds: float
-    warmup_s: float
+    repeat: int  # same-work runs per figure
+    seconds: float  # length of each same-work run
+    warmup_s: float  # ours' discarded first window
 
 
 def alternate_windows(
@@ -317,8 +268,8 @@ def measure_config(
     m: Measure,
     cpus: int,
 ) -> dict[str, Any]:
-    """One row of the table: throughput in alternating windows, latency and the same-work loop in
-    ``m.repeat`` back-to-back repeats."""
+    """One row of the table: throughput (cameras unpaced) and latency (cameras paced) each in
+    alternating windows with the floor, then the same-work loop ``m.repeat`` times."""
     vpc = VpcConfig(width=w, height=h)
     stereo = StereoParams(disparity_range=disp, **STAGES[stages])
     pipeline = DepthPipeline(rig, vpc, stereo, cache_dir=tmp / "lut")
@@ -328,7 +279,6 @@ def measure_config(
     # Size the floor's runs to about ours' windows and runs.
     probe = run_floor(pairs, pipeline, sgbm, 3, flags)
     n_window = max(5, int(m.window_s * probe.fps))
-    n_floor = max(5, int(m.seconds * probe.fps))
     n_same = max(5, int(m.seconds * run_same_work(pairs, pipeline, 3, flags).fps))
 
     def settings(pace: str | float) -> Settings:
@@ -336,35 +286,26 @@ def measure_config(
 
     with WorkerSession(settings("fast")) as session:
         windows = alternate_windows(session, pairs, pipeline, sgbm, n_window, m)
-    floors: list[FloorRun] = []
-    sames: list[FloorRun] = []
-    lat_runs: list[WorkerRun] = []
-    lat_ratios: list[float] = []
-    lat_ratios_same: list[float] = []
     ours_fps = median(o.fps for _, o in windows)
+    # Latency: cameras paced below capacity, so that a pair never waits behind another.
     pace = round(max(1.0, LATENCY_PACE_FRACTION * ours_fps), 2)
-    for _ in range(m.repeat):
-        # Floor, same work and ours paced back to back: each repeat shares one load.
-        floor = run_floor(pairs, pipeline, sgbm, n_floor, flags)
-        same = run_same_work(pairs, pipeline, n_same, flags)
-        lat_run = run_worker(settings(pace), m.seconds, m.warmup_s)
-        floors.append(floor)
-        sames.append(same)
-        lat_runs.append(lat_run)
-        if lat_run.latency_ms:
-            lat_ratios.append(median(lat_run.latency_ms) / median(floor.frame_ms))
-            lat_ratios_same.append(median(lat_run.latency_ms) / median(same.frame_ms))
+    with WorkerSession(settings(pace)) as session:
+        paced = alternate_windows(session, pairs, pipeline, sgbm, n_window, m)
+    sames = [run_same_work(pairs, pipeline, n_same, flags) for _ in range(m.repeat)]
     ratios = [o.fps / f.fps for f, o in windows]
     # The rate ours' CPU per frame allows with every core busy, against the floor's.
     ceilings = [cpus * 1e3 / o.cpu_ms / f.fps for f, o in windows]
+    lat_ratios = [median(o.latency_ms) / median(f.frame_ms) for f, o in paced if o.latency_ms]
     same_fps = median(f.fps for f in sames)
-    stage_keys = lat_runs[0].stage_ms if lat_runs else {}
+    same_ms = median(median(f.frame_ms) for f in sames)
+    latencies = [x for _, o in paced for x in o.latency_ms]
+    stage_keys = paced[0][1].stage_ms if paced else {}
     return {
         "vpc": [w, h],
         "disparities": disp,
         "floor_ms_per_frame": median(median(f.frame_ms) for f, _ in windows),
         "floor_fps": median(f.fps for f, _ in windows),
-        "same_work_ms_per_frame": median(median(f.frame_ms) for f in sames),
+        "same_work_ms_per_frame": same_ms,
         "same_work_fps": same_fps,
         "ours_fps": ours_fps,
         "throughput_ratio": median(ratios),
@@ -372,25 +313,26 @@ def measure_config(
         "throughput_ratio_same_work": ours_fps / same_fps,
         "cpu_ceiling_ratio": median(ceilings),
         "latency_pace_fps": pace,
-        "ours_latency_ms": summary([x for r in lat_runs for x in r.latency_ms]),
+        "ours_latency_ms": summary(latencies),
         "latency_ratio": median(lat_ratios),
-        "latency_ratio_same_work": median(lat_ratios_same),
-        "ours_stage_ms": {k: median(r.stage_ms.get(k, math.nan) for r in lat_runs) for k in stage_keys},
+        "latency_ratio_iqr": list(_quartiles(lat_ratios)),
+        "latency_ratio_same_work": median(latencies) / same_ms,
+        "ours_stage_ms": {k: median(o.stage_ms.get(k, math.nan) for _, o in paced) for k in stage_keys},
         "floor_cpu_ms_per_frame": median(f.cpu_ms for f, _ in windows),
         "same_work_cpu_ms_per_frame": median(f.cpu_ms for f in sames),
         "ours_cpu_ms_per_frame": median(o.cpu_ms for _, o in windows),
         "floor_cores_busy": median(f.cpu_ms * f.fps / 1e3 for f, _ in windows),
         "ours_cores_busy": median(o.cores for _, o in windows),
-        "worker_errors": sum(o.errors for _, o in windows) + sum(r.errors for r in lat_runs),
+        "worker_errors": sum(o.errors for _, o in windows + paced),
         "runs": {
             "floor_fps": [f.fps for f, _ in windows],
             "ours_fps": [o.fps for _, o in windows],
             "throughput_ratio": ratios,
             "cpu_ceiling_ratio": ceilings,
-            "latency_floor_ms": [median(f.frame_ms) for f in floors],
-            "same_work_fps": [f.fps for f in sames],
+            "latency_floor_ms": [median(f.frame_ms) for f, _ in paced],
+            "ours_latency_p50_ms": [median(o.latency_ms) for _, o in paced],
             "latency_ratio": lat_ratios,
-            "latency_ratio_same_work": lat_ratios_same,
+            "same_work_fps": [f.fps for f in sames],
         },
     }
 
@@ -398,6 +340,7 @@ def measure_config(
 def _table_row(row: dict[str, Any]) -> list[str]:
     w, h = row["vpc"]
     q1, q3 = row["throughput_ratio_iqr"]
+    l1, l3 = row["latency_ratio_iqr"]
     lat = row["ours_latency_ms"]
     stage_text = " ".join(
         f"{k[:3]} {v:.1f}" for k, v in row["ours_stage_ms"].items() if k != "total" and not math.isnan(v)
@@ -412,7 +355,7 @@ def _table_row(row: dict[str, Any]) -> list[str]:
         f"{row['throughput_ratio']:.2f} ({q1:.2f}–{q3:.2f}) / {row['throughput_ratio_same_work']:.2f}",
         f"{row['cpu_ceiling_ratio']:.2f}",
         f"{lat['p50']:.1f} ({lat['p95']:.1f})",
-        f"{row['latency_ratio']:.2f} / {row['latency_ratio_same_work']:.2f}",
+        f"{row['latency_ratio']:.2f} ({l1:.2f}–{l3:.2f}) / {row['latency_ratio_same_work']:.2f}",
         f"{row['floor_cpu_ms_per_frame']:.1f} / {row['same_work_cpu_ms_per_frame']:.1f} / "
         f"{row['ours_cpu_ms_per_frame']:.1f}",
         f"{row['floor_cores_busy']:.2f} / {row['ours_cores_busy']:.2f}",
@@ -430,7 +373,7 @@ TABLE_COLUMNS = (
     "throughput × floor (IQR) / same",
     "CPU ceiling × floor",
     "ours latency ms p50 (p95)",
-    "latency × floor / same",
+    "latency × floor (IQR) / same",
     "CPU ms/frame floor / same / ours",
     "cores busy floor / ours",
     "ours stages ms (mean)",
@@ -440,11 +383,11 @@ TABLE_COLUMNS = (
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(prog="python -m bench.worker", description=__doc__.split("\n\n")[0])
     add_common_arguments(parser)
-    parser.add_argument("--seconds", type=float, default=None, help="measured time per latency run")
+    parser.add_argument("--seconds", type=float, default=None, help="length of each same-work run")
     parser.add_argument(
         "--windows", type=int, default=None, help="floor / ours throughput window pairs per figure"
     )
-    parser.add_argument("--window-seconds", type=float, default=None, help="length of each throughput window")
+    parser.add_argument("--window-seconds", type=float, default=None, help="length of each window")
     parser.add_argument(
         "--decode",
         choices=tuple(DECODE_MODES),
@@ -494,8 +437,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     console.print(
         f"input: {recording} ({len(pairs)} pairs, {kind} JPEG q{spec.quality}, "
         f"{sum(len(a) + len(b) for a, b in pairs) / len(pairs) / 2 / 1024:.0f} KiB/frame); decode in "
-        f"{args.decode}; throughput: {m.windows} alternating window pairs of {m.window_s:g} s; latency: "
-        f"{m.repeat} run(s) of {m.seconds:g} s"
+        f"{args.decode}; throughput and latency: {m.windows} alternating window pairs of {m.window_s:g} s "
+        f"each; same work: {m.repeat} run(s) of {m.seconds:g} s"
     )
     table = Table(title=f"per pair: floor (bare OpenCV) vs ours (service worker, {args.stages} stages)")
     for col in TABLE_COLUMNS:
@@ -525,7 +468,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "throughput × = ours fps / floor fps per window pair, median (interquartile range) (target ≥ 1.0, "
         "aim 1.3), and ours' median fps / the same-work loop's; CPU ceiling × = the fps ours' CPU per "
         "frame allows with every core busy / the floor's fps (no throughput × can pass it); latency × = "
-        "ours p50 latency (arrival → published, unsaturated) / floor ms per frame (target ≤ 1.2), and / "
+        "ours p50 latency (arrival → published, unsaturated) / floor ms per frame per window pair, median "
+        "(IQR) (target ≤ 1.2), and / "
         "the same-work loop's ms per frame"
     )
     return finish(
