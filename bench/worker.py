@@ -59,6 +59,7 @@ from bench.common import (
     finish,
     machine_info,
     median,
+    percentile,
     print_machine,
     summary,
 )
@@ -214,10 +215,7 @@ def _configs(quick: bool) -> list[tuple[int, int, int]]:
 
 def _quartiles(values: list[float]) -> tuple[float, float]:
     """The 25th and 75th percentiles of ``values`` (NaN for none)."""
-    if not values:
-        return math.nan, math.nan
-    q1, q3 = np.percentile(np.asarray(values, dtype=np.float64), [25, 75])
-    return float(q1), float(q3)
+    return percentile(values, 25), percentile(values, 75)
 
 
 @dataclass(frozen=True)
