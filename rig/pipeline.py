@@ -329,7 +329,9 @@ class DepthPipeline:
                 inputs = refinement_inputs(
                     rect.left_gray, rect.right_gray, disparity, cols=cols, normalised=normalised
                 )
-            prep_ms = (time.perf_counter() - t_raw + t_norm - t0) * 1e3
+            # The refinement's preparation: starting the normalisation, and the inputs after
+            # the speckle pass (which counts as the match stage's, above).
+            prep_ms = ((t_norm - t0) + (time.perf_counter() - t_raw)) * 1e3
             temporal = p.temporal_alpha > 0.0
             if matched.matcher is not self._temporal_owner:
                 # New parameters: history made under the old ones is not averaged in.
