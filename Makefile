@@ -29,9 +29,12 @@ demo: $(RUN_STAMP)
 test: $(DEV_STAMP)
 	$(BIN)/python -m pytest
 
+## lint: ruff (lint and format), mypy, and the import layering (cli -> service -> rig -> calibration)
 lint: $(DEV_STAMP)
 	$(BIN)/ruff check .
-	$(BIN)/mypy calibration rig service
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy calibration rig service cli
+	$(BIN)/lint-imports
 
 clean:
 	rm -rf $(VENV)

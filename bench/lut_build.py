@@ -3,7 +3,7 @@
 Grid: the default VPC (640×480, 90° horizontal FOV) of the prototype rig's left camera
 (1280×960 Kannala-Brandt 190°, rotated 45° off the lens axis, as the service builds it). Every
 other model is the prototype lens converted to that model (least squares over the lens's field,
-:func:`calibration.init.convert_model`); the pinhole (which cannot see a fisheye's field) is fitted
+:func:`calibration.initial_guess.convert_model`); the pinhole (which cannot see a fisheye's field) is fitted
 over 60° and the VPC grid is the same.
 
 What is timed:
@@ -38,7 +38,7 @@ import numpy as np
 from rich.table import Table
 
 from bench.common import add_common_arguments, console, finish, machine_info, median, print_machine
-from calibration.init import convert_model, seed_model
+from calibration.initial_guess import convert_model, seed_model
 from calibration.models import MODELS, CameraModel, KannalaBrandtModel
 from rig.lut import build_vpc_lut
 from rig.lut_cache import LutCache, lut_key

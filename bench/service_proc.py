@@ -1,6 +1,6 @@
 """``rig serve`` as a child process for the benchmarks: the real command, on loopback.
 
-:class:`ServiceProcess` starts ``python -m service.cli serve ...`` on a free port with the
+:class:`ServiceProcess` starts ``python -m cli serve ...`` on a free port with the
 environment it is given (cache directories), records its output, waits for ``/readyz``, reads
 the child's RSS and CPU time from ``/proc`` and stops it with SIGINT (the service's normal
 shutdown), killing it only if it does not stop.
@@ -54,7 +54,7 @@ class ServiceProcess:
     def __init__(self, args: Sequence[str], env: Mapping[str, str] | None = None) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
-        cmd = [sys.executable, "-m", "service.cli", "serve", *args, "--port", str(self.port)]
+        cmd = [sys.executable, "-m", "cli", "serve", *args, "--port", str(self.port)]
         child_env = {**os.environ, **(env or {})}
         child_env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), child_env.get("PYTHONPATH")]))
         self.started = time.monotonic()

@@ -8,7 +8,7 @@ been published) from the moment of launch. Cases:
 * **cold, with render** — a fresh user cache dir (``XDG_CACHE_HOME``) as well: the demo room is
   rendered first (once per machine in real life; ``--demo`` only).
 
-For reference, ``imports`` is the time for ``python -c 'import service.serve'`` (the Python
+For reference, ``imports`` is the time for ``python -c 'import cli.main, service.serve'`` (the Python
 start-up and the import of numpy, OpenCV, FastAPI, uvicorn... that every launch pays).
 Each case's figure is the median of ``--repeat`` launches (the render case: ``--render-repeat``).
 
@@ -38,7 +38,7 @@ def time_imports() -> float:
     """Seconds for a fresh interpreter to import the service."""
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     t0 = time.monotonic()
-    subprocess.run([sys.executable, "-c", "import service.serve"], cwd=REPO, env=env, check=True)
+    subprocess.run([sys.executable, "-c", "import cli.main, service.serve"], cwd=REPO, env=env, check=True)
     return time.monotonic() - t0
 
 

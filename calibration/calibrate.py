@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from calibration.corner_refine import ImageSource, RefinementReport, refine_views
 from calibration.errors import CalibrationError, CalibrationFailed
-from calibration.init import board_poses, convert_model, search_equidistant_focal, seed_model
+from calibration.initial_guess import board_poses, convert_model, search_equidistant_focal, seed_model
 from calibration.lm import LOSSES
 from calibration.models.base import MODELS, CameraModel
 from calibration.solver import BundleResult, CameraBlock, Observation, refine_bundle

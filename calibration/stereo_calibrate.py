@@ -37,7 +37,7 @@ from calibration.calibrate import (
 from calibration.corner_refine import ImageSource, RefinementReport, refine_views
 from calibration.errors import CalibrationError, CalibrationFailed
 from calibration.geometry import invert_transform
-from calibration.init import board_poses
+from calibration.initial_guess import board_poses
 from calibration.lm import LOSSES
 from calibration.models.base import CameraModel
 from calibration.pose_consensus import average_transforms, consensus_pose, half_turn

@@ -1,18 +1,7 @@
-"""The ``rig`` subcommands that live in this package; ``service.cli`` mounts them with ``serve``.
+"""The ``rig`` command line: one module per command group (``serve``, ``process``, ``record``,
+``devices``, ``calibrate``, ``lut``, ``sim``, ``evaluate``), mounted by :mod:`cli.main`.
 
-Each module registers its own commands so they can be worked on independently.
+Imports flow one way: ``cli`` → ``service`` → ``rig`` → ``calibration``. Only this package uses
+typer and rich; the others report progress through callbacks and fail by raising their own
+exceptions, which :mod:`cli.errors` turns into one line and an exit status.
 """
-
-from __future__ import annotations
-
-import typer
-
-from rig.cli import calibrate, devices, evaluate, lut, process, record, sim
-
-__all__ = ["register"]
-
-
-def register(app: typer.Typer) -> None:
-    """Add every ``rig`` package command to ``app`` (DESIGN §7 order)."""
-    for module in (process, record, devices, calibrate, lut, sim, evaluate):
-        module.register(app)

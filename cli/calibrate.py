@@ -1,4 +1,4 @@
-"""`rig calibrate intrinsics|stereo` (issue #4): chessboard images -> calibration file.
+"""`rig calibrate intrinsics|stereo`: chessboard images -> calibration file (see docs/calibration.md).
 
 ``intrinsics`` writes a rig.yaml with one camera (identity pose); ``stereo`` writes the rig.yaml
 of a pair. Both detect the board in every image (progress bar), list the images they skip and
@@ -18,14 +18,7 @@ from typing import Annotated
 
 import numpy as np
 import typer
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    SpinnerColumn,
-    TextColumn,
-    TimeElapsedColumn,
-)
+from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from calibration.calibrate import CameraCalibration, calibrate_camera
@@ -36,8 +29,9 @@ from calibration.models import MODELS, CameraModel
 from calibration.rig import Rig
 from calibration.stereo_calibrate import StereoCalibration, calibrate_stereo
 from calibration.targets import BoardSpec, Detection, detect_chessboard_files, parse_board
+from cli.console import console, err_console, progress_bar, warn
+from cli.errors import fail
 from rig.calibration_report import ResidualPanel, save_residual_plot
-from rig.cli.common import console, err_console, fail
 
 __all__ = ["expand_images", "register"]
 
@@ -64,8 +58,7 @@ def expand_images(patterns: Sequence[str]) -> list[str]:
 
 
 def _detect(paths: list[str], board: BoardSpec, label: str, subpix: int) -> list[Detection]:
-    columns = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn())
-    with Progress(*columns, TimeElapsedColumn(), console=err_console, transient=True) as progress:
+    with progress_bar() as progress:
         task = progress.add_task(f"detecting {board.cols}x{board.rows} board in {label}", total=len(paths))
         dets = detect_chessboard_files(
             paths, board.pattern_size, lambda _: progress.advance(task), subpix_window=subpix or None
@@ -172,11 +165,7 @@ def _print_refinement(name: str, report: RefinementReport | None, refine: bool) 
         soft_wrap=True,
     )
     if not report.converged:
-        err_console.print(
-            f"[yellow]warning:[/yellow] {name}: corners still moved {report.changes_px[-1]:.2g} px "
-            f"in the last refinement round",
-            highlight=False,
-        )
+        warn(f"{name}: corners still moved {report.changes_px[-1]:.2g} px in the last refinement round")
 
 
 def _calibrating(message: str) -> Progress:
@@ -188,15 +177,30 @@ def _calibrating(message: str) -> Progress:
 
 
 # Options both commands take (typer reads them from the Annotated metadata).
-BoardOpt = Annotated[str, typer.Option("--board", help="Inner corners COLSxROWS, e.g. 9x6.")]
-SquareOpt = Annotated[float, typer.Option("--square", help="Square size in metres.")]
-ModelOpt = Annotated[str, typer.Option("--model", help=_MODEL_HELP)]
-FovOpt = Annotated[float | None, typer.Option("--fov-deg", help="Lens field of view to store (deg).")]
-LossOpt = Annotated[str, typer.Option("--loss", help="linear, huber or soft_l1 (robust, 1 px scale).")]
-SubpixOpt = Annotated[int, typer.Option("--subpix", help="Re-refine corners: cornerSubPix half-window px.")]
-ResidualsOpt = Annotated[
-    Path | None, typer.Option("--residuals", help="Residual picture (default OUT_residuals.png).")
+BoardOpt = Annotated[
+    str, typer.Option("--board", metavar="COLSxROWS", help="Inner corners of the board, e.g. 9x6.")
 ]
+SquareOpt = Annotated[float, typer.Option("--square", metavar="METRES", help="Square size.")]
+ModelOpt = Annotated[str, typer.Option("--model", metavar="MODEL", help=_MODEL_HELP)]
+FovOpt = Annotated[
+    float | None, typer.Option("--fov-deg", metavar="DEG", help="Lens field of view to store.")
+]
+LossOpt = Annotated[
+    str, typer.Option("--loss", metavar="LOSS", help="linear, huber or soft_l1 (robust, 1 px scale).")
+]
+SubpixOpt = Annotated[
+    int,
+    typer.Option(
+        "--subpix", metavar="PX", help="Re-refine corners with cornerSubPix of this half-window; 0 = off."
+    ),
+]
+ResidualsOpt = Annotated[
+    Path | None,
+    typer.Option(
+        "--residuals", metavar="FILE", help="Residual picture to write.", show_default="OUT_residuals.png"
+    ),
+]
+MinViewsOpt = Annotated[int, typer.Option("--min-views", metavar="N", help="Fewest usable views accepted.")]
 RefineOpt = Annotated[
     bool,
     typer.Option(
@@ -212,29 +216,37 @@ def register(app: typer.Typer) -> None:
     def intrinsics(
         board: BoardOpt,
         square: SquareOpt,
-        out: Annotated[Path, typer.Option("--out", help="rig.yaml to write (one camera, identity pose).")],
+        out: Annotated[
+            Path, typer.Option("--out", metavar="FILE", help="rig.yaml to write (one camera, identity pose).")
+        ],
         images: Annotated[
             list[str] | None,
-            typer.Option("--images", help="Glob of chessboard images (quote it); repeatable."),
+            typer.Option("--images", metavar="GLOB", help="Chessboard images (quote the glob); repeatable."),
         ] = None,
         more_images: Annotated[
             list[str] | None,
             typer.Argument(metavar="IMAGES", help="More image files (an unquoted glob lands here)."),
         ] = None,
         model: ModelOpt = "kannala_brandt",
-        name: Annotated[str, typer.Option("--name", help="Camera name in the file.")] = "cam0",
+        name: Annotated[
+            str, typer.Option("--name", metavar="NAME", help="Camera name in the file.")
+        ] = "cam0",
         fov_deg: FovOpt = None,
         initial: Annotated[
-            Path | None, typer.Option("--initial", help="Optional starting guess (any calibration file).")
+            Path | None,
+            typer.Option("--initial", metavar="FILE", help="Optional starting guess (any calibration file)."),
         ] = None,
         fix: Annotated[
-            str, typer.Option("--fix", help="Parameters held at their start value, comma-separated.")
+            str,
+            typer.Option(
+                "--fix", metavar="NAMES", help="Parameters held at their start value, comma-separated."
+            ),
         ] = "",
         loss: LossOpt = "linear",
         subpix: SubpixOpt = 0,
         residuals: ResidualsOpt = None,
         refine: RefineOpt = True,
-        min_views: Annotated[int, typer.Option("--min-views", help="Fewest usable views accepted.")] = 3,
+        min_views: MinViewsOpt = 3,
     ) -> None:
         """Calibrate one camera's lens from chessboard images (no initial guess needed)."""
         spec = _check_options(model, loss, square, board)
@@ -266,24 +278,29 @@ def register(app: typer.Typer) -> None:
         console.print(f"  {_summary(camera, result.param_std)}", highlight=False, soft_wrap=True)
         _print_refinement(name, result.refinement, refine)
         if not result.converged:
-            err_console.print(f"[yellow]warning:[/yellow] {result.message}")
+            warn(result.message)
         console.print(f"wrote {out} and {picture}", highlight=False)
 
     @cal.command("stereo")
     def stereo(
-        left: Annotated[str, typer.Option("--left", help="Glob of left camera images (quote it).")],
+        left: Annotated[
+            str, typer.Option("--left", metavar="GLOB", help="Left camera images (quote the glob).")
+        ],
         right: Annotated[
-            str, typer.Option("--right", help="Glob of right camera images, same count and order.")
+            str,
+            typer.Option("--right", metavar="GLOB", help="Right camera images, same count and order."),
         ],
         board: BoardOpt,
         square: SquareOpt,
-        out: Annotated[Path, typer.Option("--out", help="rig.yaml to write.")],
+        out: Annotated[Path, typer.Option("--out", metavar="FILE", help="rig.yaml to write.")],
         model: ModelOpt = "kannala_brandt",
         left_intrinsics: Annotated[
-            Path | None, typer.Option("--left-intrinsics", help="Start from (or fix) this calibration file.")
+            Path | None,
+            typer.Option("--left-intrinsics", metavar="FILE", help="Start from (or fix) this calibration."),
         ] = None,
         right_intrinsics: Annotated[
-            Path | None, typer.Option("--right-intrinsics", help="Start from (or fix) this calibration file.")
+            Path | None,
+            typer.Option("--right-intrinsics", metavar="FILE", help="Start from (or fix) this calibration."),
         ] = None,
         fix_intrinsics: Annotated[
             bool, typer.Option("--fix-intrinsics", help="Refine only the poses.")
@@ -294,7 +311,7 @@ def register(app: typer.Typer) -> None:
         residuals: ResidualsOpt = None,
         refine: RefineOpt = True,
         min_views: Annotated[
-            int, typer.Option("--min-views", help="Fewest usable views, per camera and common.")
+            int, typer.Option("--min-views", metavar="N", help="Fewest usable views, per camera and common.")
         ] = 3,
     ) -> None:
         """Calibrate a camera pair (any divergence, corners past 90° kept) and write rig.yaml."""
@@ -346,7 +363,7 @@ def register(app: typer.Typer) -> None:
         for n in result.rig.names:
             _print_refinement(n, result.refinement.get(n), refine)
         if not result.converged:
-            err_console.print(f"[yellow]warning:[/yellow] {result.message}")
+            warn(result.message)
         console.print(f"wrote {out} and {picture}", highlight=False)
 
     app.add_typer(cal, name="calibrate")

@@ -1,26 +1,51 @@
-"""Shared pieces of the ``rig`` command line: consoles, one-line failures, stubs."""
+"""What the ``rig`` command prints: the two consoles, warnings, one-line messages and progress bars.
+
+Results go to stdout (``console``); progress, warnings and errors to stderr (``err_console``), so
+``rig ... > file`` keeps the result alone.
+"""
 
 from __future__ import annotations
 
-from typing import NoReturn
-
-import typer
 from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    ProgressColumn,
+    SpinnerColumn,
+    TextColumn,
+    TimeElapsedColumn,
+)
 
-__all__ = ["STUB_SETTINGS", "console", "err_console", "fail", "not_ready"]
+__all__ = ["console", "err_console", "one_line", "progress_bar", "warn"]
 
 console = Console()
 err_console = Console(stderr=True)
 
-# Stub commands accept whatever arguments the finished command will take.
-STUB_SETTINGS = {"allow_extra_args": True, "ignore_unknown_options": True}
+
+def one_line(message: object) -> str:
+    """``message`` with every run of whitespace (newlines included) collapsed to one space."""
+    return " ".join(str(message).split())
 
 
-def fail(message: str, code: int = 2) -> NoReturn:
-    """Print ``error: message`` as one line on stderr and exit (2 = bad input)."""
-    err_console.print(f"[red]error:[/red] {' '.join(str(message).split())}", highlight=False, soft_wrap=True)
-    raise typer.Exit(code)
+def warn(message: str) -> None:
+    """``warning: message`` on stderr (the command goes on)."""
+    err_console.print(f"[yellow]warning:[/yellow] {one_line(message)}", highlight=False, soft_wrap=True)
 
 
-def not_ready(command: str, issue: int) -> NoReturn:
-    fail(f"'rig {command}' is not implemented yet (issue #{issue})")
+def progress_bar(
+    *columns: ProgressColumn, transient: bool = True, on_stdout: bool = False, disable: bool = False
+) -> Progress:
+    """A rich progress bar: spinner, description, bar, done/total and elapsed time, then
+    ``columns``. On stderr unless ``on_stdout``; ``transient`` bars vanish when done."""
+    return Progress(
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        *columns,
+        console=console if on_stdout else err_console,
+        transient=transient,
+        disable=disable,
+    )

@@ -1,4 +1,4 @@
-"""`rig devices`: the UVC cameras on this machine and how to name them stably (issue #5)."""
+"""`rig devices`: the UVC cameras on this machine and how to name them stably (see docs/cameras.md)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from cli.console import console, warn
 from rig.capture.config import V4L2CameraConfig, load_capture_config
-from rig.cli.common import console, err_console
 from rig.usb import UsbCamera, list_uvc_cameras, shared_bus_warnings
 
 __all__ = ["register"]
@@ -48,10 +48,11 @@ def register(app: typer.Typer) -> None:
     )
     def devices(
         config: Annotated[
-            Path | None, typer.Option("--config", help="YAML file with a 'cameras:' section")
+            Path | None,
+            typer.Option("--config", metavar="FILE", help="YAML file with a 'cameras:' section."),
         ] = None,
-        sysfs_root: Annotated[Path, typer.Option("--sysfs-root", hidden=True)] = Path("/sys"),
-        dev_root: Annotated[Path, typer.Option("--dev-root", hidden=True)] = Path("/dev"),
+        sysfs_root: Annotated[Path, typer.Option("--sysfs-root", metavar="DIR", hidden=True)] = Path("/sys"),
+        dev_root: Annotated[Path, typer.Option("--dev-root", metavar="DIR", hidden=True)] = Path("/dev"),
     ) -> None:
         cams = list_uvc_cameras(sysfs_root=sysfs_root, dev_root=dev_root)
         if not cams:
@@ -81,4 +82,4 @@ def register(app: typer.Typer) -> None:
             highlight=False,
         )
         for w in warnings:
-            err_console.print(f"[yellow]warning:[/yellow] {w}", highlight=False, soft_wrap=True)
+            warn(w)

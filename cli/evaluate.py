@@ -1,4 +1,4 @@
-"""`rig evaluate` (issue #7): the paper's analysis reproduced by one command.
+"""`rig evaluate`: the paper's analysis reproduced by one command (see docs/evaluation.md).
 
 ``rig evaluate --preset paper-sim --out DIR`` calibrates every model on rendered chessboards,
 compares each model's VPC image with the Reference camera's, measures the depth error of a
@@ -15,10 +15,11 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import Progress
 from rich.table import Table
 
-from rig.cli.common import console, err_console, fail
+from cli.console import console, progress_bar
+from cli.errors import fail
 from rig.evaluate import DEFAULT_MODELS, EvaluationRun, make_config, run_evaluation, write_outputs
 from rig.evaluate.agreement import mean_ratio
 from rig.evaluate.config import FULL_DISTANCES, QUICK_DISTANCES
@@ -97,35 +98,46 @@ def _summary(run: EvaluationRun) -> Table:
 def register(app: typer.Typer) -> None:
     @app.command("evaluate")
     def evaluate(
-        out: Annotated[Path, typer.Option("--out", "-o", help="Output directory (new or empty).")],
-        preset: Annotated[str, typer.Option(help=f"Simulated rig: {', '.join(PRESETS)}.")] = "paper-sim",
+        out: Annotated[
+            Path, typer.Option("--out", "-o", metavar="DIR", help="Output directory (new or empty).")
+        ],
+        preset: Annotated[
+            str, typer.Option(metavar="PRESET", help=f"Simulated rig: {', '.join(PRESETS)}.")
+        ] = "paper-sim",
         models: Annotated[
             str | None,
             typer.Option(
-                help=f"Camera models to calibrate, comma-separated (default {','.join(DEFAULT_MODELS)})."
+                metavar="MODELS",
+                help="Camera models to calibrate, comma-separated.",
+                show_default=",".join(DEFAULT_MODELS),
             ),
         ] = None,
         distances: Annotated[
             str | None,
             typer.Option(
-                help="Plane distances in baselines, comma-separated (default "
-                f"{FULL_DISTANCES[0]:g}…{FULL_DISTANCES[-1]:g}; quick "
-                f"{','.join(f'{k:g}' for k in QUICK_DISTANCES)})."
+                metavar="LIST",
+                help="Plane distances in baselines, comma-separated.",
+                show_default=f"{FULL_DISTANCES[0]:g}…{FULL_DISTANCES[-1]:g}; quick "
+                f"{','.join(f'{k:g}' for k in QUICK_DISTANCES)}",
             ),
         ] = None,
         textures: Annotated[
-            int | None, typer.Option(help="Textures averaged per distance (default 3; quick 2).")
+            int | None,
+            typer.Option(metavar="N", help="Textures averaged per distance.", show_default="3; quick 2"),
         ] = None,
         quick: Annotated[
             bool, typer.Option("--quick", help="Reduced run (under a minute): half-size images.")
         ] = False,
         seed: Annotated[
-            int, typer.Option(help="Seed of board poses, textures, noise and point sampling.")
+            int, typer.Option(metavar="SEED", help="Seed of board poses, textures, noise and point sampling.")
         ] = 0,
         force: Annotated[bool, typer.Option("--force", help="Write into a non-empty --out.")] = False,
     ) -> None:
-        """Reproduce the paper's evaluation on a simulated rig: calibration of every model,
-        distortion removal, depth error against distance, matcher comparison."""
+        """Reproduce the paper's evaluation on a simulated rig.
+
+        Calibration of every model, distortion removal, depth error against distance, matcher
+        comparison: results.json, CSV tables, figures and report.md in --out.
+        """
         if preset not in PRESETS:
             fail(f"--preset must be one of {', '.join(PRESETS)}, got {preset!r}")
         _check_out(out, force)
@@ -140,8 +152,7 @@ def register(app: typer.Typer) -> None:
         # Calibrated models may end a hair before the VPC's edge (a few pixels invalid); the
         # pipeline's warning about it would interrupt the progress bar: the report lists it.
         logging.getLogger("rig.pipeline").setLevel(logging.ERROR)
-        columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
-        with Progress(*columns, console=err_console, transient=True) as progress:
+        with progress_bar() as progress:
             run = run_evaluation(config, _RichSink(progress))
         report = write_outputs(run, out)
         console.print(_summary(run))

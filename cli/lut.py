@@ -1,4 +1,4 @@
-"""`rig lut build|show` (issue #3): build the VPC lookup tables into the cache, list the cache."""
+"""`rig lut build|show`: build the VPC lookup tables into the cache, list the cache (see docs/stereo.md)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from rig.cli.common import console, err_console
-from rig.cli.vpc_options import (
+from cli.console import console, warn
+from cli.vpc_options import (
     CacheDirOption,
     CalibrationOption,
     PitchOption,
@@ -50,8 +50,10 @@ def register(app: typer.Typer) -> None:
         cache_dir: CacheDirOption = None,
         rebuild: Annotated[bool, typer.Option("--rebuild", help="Rebuild even if cached.")] = False,
     ) -> None:
-        """Build (or find) the LUT of each camera for the VPC pair; print path, key, valid
-        fraction and build time."""
+        """Build (or find) the LUT of each camera for the VPC pair.
+
+        Prints each table's path, key, valid fraction and build time.
+        """
         if calibration is None:
             raise ConfigError("rig lut build: --calibration FILE is required")
         rig, _ = load_calibration(calibration)
@@ -80,11 +82,8 @@ def register(app: typer.Typer) -> None:
                 "cache (load)" if got.hit else "built",
             )
             if frac < 1.0:
-                err_console.print(
-                    f"[yellow]warning:[/yellow] the VPC leaves camera '{name}''s field: only "
-                    f"{percent_valid(frac)} of its pixels are valid",
-                    highlight=False,
-                )
+                valid = percent_valid(frac)
+                warn(f"the VPC leaves camera '{name}''s field: only {valid} of its pixels are valid")
         console.print(table)
 
     @lut.command("show")
@@ -92,7 +91,7 @@ def register(app: typer.Typer) -> None:
         cache_dir: CacheDirOption = None,
         clear: Annotated[bool, typer.Option("--clear", help="Delete every cached table.")] = False,
     ) -> None:
-        """List the cache (key, size, age, what the table maps, check); ``--clear`` empties it."""
+        """List the cached tables (key, size, age, what each maps, check); --clear empties the cache."""
         cache = LutCache(cache_dir)
         if clear:
             n = cache.clear()

@@ -1,105 +1,68 @@
-"""The ``rig`` console command: ``serve`` plus the subcommands of ``rig.cli``.
+"""The ``rig`` console command: the Typer app with one module per command group.
 
-Errors from the packages become one line on stderr and exit status 2; nothing reaches the user
-as a traceback unless ``RIG_DEBUG=1``.
+Errors from every command go through :mod:`cli.errors` (one line on stderr, exit status 2 for bad
+input); ``-h``/``--help`` works on every command, ``--version`` on the root.
 """
 
 from __future__ import annotations
 
-import os
-import sys
-from pathlib import Path
+from importlib.metadata import PackageNotFoundError, version
 from typing import Annotated
 
 import typer
 
-from calibration.errors import CalibrationError
-from rig.cli import register as register_rig_commands
-from rig.cli.common import err_console
-from rig.errors import RigError
-from service.errors import ServiceError
+from cli import calibrate, devices, evaluate, lut, process, record, serve, sim
+from cli.errors import MappedErrorsGroup
 
-__all__ = ["build_app", "main"]
+__all__ = ["DISTRIBUTION", "build_app", "main", "package_version"]
+
+DISTRIBUTION = "odfc-rig"
+#: Command groups in the order ``rig -h`` lists them.
+COMMAND_MODULES = (serve, process, record, devices, calibrate, lut, sim, evaluate)
+
+
+def package_version() -> str:
+    try:
+        return version(DISTRIBUTION)
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "unknown (not installed)"
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        typer.echo(f"rig ({DISTRIBUTION}) {package_version()}")
+        raise typer.Exit()
 
 
 def build_app() -> typer.Typer:
     app = typer.Typer(
         name="rig",
+        cls=MappedErrorsGroup,
         help="Depth service for an orthogonally divergent fisheye stereo rig.",
         no_args_is_help=True,
         pretty_exceptions_enable=False,
         add_completion=False,
+        context_settings={"help_option_names": ["-h", "--help"]},
     )
 
-    @app.command("serve")
-    def serve(
-        config: Annotated[
-            Path | None,
+    @app.callback()
+    def root(
+        show_version: Annotated[
+            bool,
             typer.Option(
-                "--config", "-c", help="YAML config file (default: $RIG_CONFIG).", show_default=False
+                "--version", is_eager=True, callback=_print_version, help="Print the version and exit."
             ),
-        ] = None,
-        demo: Annotated[
-            bool, typer.Option("--demo", help="Serve the built-in simulated rig (rendered once, cached).")
         ] = False,
-        host: Annotated[
-            str | None,
-            typer.Option(help="Bind address (default 127.0.0.1); non-loopback needs RIG_API_TOKEN."),
-        ] = None,
-        port: Annotated[int | None, typer.Option(help="TCP port (default 8000); 0 = any free port.")] = None,
-        recording: Annotated[
-            Path | None, typer.Option("--recording", help="Serve a recording directory (looped).")
-        ] = None,
-        calibration: Annotated[
-            Path | None,
-            typer.Option(
-                "--calibration",
-                help="Rig calibration (rig.yaml or Kalibr camchain); default: the recording's.",
-            ),
-        ] = None,
-        log_level: Annotated[
-            str, typer.Option("--log-level", help="critical, error, warning, info, debug.")
-        ] = "info",
     ) -> None:
-        """Run the depth service (HTTP API + dashboard). With no config at all, or --demo, it serves
-        a simulated rig so you see live depth at once."""
-        from service.serve import run_serve  # FastAPI/uvicorn only when serving
+        """Depth service for an orthogonally divergent fisheye stereo rig."""
 
-        run_serve(
-            config,
-            demo=demo,
-            host=host,
-            port=port,
-            recording=recording,
-            calibration=calibration,
-            log_level=log_level.lower(),
-        )
-
-    register_rig_commands(app)
+    for module in COMMAND_MODULES:
+        module.register(app)
     return app
 
 
 def main() -> None:
-    app = build_app()
-    try:
-        app()
-    except (CalibrationError, RigError, ServiceError) as err:
-        if os.environ.get("RIG_DEBUG"):
-            raise
-        err_console.print(f"[red]error:[/red] {' '.join(str(err).split())}", highlight=False, soft_wrap=True)
-        sys.exit(2)
-    except KeyboardInterrupt:
-        sys.exit(130)
-    except Exception as err:  # a bug: still one line, with the way to get the traceback
-        if os.environ.get("RIG_DEBUG"):
-            raise
-        err_console.print(
-            f"[red]internal error:[/red] {type(err).__name__}: {' '.join(str(err).split())} "
-            "(run with RIG_DEBUG=1 for the traceback)",
-            highlight=False,
-            soft_wrap=True,
-        )
-        sys.exit(1)
+    build_app()(prog_name="rig")
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
-"""`rig process RECORDING --calibration FILE --out DIR` (issue #3, DESIGN §7): depth for every
-pair of a recording, headless.
+"""`rig process RECORDING --calibration FILE --out DIR`: depth for every pair of a recording,
+headless (recording layout: see docs/cameras.md).
 
 Output: ``DIR/depth/NNNNNN.png`` (uint16 mm, 0 = invalid, aligned with the left VPC image),
 ``DIR/left/NNNNNN.png``, ``DIR/right/NNNNNN.png`` (the VPC images), ``DIR/vpc.json``
@@ -24,10 +24,11 @@ import numpy as np
 import typer
 import yaml
 from pydantic import ValidationError
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import TimeRemainingColumn
 
-from rig.cli.common import console, err_console, fail
-from rig.cli.vpc_options import (
+from cli.console import console, one_line, progress_bar, warn
+from cli.errors import fail
+from cli.vpc_options import (
     CacheDirOption,
     CalibrationOption,
     PitchOption,
@@ -75,15 +76,18 @@ def _write_png(path: Path, image: np.ndarray[Any, Any]) -> None:
 def register(app: typer.Typer) -> None:
     @app.command("process")
     def process(
-        recording: Annotated[Path, typer.Argument(help="Recording directory (frames.csv, left/, right/).")],
-        out: Annotated[Path, typer.Option("--out", "-o", help="Output directory.")],
+        recording: Annotated[
+            Path, typer.Argument(metavar="RECORDING", help="Recording directory (frames.csv, left/, right/).")
+        ],
+        out: Annotated[Path, typer.Option("--out", "-o", metavar="DIR", help="Output directory.")],
         calibration: CalibrationOption = None,
         vpc_hfov: VpcHfovOption = 90.0,
         vpc_size: VpcSizeOption = "640x480",
         yaw: YawOption = 0.0,
         pitch: PitchOption = 0.0,
         stereo: Annotated[
-            Path | None, typer.Option("--stereo", help="YAML of stereo parameters (ROS names).")
+            Path | None,
+            typer.Option("--stereo", metavar="FILE", help="YAML of stereo parameters (ROS names)."),
         ] = None,
         ply: Annotated[
             bool, typer.Option("--ply", help="Also write DIR/cloud/NNNNNN.ply (rig frame).")
@@ -94,7 +98,7 @@ def register(app: typer.Typer) -> None:
         ] = False,
         cache_dir: CacheDirOption = None,
     ) -> None:
-        """Depth for every pair of RECORDING into --out (DESIGN §7 layout)."""
+        """Depth for every pair of RECORDING into --out: depth/, left/, right/ PNGs and vpc.json."""
         rec = Recording(recording)
         rig, cal_path = load_calibration(calibration, rec.calibration_path)
         config = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
@@ -102,11 +106,7 @@ def register(app: typer.Typer) -> None:
         pipeline = DepthPipeline(rig, config, params, cache_dir=cache_dir)
         for name, frac in pipeline.valid_fraction.items():
             if frac < 1.0:
-                err_console.print(
-                    f"[yellow]warning:[/yellow] the VPC leaves camera '{name}''s field: "
-                    f"{percent_valid(frac)} of its pixels are valid",
-                    highlight=False,
-                )
+                warn(f"the VPC leaves camera '{name}''s field: {percent_valid(frac)} of its pixels are valid")
         extra = (("cloud",) if ply else ()) + (("preview",) if preview else ())
         dirs = {k: out / k for k in ("depth", "left", "right", *extra)}
         try:
@@ -116,16 +116,8 @@ def register(app: typer.Typer) -> None:
         except OSError as err:
             raise RecordingError(f"{out}: cannot write output ({err.strerror or err})") from err
         done, skipped = 0, 0
-        progress = Progress(
-            TextColumn("depth"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeRemainingColumn(),
-            console=err_console,
-            transient=True,
-        )
-        with progress:
-            task = progress.add_task("pairs", total=len(rec.pairs))
+        with progress_bar(TimeRemainingColumn()) as progress:
+            task = progress.add_task("depth", total=len(rec.pairs))
             for pair in rec.pairs:
                 try:
                     left = rec.read_image(pair, "left", cv2.IMREAD_UNCHANGED)
@@ -134,7 +126,7 @@ def register(app: typer.Typer) -> None:
                 except (RecordingError, PipelineError) as err:
                     skipped += 1
                     progress.console.print(
-                        f"[yellow]skipped seq {pair.seq}:[/yellow] {' '.join(str(err).split())}",
+                        f"[yellow]skipped seq {pair.seq}:[/yellow] {one_line(err)}",
                         highlight=False,
                         soft_wrap=True,
                     )

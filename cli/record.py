@@ -1,4 +1,5 @@
-"""`rig record`: record synchronised pairs from the cameras, or re-record a recording (issue #5)."""
+"""`rig record`: record synchronised pairs from the cameras, or re-record a recording (see
+docs/cameras.md)."""
 
 from __future__ import annotations
 
@@ -9,13 +10,13 @@ from types import FrameType
 from typing import Annotated, Any
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from cli.console import console, err_console, progress_bar
+from cli.errors import fail
 from rig.capture.capture import StereoCapture
 from rig.capture.config import load_capture_config
 from rig.capture.health import CaptureHealth
 from rig.capture.recorder import Recorder, RecordResult, copy_calibration, replay_capture_config
-from rig.cli.common import console, err_console, fail
 from rig.errors import DiskFullError
 from rig.recording import RecordingWriter
 
@@ -62,26 +63,34 @@ def register(app: typer.Typer) -> None:
     @app.command(
         "record",
         help="Record synchronised frame pairs from the cameras of a config file (--config), or "
-        "re-record a recording (--replay), into a recording directory (DESIGN §7).",
+        "re-record a recording (--replay), into a recording directory.",
     )
     def record(
-        out: Annotated[Path, typer.Option("--out", help="recording directory to create")],
+        out: Annotated[Path, typer.Option("--out", metavar="DIR", help="Recording directory to create.")],
         config: Annotated[
-            Path | None, typer.Option("--config", help="YAML file with a 'cameras:' section")
+            Path | None,
+            typer.Option("--config", metavar="FILE", help="YAML file with a 'cameras:' section."),
         ] = None,
-        replay: Annotated[Path | None, typer.Option("--replay", help="recording directory to replay")] = None,
+        replay: Annotated[
+            Path | None, typer.Option("--replay", metavar="DIR", help="Recording directory to replay.")
+        ] = None,
         seconds: Annotated[
-            float | None, typer.Option("--seconds", min=0.0, help="stop after this long")
+            float | None, typer.Option("--seconds", metavar="SECONDS", min=0.0, help="Stop after this long.")
         ] = None,
         frames: Annotated[
-            int | None, typer.Option("--frames", min=1, help="stop after this many pairs")
+            int | None, typer.Option("--frames", metavar="N", min=1, help="Stop after this many pairs.")
         ] = None,
         fsync: Annotated[
-            bool, typer.Option("--fsync", help="fsync every pair (survives power loss)")
+            bool, typer.Option("--fsync", help="fsync every pair (survives power loss).")
         ] = False,
         startup_timeout: Annotated[
             float,
-            typer.Option("--startup-timeout", min=0.0, help="fail if a camera gives no pair by then (s)"),
+            typer.Option(
+                "--startup-timeout",
+                metavar="SECONDS",
+                min=0.0,
+                help="Fail if a camera gives no pair by then.",
+            ),
         ] = 10.0,
     ) -> None:
         if (config is None) == (replay is None):
@@ -115,17 +124,8 @@ def register(app: typer.Typer) -> None:
 
         capture = StereoCapture(capture_cfg)
         recorder = Recorder(capture, open_writer)
-        progress = Progress(
-            TextColumn("[bold]recording[/bold]"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("pairs"),
-            TimeElapsedColumn(),
-            console=err_console,
-            transient=True,
-            disable=not err_console.is_terminal,
-        )
-        task = progress.add_task("record", total=total)
+        progress = progress_bar(disable=not err_console.is_terminal)
+        task = progress.add_task("recording pairs", total=total)
         result: RecordResult | None = None
         try:
             with _StopOnSignal() as stop, progress:
@@ -140,7 +140,7 @@ def register(app: typer.Typer) -> None:
         except DiskFullError as err:
             capture.stop()
             recorder.close()
-            fail(f"{err} ({recorder.written} pairs written, {out} stays readable)")
+            raise DiskFullError(f"{err} ({recorder.written} pairs written, {out} stays readable)") from err
         finally:
             capture.stop()
             recorder.close()

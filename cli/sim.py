@@ -1,7 +1,8 @@
-"""`rig sim` (issue #3): render a recording of a simulated rig with exact ground truth.
+"""`rig sim`: render a recording of a simulated rig with exact ground truth.
 
-``rig sim --preset paper-sim --scene plane --distances 3,5,10 --out DIR`` writes DESIGN §7's
-recording layout plus ``calibration.yaml`` and ``ground_truth/`` (see ``rig.sim.simulate``).
+``rig sim --preset paper-sim --scene plane --distances 3,5,10 --out DIR`` writes the usual
+recording layout (see docs/cameras.md) plus ``calibration.yaml`` and ``ground_truth/`` (see
+``rig.sim.simulate``).
 ``--scene plane`` renders the fronto-parallel target at each distance (in baselines),
 ``--frames-per-distance`` pairs each; ``--scene room`` renders ``--frames`` pairs along a path
 through the demo room (``--distances`` does not apply there). Numbers are parsed here, so a bad
@@ -16,17 +17,11 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
+from rich.progress import TimeRemainingColumn
 
-from rig.cli.common import console, fail
-from rig.cli.vpc_options import make_vpc_config
+from cli.console import console, progress_bar
+from cli.errors import fail
+from cli.vpc_options import make_vpc_config
 from rig.sim.presets import PRESETS, get_preset
 from rig.sim.simulate import DEFAULT_DISTANCES, DEFAULT_ROOM_FRAMES, SCENES, simulate_recording
 from rig.sim.textures import TEXTURES, texture_name
@@ -69,47 +64,60 @@ def parse_distances(text: str) -> list[float]:
 def register(app: typer.Typer) -> None:
     @app.command("sim")
     def sim(
-        out: Annotated[Path, typer.Option("--out", "-o", help="New (or empty) recording directory.")],
-        preset: Annotated[str, typer.Option(help=f"Simulated rig: {', '.join(PRESETS)}.")] = "paper-sim",
-        scene: Annotated[str, typer.Option(help="plane (the paper's target) or room (demo).")] = "plane",
+        out: Annotated[
+            Path, typer.Option("--out", "-o", metavar="DIR", help="New (or empty) recording directory.")
+        ],
+        preset: Annotated[
+            str, typer.Option(metavar="PRESET", help=f"Simulated rig: {', '.join(PRESETS)}.")
+        ] = "paper-sim",
+        scene: Annotated[
+            str, typer.Option(metavar="SCENE", help="plane (the paper's target) or room (demo).")
+        ] = "plane",
         distances: Annotated[
             str | None,
             typer.Option(
-                help="plane: target distances in baselines, comma-separated "
-                f"(default {','.join(f'{d:g}' for d in DEFAULT_DISTANCES)})."
+                metavar="LIST",
+                help="plane: target distances in baselines, comma-separated.",
+                show_default=",".join(f"{d:g}" for d in DEFAULT_DISTANCES),
             ),
         ] = None,
         frames_per_distance: Annotated[
-            str, typer.Option(metavar="INT", help="plane: pairs per distance.")
+            str, typer.Option(metavar="N", help="plane: pairs per distance.")
         ] = "1",
         frames: Annotated[
             str | None,
-            typer.Option(metavar="INT", help=f"room: pairs along the path (default {DEFAULT_ROOM_FRAMES})."),
+            typer.Option(
+                metavar="N", help="room: pairs along the path.", show_default=str(DEFAULT_ROOM_FRAMES)
+            ),
         ] = None,
         texture: Annotated[
-            str, typer.Option(help=f"plane texture: {', '.join(TEXTURES)} or its index.")
+            str, typer.Option(metavar="TEXTURE", help=f"plane texture: {', '.join(TEXTURES)} or its index.")
         ] = TEXTURES[0],
         seed: Annotated[
-            str, typer.Option(metavar="INT", help="Seed of textures, room layout and noise.")
+            str, typer.Option(metavar="SEED", help="Seed of textures, room layout and noise.")
         ] = "0",
         noise: Annotated[
             str | None,
-            typer.Option(metavar="FLOAT", help="Sensor noise std in grey levels (default: the preset's)."),
+            typer.Option(metavar="STD", help="Sensor noise std in grey levels.", show_default="the preset's"),
         ] = None,
         vignetting: Annotated[
             str | None,
-            typer.Option(metavar="FLOAT", help="Vignetting strength 0..1 (default: the preset's)."),
+            typer.Option(metavar="STRENGTH", help="Vignetting strength 0..1.", show_default="the preset's"),
         ] = None,
         supersample: Annotated[
-            str, typer.Option(metavar="INT", help="Sub-pixel rays per axis (anti-aliasing).")
+            str, typer.Option(metavar="N", help="Sub-pixel rays per axis (anti-aliasing).")
         ] = "3",
         scale: Annotated[
             str,
-            typer.Option(metavar="FLOAT", help="Scale the preset cameras' images (e.g. 0.5 for quick runs)."),
+            typer.Option(
+                metavar="FACTOR", help="Scale the preset cameras' images (e.g. 0.5 for quick runs)."
+            ),
         ] = "1",
-        vpc_size: Annotated[str, typer.Option("--vpc-size", help="Ground-truth VPC size WxH.")] = "640x480",
+        vpc_size: Annotated[
+            str, typer.Option("--vpc-size", metavar="WxH", help="Ground-truth VPC size.")
+        ] = "640x480",
         vpc_hfov: Annotated[
-            str, typer.Option("--vpc-hfov", metavar="FLOAT", help="Ground-truth VPC horizontal FOV (deg).")
+            str, typer.Option("--vpc-hfov", metavar="DEG", help="Ground-truth VPC horizontal field of view.")
         ] = "90",
         color: Annotated[bool, typer.Option("--color/--gray", help="Render BGR colour frames.")] = False,
     ) -> None:
@@ -142,14 +150,7 @@ def register(app: typer.Typer) -> None:
         if factor != 1.0:
             chosen = chosen.scaled(factor)
         start = time.monotonic()
-        columns = (
-            TextColumn("[progress.description]{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-        )
-        with Progress(*columns, console=console, transient=False) as bar:
+        with progress_bar(TimeRemainingColumn(), transient=False, on_stdout=True) as bar:
             task = bar.add_task(f"rendering {scene} ({chosen.name})", total=None)
 
             def step(done: int, total: int) -> None:

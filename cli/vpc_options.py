@@ -31,16 +31,28 @@ CalibrationOption = Annotated[
     typer.Option(
         "--calibration",
         "-c",
+        metavar="FILE",
         help="Rig calibration: rig.yaml or Kalibr camchain.yaml (cam0 = left, cam1 = right).",
     ),
 ]
-VpcHfovOption = Annotated[float, typer.Option("--vpc-hfov", help="VPC horizontal field of view (deg).")]
-VpcSizeOption = Annotated[str, typer.Option("--vpc-size", help="VPC image size WxH.")]
-YawOption = Annotated[float, typer.Option("--yaw", help="VPC look direction, right (+) / left (-) (deg).")]
-PitchOption = Annotated[float, typer.Option("--pitch", help="VPC look direction, up (+) / down (-) (deg).")]
+VpcHfovOption = Annotated[
+    float, typer.Option("--vpc-hfov", metavar="DEG", help="VPC horizontal field of view.")
+]
+VpcSizeOption = Annotated[str, typer.Option("--vpc-size", metavar="WxH", help="VPC image size.")]
+YawOption = Annotated[
+    float, typer.Option("--yaw", metavar="DEG", help="VPC look direction, right (+) / left (-).")
+]
+PitchOption = Annotated[
+    float, typer.Option("--pitch", metavar="DEG", help="VPC look direction, up (+) / down (-).")
+]
 CacheDirOption = Annotated[
     Path | None,
-    typer.Option("--cache-dir", help="LUT cache directory (default: $RIG_CACHE_DIR or the user cache)."),
+    typer.Option(
+        "--cache-dir",
+        metavar="DIR",
+        help="LUT cache directory.",
+        show_default="$RIG_CACHE_DIR or the user cache",
+    ),
 ]
 
 

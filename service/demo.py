@@ -22,15 +22,6 @@ from typing import Any
 
 import numpy as np
 import platformdirs
-from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    SpinnerColumn,
-    TextColumn,
-    TimeElapsedColumn,
-)
 
 from rig.recording import RECORDING_VERSION, Recording, RecordingWriter
 from rig.sim import get_preset, simulate_recording
@@ -41,6 +32,7 @@ __all__ = [
     "DEMO_FPS",
     "DEMO_VERSION",
     "DemoSpec",
+    "cached_demo_recording",
     "demo_cache_dir",
     "demo_key",
     "demo_overrides",
@@ -155,30 +147,30 @@ def _remove_leftovers(cache: Path, key: str) -> None:
             shutil.rmtree(tmp, ignore_errors=True)
 
 
+def cached_demo_recording(spec: DemoSpec | None = None, cache_dir: Path | None = None) -> Path | None:
+    """The demo's loop recording if it has been rendered already, else None."""
+    loop = (cache_dir or demo_cache_dir()) / demo_key(spec or DemoSpec()) / "loop"
+    return loop if (loop / "frames.csv").is_file() else None
+
+
 def ensure_demo_recording(
-    spec: DemoSpec | None = None,
-    cache_dir: Path | None = None,
-    *,
-    console: Console | None = None,
-    progress: StepProgress | None = None,
+    spec: DemoSpec | None = None, cache_dir: Path | None = None, *, progress: StepProgress | None = None
 ) -> Path:
-    """The demo's loop recording, rendered on first use (with a progress bar on ``console``)."""
+    """The demo's loop recording, rendered on first use (reporting to ``progress``)."""
     spec = spec or DemoSpec()
     cache = cache_dir or demo_cache_dir()
+    cached = cached_demo_recording(spec, cache)
+    if cached is not None:
+        return cached
     key = demo_key(spec)
     final = cache / key
-    if (final / "loop" / "frames.csv").is_file():
-        return final / "loop"
     cache.mkdir(parents=True, exist_ok=True)
     _remove_leftovers(cache, key)
     tmp = cache / f".{key}.tmp-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
     try:
-        if console is not None and progress is None:
-            _render_with_bar(spec, tmp, console)
-        else:
-            render_demo(spec, tmp, progress)
+        render_demo(spec, tmp, progress)
         (tmp / "demo.json").write_text(json.dumps(spec.as_json(), indent=2) + "\n")
         try:
             os.rename(tmp, final)
@@ -188,25 +180,6 @@ def ensure_demo_recording(
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return final / "loop"
-
-
-def _render_with_bar(spec: DemoSpec, out: Path, console: Console) -> None:
-    with Progress(
-        SpinnerColumn(),
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=console,
-        transient=False,
-    ) as bar:
-        render_task = bar.add_task("rendering the demo room (once; cached)", total=1)
-        noise_task = bar.add_task("adding sensor noise", total=spec.frames)
-
-        def step(name: str, done: int, total: int) -> None:
-            bar.update(render_task if name == "render" else noise_task, completed=done, total=total)
-
-        render_demo(spec, out, step)
 
 
 def replay_overrides(recording: Path, calibration: Path, pace: float | str) -> dict[str, Any]:

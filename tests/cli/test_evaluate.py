@@ -166,7 +166,7 @@ def test_bad_values_are_one_line_and_exit_2(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
     # In process (the console script's own main()): the checks run before any work.
-    from service.cli import main
+    from cli.main import main
 
     monkeypatch.setattr(sys, "argv", ["rig", "evaluate", "--quick", "--out", str(tmp_path / "out"), *args])
     monkeypatch.setenv("COLUMNS", "200")

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from cli.main import build_app
 from rig.recording import Recording
-from service.cli import build_app
 from tests.reliability.fake_disk import Budget
 from tests.rig.capture_fixtures import write_recording
 from tests.rig.test_recording_writer import disk  # noqa: F401 - fixture
@@ -156,8 +156,8 @@ def test_full_disk_stops_with_one_line_and_keeps_what_was_written(
 def run_main(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], args: list[str]
 ) -> tuple[int, str]:
-    """``rig ARGS`` through the console script's entry point (service.cli.main), in-process."""
-    from service.cli import main
+    """``rig ARGS`` through the console script's entry point (cli.main.main), in-process."""
+    from cli.main import main
 
     monkeypatch.setattr(sys, "argv", ["rig", *args])
     with pytest.raises(SystemExit) as exc:

@@ -1,12 +1,11 @@
 """USB identity against a fake sysfs/dev tree and a fake pyusb backend (real pyusb code path),
-bandwidth arithmetic, `rig devices`, and the udev rules file."""
+bandwidth arithmetic, and the udev rules file (`rig devices`: tests/cli/test_devices.py)."""
 
 from __future__ import annotations
 
 import re
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -17,7 +16,6 @@ import usb.backend.libusb0
 import usb.backend.libusb1
 import usb.backend.openusb
 import usb.core
-from typer.testing import CliRunner
 
 from rig.errors import UsbError
 from rig.usb import (
@@ -28,7 +26,6 @@ from rig.usb import (
     shared_bus_warnings,
     sysfs_usb_device_of_video,
 )
-from service.cli import build_app
 
 REPO = Path(__file__).resolve().parents[2]
 PCI = "devices/pci0000:00/0000:00:14.0"
@@ -233,60 +230,6 @@ def test_shared_bus_warning(machine: SimpleNamespace) -> None:
     assert shared_bus_warnings(req("YUYV", 640, 480), sysfs_root=machine.sys) == []  # 295 of 384 Mb/s
     (warning,) = shared_bus_warnings(req("YUYV", 800, 600), sysfs_root=machine.sys)  # 2 × 230 Mb/s
     assert "cameras left, right share USB bus 1" in warning and "461 Mb/s" in warning and "384" in warning
-
-
-# ----- rig devices ---------------------------------------------------------------------------------
-def test_rig_devices_table(monkeypatch: pytest.MonkeyPatch, machine: SimpleNamespace, tmp_path: Path) -> None:
-    import rig.cli.devices as devices_cli
-
-    real = devices_cli.list_uvc_cameras
-    monkeypatch.setattr(devices_cli, "list_uvc_cameras", lambda **kw: real(backend=machine.backend, **kw))
-    cfg = tmp_path / "rig.yaml"
-    left_link = machine.dev / "v4l/by-path/pci-0000:00:14.0-usb-0:1.2:1.0-video-index0"
-    fmt = "fourcc: YUYV, width: 800, height: 600"
-    cfg.write_text(
-        "cameras:\n"
-        f"  left: {{kind: v4l2, device: '{left_link}', {fmt}}}\n"
-        f"  right: {{kind: v4l2, device: '{machine.dev / 'video2'}', {fmt}}}\n"
-    )
-    args = ["devices", "--sysfs-root", str(machine.sys), "--dev-root", str(machine.dev), "--config", str(cfg)]
-    monkeypatch.setattr(devices_cli.console, "width", 400)  # long tmp paths on one line each
-    result = CliRunner().invoke(build_app(), args)
-    assert result.exit_code == 0, result.output
-    out = result.output
-    rows = [line for line in out.splitlines() if "32e4:9230" in line]
-    assert len(rows) == 2
-    assert "left" in rows[0] and "1-1.2" in rows[0] and "SN-LEFT" in rows[0] and "video0" in rows[0]
-    assert "right" in rows[1] and "1-1.3" in rows[1] and "high (480 Mb/s)" in rows[1]
-    assert "usb-0:1.2:1.0-video-index0" in out
-    assert "share USB bus 1" in out
-
-
-def test_rig_devices_with_no_camera(machine: SimpleNamespace) -> None:
-    import rig.cli.devices as devices_cli
-
-    args = ["devices", "--sysfs-root", str(machine.sys), "--dev-root", str(machine.dev)]
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(
-            devices_cli, "list_uvc_cameras", lambda **kw: list_uvc_cameras(backend=FakeBackend([]), **kw)
-        )
-        result = CliRunner().invoke(build_app(), args)
-    assert result.exit_code == 0 and "no UVC cameras found" in result.output
-
-
-def test_rig_devices_without_libusb_exits_2_with_one_line(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> None:
-    from service.cli import main
-
-    for mod in (usb.backend.libusb1, usb.backend.libusb0, usb.backend.openusb):
-        monkeypatch.setattr(mod, "get_backend", lambda *a, **k: None)
-    monkeypatch.setattr(sys, "argv", ["rig", "devices"])
-    with pytest.raises(SystemExit) as exc:
-        main()
-    assert exc.value.code == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "libusb-1.0-0" in err and err.startswith("error:")
 
 
 # ----- udev rules ----------------------------------------------------------------------------------

@@ -1,0 +1,196 @@
+"""``rig serve``: settings → bound socket → runtime → uvicorn.
+
+Order matters for the user: settings are validated first (a non-loopback bind without a token
+is refused before anything else happens), then the socket is bound (a busy port is one line, not
+a traceback after startup), then the demo is rendered if needed (with a progress bar) and the
+runtime is built (calibration, LUTs, cameras).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from cli.console import console, err_console, progress_bar
+from cli.errors import fail
+from rig.errors import RecordingError
+from rig.recording import Recording
+from service.demo import (
+    DemoSpec,
+    cached_demo_recording,
+    demo_overrides,
+    ensure_demo_recording,
+    replay_overrides,
+)
+from service.settings import Settings, load_settings
+
+__all__ = ["register", "serve_settings"]
+
+
+def _deep_merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    out = dict(a)
+    for k, v in b.items():
+        out[k] = _deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def recording_overrides(recording: Path, calibration: Path | None) -> dict[str, Any]:
+    """File cameras replaying ``recording`` at its recorded pace, looping, live timestamps."""
+    try:
+        rec = Recording(recording)
+    except RecordingError as err:
+        fail(f"--recording: {err}")
+    calib = calibration or rec.calibration_path
+    if calib is None:
+        fail(f"--recording {recording}: it has no calibration.yaml; give --calibration FILE")
+    return replay_overrides(rec.root, calib, "recorded")
+
+
+def demo_recording() -> Path:
+    """The demo's loop recording, rendered with a progress bar the first time."""
+    spec = DemoSpec()
+    cached = cached_demo_recording(spec)
+    if cached is not None:
+        return cached
+    with progress_bar(transient=False, on_stdout=True) as bar:
+        tasks = {
+            "render": bar.add_task("rendering the demo room (once; cached)", total=1),
+            "noise": bar.add_task("adding sensor noise", total=spec.frames),
+        }
+
+        def step(name: str, done: int, total: int) -> None:
+            bar.update(tasks[name], completed=done, total=total)
+
+        return ensure_demo_recording(spec, progress=step)
+
+
+def serve_settings(
+    config: Path | None,
+    *,
+    demo: bool = False,
+    host: str | None = None,
+    port: int | None = None,
+    recording: Path | None = None,
+    calibration: Path | None = None,
+) -> Settings:
+    """The settings ``rig serve`` runs with (renders the demo if it is used and not cached)."""
+    if demo and recording is not None:
+        fail("--demo and --recording exclude each other")
+    overrides: dict[str, Any] = {"server": {}}
+    if host is not None:
+        overrides["server"]["host"] = host
+    if port is not None:
+        overrides["server"]["port"] = port
+    if calibration is not None:
+        overrides["calibration"] = {"path": str(calibration)}
+    base = load_settings(config, overrides)  # validates the bind before any slow work
+    if recording is not None:
+        overrides = _deep_merge(overrides, recording_overrides(recording, calibration))
+    elif demo or base.cameras is None:
+        if not demo:
+            console.print("no cameras configured: serving the built-in demo (simulated rig)")
+        overrides = _deep_merge(overrides, demo_overrides(demo_recording()))
+    else:
+        return base
+    return load_settings(config, overrides)
+
+
+def run_serve(
+    config: Path | None = None,
+    *,
+    demo: bool = False,
+    host: str | None = None,
+    port: int | None = None,
+    recording: Path | None = None,
+    calibration: Path | None = None,
+    log_level: str = "info",
+) -> None:
+    # FastAPI and uvicorn are imported only when serving (the other commands start faster).
+    from service.runtime import Runtime
+    from service.serve import LOG_LEVELS, bind_socket, run_server
+
+    if log_level not in LOG_LEVELS:
+        fail(f"--log-level must be one of {', '.join(LOG_LEVELS)}, got {log_level!r}")
+    logging.basicConfig(level=log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
+    # The bind is validated (loopback or token) and taken before any slow work (demo render, LUTs).
+    early: dict[str, Any] = {"server": {k: v for k, v in (("host", host), ("port", port)) if v is not None}}
+    first = load_settings(config, early)
+    sock = bind_socket(first.server.host, first.server.port)
+    bound_port = sock.getsockname()[1]
+    try:
+        settings = serve_settings(
+            config, demo=demo, host=host, port=port, recording=recording, calibration=calibration
+        )
+        runtime = Runtime.build(settings)
+    except BaseException:
+        sock.close()
+        raise
+    server_host = settings.server.host
+    host_part = f"[{server_host}]" if ":" in server_host else server_host
+    url = f"http://{host_part}:{bound_port}/"
+    console.print(
+        f"depth service: {url}  (dashboard; API docs at {url}docs; Ctrl+C stops)",
+        highlight=False,
+        soft_wrap=True,
+    )
+    run_server(settings, runtime, sock, log_level)
+    err_console.print("depth service stopped (worker and capture threads joined)", highlight=False)
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("serve")
+    def serve(
+        config: Annotated[
+            Path | None,
+            typer.Option(
+                "--config", "-c", metavar="FILE", help="YAML config file.", show_default="$RIG_CONFIG"
+            ),
+        ] = None,
+        demo: Annotated[
+            bool, typer.Option("--demo", help="Serve the built-in simulated rig (rendered once, cached).")
+        ] = False,
+        host: Annotated[
+            str | None,
+            typer.Option(
+                metavar="ADDRESS",
+                help="Bind address; non-loopback needs RIG_API_TOKEN.",
+                show_default="127.0.0.1",
+            ),
+        ] = None,
+        port: Annotated[
+            int | None, typer.Option(metavar="PORT", help="TCP port; 0 = any free port.", show_default="8000")
+        ] = None,
+        recording: Annotated[
+            Path | None,
+            typer.Option("--recording", metavar="DIR", help="Serve a recording directory (looped)."),
+        ] = None,
+        calibration: Annotated[
+            Path | None,
+            typer.Option(
+                "--calibration",
+                metavar="FILE",
+                help="Rig calibration (rig.yaml or Kalibr camchain).",
+                show_default="the recording's",
+            ),
+        ] = None,
+        log_level: Annotated[
+            str,
+            typer.Option("--log-level", metavar="LEVEL", help="critical, error, warning, info or debug."),
+        ] = "info",
+    ) -> None:
+        """Run the depth service (HTTP API + dashboard).
+
+        With no config at all, or --demo, it serves a simulated rig so you see live depth at once.
+        """
+        run_serve(
+            config,
+            demo=demo,
+            host=host,
+            port=port,
+            recording=recording,
+            calibration=calibration,
+            log_level=log_level.lower(),
+        )
