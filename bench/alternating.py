@@ -20,7 +20,7 @@ from types import TracebackType
 from rig.capture.frame import Frame, FramePair
 from service.runtime import Runtime
 from service.settings import Settings
-from service.store import FrameResult
+from service.store import PublishedResult
 from service.worker import PairSource
 
 __all__ = ["GatedPairs", "Window", "WorkerSession"]
@@ -100,7 +100,7 @@ class WorkerSession:
         latest = self.runtime.store.latest
         return 0 if latest is None else latest.index
 
-    def _next_result(self, index: int, timeout_s: float) -> FrameResult:
+    def _next_result(self, index: int, timeout_s: float) -> PublishedResult:
         result = self.runtime.store.wait_newer(index, timeout_s)
         if result is None:
             raise RuntimeError(f"the worker published nothing in {timeout_s:g} s")

@@ -12,6 +12,7 @@ __all__ = [
     "DiskFullError",
     "EndOfStream",
     "EvaluationError",
+    "FaultNotSupported",
     "LutError",
     "PipelineError",
     "RecordingError",
@@ -27,6 +28,10 @@ class RigError(Exception):
 
 class ConfigError(RigError, ValueError):
     """A configuration value (VPC, stereo, camera, preset) is invalid."""
+
+
+class FaultNotSupported(ConfigError):
+    """The camera cannot take injected faults (only file-backed cameras can)."""
 
 
 class CameraUnavailable(RigError):

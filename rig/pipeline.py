@@ -38,7 +38,7 @@ from rig.filters import TemporalFilter, fill_where, median_filter, visible_in_ri
 from rig.heap import tune_allocator
 from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
-from rig.stereo import DisparityResult, StereoMatcher, StereoParams, UnfilteredDisparity
+from rig.stereo import MatchedDisparity, StereoMatcher, StereoParams, UnfilteredDisparity
 from rig.subpixel import Normalisation, confidence_from_sigma, refine_rows, refinement_inputs
 from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
 
@@ -285,7 +285,7 @@ class DepthPipeline:
             unfiltered = matcher.compute(rect.left_gray, rect.right_gray)
             return MatchedPair(rect, matcher, unfiltered, (time.perf_counter() - t0) * 1e3)
 
-    def _disparity(self, matched: MatchedPair) -> DisparityResult:
+    def _disparity(self, matched: MatchedPair) -> MatchedDisparity:
         """The matcher's disparity of ``matched`` (speckles removed), LUT masks applied."""
         raw = matched.matcher.finish(matched.unfiltered)
         disparity, valid = raw.disparity, raw.valid
@@ -295,7 +295,7 @@ class DepthPipeline:
             valid = visible_in_right(disparity, valid, self._right_mask)
         if self._left_mask is not None or self._right_mask is not None:
             fill_where(disparity, np.nan, ~valid)
-        return DisparityResult(disparity, valid)
+        return MatchedDisparity(disparity, valid)
 
     def finish(self, matched: MatchedPair, seq: int = 0, ts_ns: int = 0) -> DepthFrame:
         """Stage 3 of :meth:`process`: the matcher's speckle removal, then refinement, filters,

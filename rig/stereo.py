@@ -1,4 +1,4 @@
-"""Stereo matching on the rectified VPC pair (DESIGN §6).
+"""Stereo matching on the rectified VPC pair (see docs/stereo.md).
 
 OpenCV ``StereoSGBM`` (any of its modes) or ``StereoBM``, configured with the parameter names
 of ROS ``stereo_image_proc``'s disparity node, plus our own stages: subpixel refinement
@@ -35,7 +35,7 @@ from rig.filters import fill_where, left_right_consistent
 
 __all__ = [
     "SGBM_MODES",
-    "DisparityResult",
+    "MatchedDisparity",
     "StereoMatcher",
     "StereoParams",
     "UnfilteredDisparity",
@@ -124,8 +124,8 @@ class StereoParams(BaseModel):
 
 
 @dataclass
-class DisparityResult:
-    """Raw matcher output for one pair: disparity (H, W) float32 px, NaN invalid."""
+class MatchedDisparity:
+    """The disparity of one matched pair: (H, W) float32 px, NaN where ``valid`` is False."""
 
     disparity: F32
     valid: NDArray[np.bool_]
@@ -135,7 +135,7 @@ class DisparityResult:
 class UnfilteredDisparity:
     """OpenCV's fixed-point disparities of one pair (1/16 px, int16) before the speckle removal:
     the left view's (H, W) and, with ``lr_check``, the mirrored pair's (H, W), still mirrored.
-    Made by :meth:`StereoMatcher.compute`, turned into a :class:`DisparityResult` by
+    Made by :meth:`StereoMatcher.compute`, turned into a :class:`MatchedDisparity` by
     :meth:`StereoMatcher.finish`."""
 
     left: NDArray[np.int16]
@@ -238,7 +238,7 @@ class StereoMatcher:
         self.remove_speckles(out)
         return out
 
-    def finish(self, unfiltered: UnfilteredDisparity) -> DisparityResult:
+    def finish(self, unfiltered: UnfilteredDisparity) -> MatchedDisparity:
         """Disparity of the left image (H, W) float32 px, NaN where the matcher gave none;
         with ``lr_check`` also NaN where the right image's disparity disagrees. Consumes
         ``unfiltered`` (its arrays are filtered in place)."""
@@ -254,9 +254,9 @@ class StereoMatcher:
         # OpenCV's masked copy: numpy's boolean assignment branches per pixel (~6 ms on a
         # 1280×960 frame against ~0.3), and this is on every frame's critical path.
         fill_where(disp, np.nan, ~valid)
-        return DisparityResult(disp, valid)
+        return MatchedDisparity(disp, valid)
 
-    def match(self, left: U8, right: U8) -> DisparityResult:
+    def match(self, left: U8, right: U8) -> MatchedDisparity:
         """:meth:`compute` then :meth:`finish`."""
         return self.finish(self.compute(left, right))
 

@@ -1,4 +1,4 @@
-"""The depth service: FastAPI app, settings, worker, typed client and the ``rig`` CLI wiring.
+"""The depth service: FastAPI app, settings, worker and typed client (``rig serve`` is in ``cli``).
 
 ``create_app``, ``Settings``, ``load_settings`` and ``RigClient`` are imported on first use, so
 ``import service`` (and ``rig --help``) stays cheap and builds nothing.

@@ -8,27 +8,15 @@ first so a bad configuration is one line before the server starts), and stopped 
 from __future__ import annotations
 
 import logging
-import re
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI, Request
-from fastapi.exception_handlers import http_exception_handler
+from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import JSONResponse, Response
 from starlette.concurrency import run_in_threadpool
-from starlette.exceptions import HTTPException as StarletteHTTPException
-from starlette.routing import compile_path
 from starlette.types import Receive, Scope, Send
 
-from rig.errors import ConfigError, DiskFullError, RigError
-from service.errors import (
-    ConfidenceOff,
-    RecordingConflict,
-    RecordingNameError,
-    RecordingNotFound,
-    ServiceError,
-)
+from service.error_handlers import install_error_handlers
 from service.fast_path import answer_hot_request
 from service.routes import (
     calibration,
@@ -51,34 +39,6 @@ __all__ = ["API_VERSION", "DepthServiceApp", "create_app"]
 log = logging.getLogger("service.app")
 
 API_VERSION = "1"
-
-_STATUS = {
-    RecordingNameError: 422,
-    RecordingConflict: 409,
-    ConfidenceOff: 409,
-    RecordingNotFound: 404,
-    ConfigError: 422,
-    DiskFullError: 507,
-}
-
-
-def _status_for(err: Exception) -> int:
-    for cls, status in _STATUS.items():
-        if isinstance(err, cls):
-            return status
-    return 500
-
-
-def _documented_methods(app: FastAPI, path: str) -> set[str]:
-    """HTTP methods the OpenAPI document lists for the path template matching ``path``."""
-    table: list[tuple[re.Pattern[str], set[str]]] | None = getattr(app.state, "allow_table", None)
-    if table is None:
-        table = [
-            (compile_path(template)[0], {m.upper() for m in ops})
-            for template, ops in app.openapi().get("paths", {}).items()
-        ]
-        app.state.allow_table = table
-    return {m for regex, methods in table if regex.match(path) for m in methods}
 
 
 class DepthServiceApp(FastAPI):
@@ -126,30 +86,7 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
     if settings.server.fault_injection:
         app.include_router(faults.router)
 
-    async def package_error(request: Request, exc: Exception) -> JSONResponse:
-        status = _status_for(exc)
-        if status >= 500:
-            log.error("%s %s: %s", request.method, request.url.path, exc)
-        return JSONResponse({"detail": str(exc)}, status_code=status)
-
-    async def internal_error(request: Request, exc: Exception) -> JSONResponse:
-        log.exception("%s %s failed", request.method, request.url.path)
-        return JSONResponse({"detail": f"internal error: {type(exc).__name__}"}, status_code=500)
-
-    async def http_error(request: Request, exc: Exception) -> Response:
-        assert isinstance(exc, StarletteHTTPException)
-        response = await http_exception_handler(request, exc)
-        if exc.status_code == 405:
-            # Each method is its own route: list every documented method of the path.
-            methods = _documented_methods(request.app, request.url.path)
-            if methods:
-                response.headers["Allow"] = ", ".join(sorted(methods))
-        return response
-
-    app.add_exception_handler(StarletteHTTPException, http_error)
-    app.add_exception_handler(ServiceError, package_error)
-    app.add_exception_handler(RigError, package_error)
-    app.add_exception_handler(Exception, internal_error)
+    install_error_handlers(app)
 
     # Added last = outermost: oversized bodies are refused before anything else reads them.
     if settings.server.cors_origins:

@@ -29,17 +29,17 @@ from service.errors import ApiError
 from service.schemas import CalibrationModel, ConfigModel, HealthModel, RecordingInfo
 
 __all__ = [
-    "ConfidenceResult",
-    "DepthResult",
-    "DisparityResult",
-    "FrameResult",
-    "PointCloudResult",
+    "ConfidenceMap",
+    "DepthMap",
+    "DisparityMap",
+    "FrameImage",
+    "PointCloud",
     "RigClient",
 ]
 
 
 @dataclass(frozen=True)
-class DepthResult:
+class DepthMap:
     """``depth`` (H, W) float32 metres, NaN invalid; ``scale`` metres per unit of the body that
     was transferred (0.001 for a mm PNG, 1.0 for npy)."""
 
@@ -50,21 +50,25 @@ class DepthResult:
 
 
 @dataclass(frozen=True)
-class DisparityResult:
+class DisparityMap:
+    """``disparity`` (H, W) float32 px of the left VPC image, NaN invalid."""
+
     disparity: NDArray[np.float32]
     seq: int
     ts_ns: int
 
 
 @dataclass(frozen=True)
-class ConfidenceResult:
+class ConfidenceMap:
     confidence: NDArray[np.float32]  # [0, 1], 0 where depth is invalid
     seq: int
     ts_ns: int
 
 
 @dataclass(frozen=True)
-class FrameResult:
+class FrameImage:
+    """One camera's image (``view`` raw or vpc) or the colour-mapped depth (``view`` depth)."""
+
     image: NDArray[np.uint8]
     seq: int
     ts_ns: int
@@ -73,7 +77,7 @@ class FrameResult:
 
 
 @dataclass(frozen=True)
-class PointCloudResult:
+class PointCloud:
     """``points`` (N, 3) float32 in the rig frame (m); ``colors`` (N, 3) uint8 RGB or None."""
 
     points: NDArray[np.float32]
@@ -176,41 +180,41 @@ class RigClient:
         units = _decode_image(r.content, path)
         return units.astype(np.float32) * np.float32(scale), units, seq, ts, scale
 
-    def depth(self, format: Literal["npy", "png"] = "npy") -> DepthResult:
+    def depth(self, format: Literal["npy", "png"] = "npy") -> DepthMap:
         """Latest depth in metres (NaN invalid), whichever encoding is transferred."""
         depth, units, seq, ts, scale = self._array("/depth", format, "X-Depth-Scale")
         if units is not None:
             depth[units == 0] = np.nan
-        return DepthResult(depth, seq, ts, scale)
+        return DepthMap(depth, seq, ts, scale)
 
-    def disparity(self, format: Literal["npy", "png"] = "npy") -> DisparityResult:
+    def disparity(self, format: Literal["npy", "png"] = "npy") -> DisparityMap:
         disp, units, seq, ts, _ = self._array("/disparity", format, "X-Disparity-Scale")
         if units is not None:
             disp[units == 0] = np.nan
-        return DisparityResult(disp, seq, ts)
+        return DisparityMap(disp, seq, ts)
 
-    def confidence(self, format: Literal["npy", "png"] = "npy") -> ConfidenceResult:
+    def confidence(self, format: Literal["npy", "png"] = "npy") -> ConfidenceMap:
         """Latest confidence map in [0, 1] (0 where depth is invalid)."""
         conf, units, seq, ts, _ = self._array("/confidence", format, "X-Confidence-Scale")
         if units is not None:
             np.minimum(conf, np.float32(1.0), out=conf)  # 255 = 1 (the header's 1/255 is rounded)
-        return ConfidenceResult(conf, seq, ts)
+        return ConfidenceMap(conf, seq, ts)
 
-    def frames(self, camera: str, view: Literal["raw", "vpc"] = "vpc") -> FrameResult:
+    def frames(self, camera: str, view: Literal["raw", "vpc"] = "vpc") -> FrameImage:
         r = self._request("GET", f"/frames/{camera}", params={"view": view})
         seq, ts = _frame_meta(r)
-        return FrameResult(_decode_image(r.content, f"/frames/{camera}"), seq, ts, camera, view)
+        return FrameImage(_decode_image(r.content, f"/frames/{camera}"), seq, ts, camera, view)
 
-    def depth_colorized(self) -> FrameResult:
+    def depth_colorized(self) -> FrameImage:
         r = self._request("GET", "/depth/colorized")
         seq, ts = _frame_meta(r)
-        return FrameResult(_decode_image(r.content, "/depth/colorized"), seq, ts, "left", "depth")
+        return FrameImage(_decode_image(r.content, "/depth/colorized"), seq, ts, "left", "depth")
 
-    def pointcloud(self, stride: int = 1) -> PointCloudResult:
+    def pointcloud(self, stride: int = 1) -> PointCloud:
         r = self._request("GET", "/pointcloud", params={"stride": stride})
         seq, ts = _frame_meta(r)
         points, colors = parse_ply(r.content)
-        return PointCloudResult(points, colors, seq, ts)
+        return PointCloud(points, colors, seq, ts)
 
     def calibration(self) -> CalibrationModel:
         return CalibrationModel.model_validate_json(self._request("GET", "/calibration").content)

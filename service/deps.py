@@ -9,12 +9,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Annotated, Any
 
-from fastapi import Depends, HTTPException, Request
+from fastapi import Depends, Request
 from starlette.concurrency import run_in_threadpool
 
+from rig.capture.capture import CAMERA_NAMES
+from service.errors import NotReady, UnknownCamera
 from service.runtime import Runtime
 from service.settings import Settings
-from service.store import FrameResult
+from service.store import PublishedResult
 
 __all__ = [
     "BINARY",
@@ -23,6 +25,7 @@ __all__ = [
     "SettingsDep",
     "binary_response_doc",
     "cached_body",
+    "check_camera",
     "frame_body",
     "frame_headers",
 ]
@@ -57,7 +60,7 @@ def binary_response_doc(
 async def get_runtime(request: Request) -> Runtime:
     runtime: Runtime | None = getattr(request.app.state, "runtime", None)
     if runtime is None:
-        raise HTTPException(503, "the service is starting")
+        raise NotReady("the service is starting")
     return runtime
 
 
@@ -66,19 +69,25 @@ async def get_settings(request: Request) -> Settings:
     return settings
 
 
-async def latest_result(runtime: Annotated[Runtime, Depends(get_runtime)]) -> FrameResult:
+async def latest_result(runtime: Annotated[Runtime, Depends(get_runtime)]) -> PublishedResult:
     result = runtime.store.latest
     if result is None:
-        raise HTTPException(503, "no depth frame yet: the pipeline has not processed a pair")
+        raise NotReady("no depth frame yet: the pipeline has not processed a pair")
     return result
+
+
+def check_camera(camera: str) -> None:
+    """UnknownCamera (404) unless ``camera`` is one of the rig's."""
+    if camera not in CAMERA_NAMES:
+        raise UnknownCamera(f"unknown camera {camera!r}; cameras: {', '.join(CAMERA_NAMES)}")
 
 
 RuntimeDep = Annotated[Runtime, Depends(get_runtime)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
-ResultDep = Annotated[FrameResult, Depends(latest_result)]
+ResultDep = Annotated[PublishedResult, Depends(latest_result)]
 
 
-def frame_headers(result: FrameResult, **extra: str) -> dict[str, str]:
+def frame_headers(result: PublishedResult, **extra: str) -> dict[str, str]:
     return {
         "X-Frame-Seq": str(result.seq),
         "X-Timestamp-Ns": str(result.ts_ns),
@@ -88,14 +97,14 @@ def frame_headers(result: FrameResult, **extra: str) -> dict[str, str]:
     }
 
 
-async def frame_body(runtime: Runtime, result: FrameResult, key: str) -> bytes:
+async def frame_body(runtime: Runtime, result: PublishedResult, key: str) -> bytes:
     """:func:`cached_body` of one of the runtime's frame bodies (``runtime.frame_bodies[key]``),
     the table the worker prefetches from."""
     produce = runtime.frame_bodies[key]
     return await cached_body(result, key, lambda: produce(result))
 
 
-async def cached_body(result: FrameResult, key: str, produce: Callable[[], bytes]) -> bytes:
+async def cached_body(result: PublishedResult, key: str, produce: Callable[[], bytes]) -> bytes:
     """The encoded body for ``key``: cached bytes at once, else encoded in a worker thread (the
     event loop never encodes) — once per frame, whoever asks first."""
     body = result.cache.peek(key)

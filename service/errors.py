@@ -1,4 +1,8 @@
-"""Exception tree of the ``service`` package."""
+"""Exception tree of the ``service`` package.
+
+What each becomes at the HTTP boundary (status and ``{"detail": ...}``) is decided in one place,
+:mod:`service.error_handlers`; routes raise these instead of building HTTP errors themselves.
+"""
 
 from __future__ import annotations
 
@@ -7,11 +11,15 @@ from typing import Any
 __all__ = [
     "ApiError",
     "ConfidenceOff",
+    "NotFound",
+    "NotReady",
     "RecordingConflict",
     "RecordingNameError",
     "RecordingNotFound",
     "ServiceError",
     "SettingsError",
+    "StereoParamsRefused",
+    "UnknownCamera",
 ]
 
 
@@ -47,5 +55,26 @@ class RecordingConflict(ServiceError):
     """The recording exists already, or another one is running."""
 
 
-class RecordingNotFound(ServiceError):
+class NotFound(ServiceError, LookupError):
+    """The named thing (camera, recording, dashboard asset) does not exist."""
+
+
+class RecordingNotFound(NotFound):
     """No recording (or no running recording) of that name."""
+
+
+class UnknownCamera(NotFound):
+    """No camera of that name (the rig has 'left' and 'right')."""
+
+
+class NotReady(ServiceError):
+    """Nothing to answer with yet: the service is starting, or no pair has been processed."""
+
+
+class StereoParamsRefused(ServiceError, ValueError):
+    """A stereo parameter change was refused (invalid value, or the matcher rejects it).
+    ``detail`` is the message, or pydantic's list of field errors with their ``loc``."""
+
+    def __init__(self, detail: str | list[dict[str, Any]]) -> None:
+        self.detail = detail
+        super().__init__(detail if isinstance(detail, str) else f"{len(detail)} invalid field(s)")

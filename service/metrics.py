@@ -18,7 +18,7 @@ from prometheus_client.registry import Collector
 from rig.capture.health import CaptureHealth
 from rig.heap import HeapStats
 from service.recordings import RecordingStatus
-from service.store import FrameResult
+from service.store import PublishedResult
 from service.worker import WorkerStats
 
 __all__ = ["CONTENT_TYPE", "MetricsSnapshot", "ServiceMetrics"]
@@ -173,7 +173,7 @@ class ServiceMetrics:
         self.registry.register(_RuntimeCollector(snapshot))
         ProcessCollector(registry=self.registry)  # process_resident_memory_bytes, CPU seconds, fds
 
-    def observe(self, result: FrameResult, timings_ms: dict[str, float]) -> None:
+    def observe(self, result: PublishedResult, timings_ms: dict[str, float]) -> None:
         for stage, ms in timings_ms.items():
             self.stage_seconds.labels(stage=stage).observe(ms / 1e3)
 

@@ -32,7 +32,7 @@ from service.host import HostInfo, host_info
 from service.metrics import MetricsSnapshot, ServiceMetrics
 from service.recordings import RecordingManager, RecordingStatus
 from service.settings import Settings
-from service.store import FrameResult, ResultStore
+from service.store import PublishedResult, ResultStore
 from service.worker import DepthWorker, WorkerStats
 
 __all__ = ["HealthReport", "Runtime", "resolve_calibration"]
@@ -113,7 +113,7 @@ class Runtime:
         # The /depth, /disparity and /confidence bodies by cache key: the routes encode them on
         # request and the worker ahead of the clients that poll them (one table, so they cannot
         # disagree).
-        self.frame_bodies: dict[str, Callable[[FrameResult], bytes]] = {
+        self.frame_bodies: dict[str, Callable[[PublishedResult], bytes]] = {
             "depth_png": lambda r: depth_png(r.frame.depth, scale, level),
             "depth_npy": lambda r: npy_bytes(r.frame.depth),
             "disparity_png": lambda r: disparity_png(r.frame.disparity, level),

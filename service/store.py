@@ -1,6 +1,6 @@
 """The latest depth result and its encodings, shared by every HTTP client.
 
-The worker publishes one immutable :class:`FrameResult` per processed pair (a reference swap
+The worker publishes one immutable :class:`PublishedResult` per processed pair (a reference swap
 under a lock: it never waits for clients). Each response body (PNG, npy, JPEG, PLY …) is made
 lazily the first time a client asks for it and cached on that result, so N clients asking for
 the same frame cost one encode: a lock per key makes the others wait for the first one's bytes
@@ -21,7 +21,7 @@ from rig.capture.frame import Frame
 from rig.pipeline import DepthFrame
 from service.errors import ConfidenceOff
 
-__all__ = ["EncodeCache", "EncodeCounter", "FrameResult", "ResultStore", "VpcRenderer"]
+__all__ = ["EncodeCache", "EncodeCounter", "PublishedResult", "ResultStore", "VpcRenderer"]
 
 
 class EncodeCounter:
@@ -75,7 +75,7 @@ VpcRenderer = Callable[[str, Frame], NDArray[np.uint8]]
 
 
 @dataclass(frozen=True, eq=False)
-class FrameResult:
+class PublishedResult:
     """One processed pair. ``index`` counts published results (1, 2, …); ``seq``/``ts_ns`` are
     the pair's (left camera's); ``left``/``right`` the raw frames as the cameras delivered them;
     ``published_ns`` when the worker published it (time.monotonic_ns). ``render_vpc`` makes the
@@ -144,26 +144,26 @@ class FrameResult:
 
 
 class ResultStore:
-    """Holds the newest :class:`FrameResult`; readers never block the publisher for long."""
+    """Holds the newest :class:`PublishedResult`; readers never block the publisher for long."""
 
     def __init__(self) -> None:
         self._cond = threading.Condition()
-        self._latest: FrameResult | None = None
+        self._latest: PublishedResult | None = None
         self.counter = EncodeCounter()
 
     def new_cache(self) -> EncodeCache:
         return EncodeCache(self.counter)
 
-    def publish(self, result: FrameResult) -> None:
+    def publish(self, result: PublishedResult) -> None:
         with self._cond:
             self._latest = result
             self._cond.notify_all()
 
     @property
-    def latest(self) -> FrameResult | None:
+    def latest(self) -> PublishedResult | None:
         return self._latest
 
-    def wait_newer(self, index: int, timeout_s: float) -> FrameResult | None:
+    def wait_newer(self, index: int, timeout_s: float) -> PublishedResult | None:
         """The latest result if its index is above ``index``, waiting up to ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
         with self._cond:

@@ -36,7 +36,7 @@ from rig.capture.frame import Frame, FramePair
 from rig.errors import CorruptFrameError, RigError
 from rig.pipeline import DepthFrame, DepthPipeline, MatchedPair, RectifiedPair
 from rig.priority import apply_to_current_thread
-from service.store import FrameResult, ResultStore
+from service.store import PublishedResult, ResultStore
 
 __all__ = ["DepthWorker", "PairSource", "WorkerStats", "render_vpc"]
 
@@ -164,7 +164,7 @@ class _Ema:
 
 def render_vpc(pipeline: DepthPipeline, camera: str, frame: Frame) -> NDArray[Any]:
     """The VPC image of ``camera`` (``left``/``right``) from its raw ``frame``'s full (colour)
-    image: what :meth:`FrameResult.vpc_image` asks for."""
+    image: what :meth:`PublishedResult.vpc_image` asks for."""
     name = pipeline.names[0 if camera == "left" else 1]
     return pipeline.rectify_camera(name, frame.image)[0]
 
@@ -188,10 +188,10 @@ class DepthWorker:
         store: ResultStore,
         *,
         on_pair: Callable[[FramePair], None] | None = None,
-        on_result: Callable[[FrameResult, dict[str, float]], None] | None = None,
+        on_result: Callable[[PublishedResult, dict[str, float]], None] | None = None,
         poll_s: float = 0.1,
         window_s: float = 2.0,
-        prefetch: Mapping[str, Callable[[FrameResult], bytes]] | None = None,
+        prefetch: Mapping[str, Callable[[PublishedResult], bytes]] | None = None,
     ) -> None:
         self.source = source
         self.pipeline = pipeline
@@ -217,7 +217,7 @@ class DepthWorker:
         self._match_cycle = _Ema()
         self._match_free_ns = 0
         self._prefetch = dict(prefetch or {})
-        self._previous: FrameResult | None = None
+        self._previous: PublishedResult | None = None
 
     # ----- lifecycle ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -362,7 +362,7 @@ class DepthWorker:
         with self._lock:
             self._processed += 1
             index = self._processed
-        result = FrameResult(
+        result = PublishedResult(
             index=index,
             frame=frame,
             left=pair.left,
@@ -387,7 +387,7 @@ class DepthWorker:
         if self._on_result is not None:
             self._on_result(result, timings)
 
-    def _prefetch_for(self, result: FrameResult) -> None:
+    def _prefetch_for(self, result: PublishedResult) -> None:
         previous = self._previous
         if previous is None:
             return

@@ -27,7 +27,7 @@ from rig.capture.health import CaptureHealth, PairingHealth
 from rig.capture.pairing import FramePairer
 from rig.capture.protocol import Camera, FaultInjectable, TimeBase
 from rig.capture.supervisor import CameraSupervisor
-from rig.errors import ConfigError
+from rig.errors import ConfigError, FaultNotSupported
 
 __all__ = ["CAMERA_NAMES", "StereoCapture", "default_skew_gate_ns"]
 
@@ -137,10 +137,10 @@ class StereoCapture:
         self.supervisor(frame.camera).report_undecodable(str(err))
 
     def inject(self, name: str, fault: Fault) -> None:
-        """Inject a fault into a camera that supports it (file cameras); ConfigError otherwise."""
+        """Inject a fault into a camera that supports it (file cameras); FaultNotSupported otherwise."""
         cam = self.camera(name)
         if not isinstance(cam, FaultInjectable):
-            raise ConfigError(f"camera {name} ({cam.kind}) does not support fault injection")
+            raise FaultNotSupported(f"camera {name} ({cam.kind}) does not support fault injection")
         cam.inject(fault)
 
     @staticmethod

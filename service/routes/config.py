@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from fastapi import APIRouter, HTTPException
+from fastapi import APIRouter
 from fastapi.encoders import jsonable_encoder
 from pydantic import ValidationError
 
@@ -12,6 +12,7 @@ from rig.errors import ConfigError, PipelineError
 from rig.pipeline import DepthPipeline
 from rig.stereo import StereoMatcher, StereoParams
 from service.deps import RuntimeDep
+from service.errors import StereoParamsRefused
 from service.runtime import Runtime
 from service.schemas import BODY_ERRORS, ConfigModel, ConfigPatch, ServerPublicModel
 from service.security import AuthDep, TokenFirstRoute
@@ -84,13 +85,13 @@ def patch_config(patch: ConfigPatch, runtime: RuntimeDep, _auth: AuthDep) -> Con
         detail = jsonable_encoder(err.errors(include_url=False, include_context=False))
         for item in detail:
             item["loc"] = ["body", "stereo", *item.get("loc", [])]
-        raise HTTPException(422, detail) from err
-    except ConfigError as err:
-        raise HTTPException(422, str(err)) from err
+        raise StereoParamsRefused(detail) from err
+    except ConfigError:
+        raise  # its own message (422)
     except (ValueError, OverflowError, cv2.error, PipelineError) as err:  # refused by OpenCV
         width = runtime.pipeline.pair.camera.width
         message = " ".join(str(err).split())
-        raise HTTPException(
-            422, f"stereo parameters refused by the matcher (VPC width {width} px): {message}"
+        raise StereoParamsRefused(
+            f"stereo parameters refused by the matcher (VPC width {width} px): {message}"
         ) from err
     return config_model(runtime)

@@ -5,8 +5,10 @@ from __future__ import annotations
 from functools import cache
 from importlib import resources
 
-from fastapi import APIRouter, HTTPException, Response
+from fastapi import APIRouter, Response
 from fastapi.responses import HTMLResponse
+
+from service.errors import NotFound
 
 __all__ = ["router"]
 
@@ -33,5 +35,5 @@ def favicon() -> Response:
 @router.get("/dashboard/{name}", include_in_schema=False)
 def dashboard_asset(name: str) -> Response:
     if name not in _ASSETS:
-        raise HTTPException(404, f"no dashboard asset {name!r}")
+        raise NotFound(f"no dashboard asset {name!r}")
     return Response(_read(name), media_type=_ASSETS[name], headers={"Cache-Control": "no-cache"})

@@ -25,7 +25,7 @@ from service.encoders import (
 )
 from service.runtime import Runtime
 from service.settings import Settings
-from service.store import FrameResult
+from service.store import PublishedResult
 
 __all__ = ["ArrayBody", "ArrayEndpoint", "ArrayFormat", "array_body", "colorized_body", "router"]
 
@@ -67,7 +67,11 @@ def array_body(endpoint: ArrayEndpoint, format: ArrayFormat, depth_scale_m: floa
 
 
 async def _array_response(
-    endpoint: ArrayEndpoint, format: ArrayFormat, result: FrameResult, runtime: Runtime, settings: Settings
+    endpoint: ArrayEndpoint,
+    format: ArrayFormat,
+    result: PublishedResult,
+    runtime: Runtime,
+    settings: Settings,
 ) -> Response:
     spec = array_body(endpoint, format, settings.server.depth_scale_m)
     body = await frame_body(runtime, result, spec.key)
@@ -142,7 +146,7 @@ async def get_confidence(
     return await _array_response("confidence", format, result, runtime, settings)
 
 
-async def colorized_body(runtime: Runtime, result: FrameResult) -> bytes:
+async def colorized_body(runtime: Runtime, result: PublishedResult) -> bytes:
     """The colour-mapped depth JPEG of ``result`` (shared by /depth/colorized and the stream)."""
     near, far = runtime.settings.server.color_range_m
     quality = runtime.settings.server.jpeg_quality

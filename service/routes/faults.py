@@ -6,11 +6,9 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, HTTPException, Path
+from fastapi import APIRouter, Path
 
-from rig.capture.capture import CAMERA_NAMES
-from rig.errors import ConfigError
-from service.deps import RuntimeDep
+from service.deps import RuntimeDep, check_camera
 from service.schemas import BODY_ERRORS, ErrorModel, FaultRequest
 from service.security import AuthDep, TokenFirstRoute
 
@@ -28,10 +26,6 @@ router = APIRouter(tags=["faults"], route_class=TokenFirstRoute)
 def inject_fault(
     body: FaultRequest, runtime: RuntimeDep, _auth: AuthDep, camera: Annotated[str, Path()]
 ) -> dict[str, Any]:
-    if camera not in CAMERA_NAMES:
-        raise HTTPException(404, f"unknown camera {camera!r}; cameras: {', '.join(CAMERA_NAMES)}")
-    try:
-        runtime.capture.inject(camera, body.fault)
-    except ConfigError as err:
-        raise HTTPException(409, str(err)) from err
+    check_camera(camera)
+    runtime.capture.inject(camera, body.fault)  # FaultNotSupported (409) for a V4L2 camera
     return {"camera": camera, "fault": body.fault.model_dump(mode="json")}

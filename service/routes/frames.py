@@ -4,10 +4,16 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, HTTPException, Path, Query, Response
+from fastapi import APIRouter, Path, Query, Response
 
-from rig.capture.capture import CAMERA_NAMES
-from service.deps import ResultDep, SettingsDep, binary_response_doc, cached_body, frame_headers
+from service.deps import (
+    ResultDep,
+    SettingsDep,
+    binary_response_doc,
+    cached_body,
+    check_camera,
+    frame_headers,
+)
 from service.encoders import encode_jpeg
 
 __all__ = ["router"]
@@ -29,8 +35,7 @@ async def get_frame(
     camera: Annotated[str, Path(description="left or right")],
     view: Annotated[Literal["raw", "vpc"], Query(description="raw fisheye frame or VPC image")] = "vpc",
 ) -> Response:
-    if camera not in CAMERA_NAMES:
-        raise HTTPException(404, f"unknown camera {camera!r}; cameras: {', '.join(CAMERA_NAMES)}")
+    check_camera(camera)
     quality = settings.server.jpeg_quality
     headers = frame_headers(result, **{"X-Camera": camera, "X-View": view})
     if view == "vpc":

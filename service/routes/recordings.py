@@ -9,11 +9,9 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, HTTPException, Path
+from fastapi import APIRouter, Path
 
-from rig.errors import DiskFullError, RigError
 from service.deps import RuntimeDep
-from service.errors import RecordingConflict, RecordingNameError, RecordingNotFound
 from service.recordings import NAME_PATTERN, RecordingStatus
 from service.schemas import BODY_ERRORS, ErrorModel, RecordingInfo, RecordingStart
 from service.security import AuthDep, TokenFirstRoute
@@ -45,16 +43,7 @@ def list_recordings(runtime: RuntimeDep) -> list[RecordingInfo]:
 )
 def start_recording(body: RecordingStart, runtime: RuntimeDep, _auth: AuthDep) -> RecordingInfo:
     meta = {"vpc": runtime.pipeline.pair.as_json()}
-    try:
-        return _info(runtime.recordings.start(body.name, meta))
-    except RecordingNameError as err:
-        raise HTTPException(422, str(err)) from err
-    except RecordingConflict as err:
-        raise HTTPException(409, str(err)) from err
-    except DiskFullError as err:
-        raise HTTPException(507, str(err)) from err
-    except RigError as err:
-        raise HTTPException(500, str(err)) from err
+    return _info(runtime.recordings.start(body.name, meta))
 
 
 @router.post(
@@ -64,9 +53,4 @@ def start_recording(body: RecordingStart, runtime: RuntimeDep, _auth: AuthDep) -
     responses={**BODY_ERRORS, 404: {"model": ErrorModel}},
 )
 def stop_recording(name: NameParam, runtime: RuntimeDep, _auth: AuthDep) -> RecordingInfo:
-    try:
-        return _info(runtime.recordings.stop(name))
-    except RecordingNameError as err:
-        raise HTTPException(422, str(err)) from err
-    except RecordingNotFound as err:
-        raise HTTPException(404, str(err)) from err
+    return _info(runtime.recordings.stop(name))

@@ -17,7 +17,7 @@ from fastapi.responses import StreamingResponse
 
 from service.deps import RuntimeDep
 from service.routes.depth import colorized_body
-from service.store import FrameResult
+from service.store import PublishedResult
 
 __all__ = ["BOUNDARY", "router"]
 
@@ -27,7 +27,7 @@ BOUNDARY = "frame"
 _IDLE_POLL_S = 0.02
 
 
-def _part_head(result: FrameResult, length: int) -> bytes:
+def _part_head(result: PublishedResult, length: int) -> bytes:
     lines = [
         f"--{BOUNDARY}",
         "Content-Type: image/jpeg",

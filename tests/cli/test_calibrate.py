@@ -165,7 +165,7 @@ def test_stereo_from_rendered_images(stereo_images: tuple[Path, np.ndarray], tmp
     rot = math.degrees(rotation_angle((invert_transform(T_true) @ T_est)[:3, :3]))
     trans = float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]))
     print(f"\nstereo from 10 image pairs, no guess: {rot:.4f}°, {trans * 1e3:.3f} mm")
-    assert rot < 0.05 and trans < 0.5e-3, (rot, trans)  # issue #4, end to end
+    assert rot < 0.05 and trans < 0.5e-3, (rot, trans)  # the calibration tolerance, end to end
     assert (tmp_path / "rig_residuals.png").read_bytes()[:8] == PNG_SIGNATURE
 
 

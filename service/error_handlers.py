@@ -1,0 +1,115 @@
+"""The HTTP API's one error mapping: every project exception a route raises becomes a status
+code and a JSON ``{"detail": ...}`` here, and nowhere else.
+
+The most specific class listed wins (``DiskFullError`` before ``RigError``). Client mistakes
+are 4xx; a fault on the server's side (a disk that fails, a calibration that cannot be used)
+is 5xx and logged. Anything that is not a project exception is a bug: 500 with only its type
+in ``detail``, and the traceback in the log.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exception_handlers import http_exception_handler
+from fastapi.responses import JSONResponse, Response
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import compile_path
+
+from calibration.errors import CalibrationError
+from rig.errors import ConfigError, DiskFullError, FaultNotSupported, RigError
+from service.errors import (
+    ConfidenceOff,
+    NotFound,
+    NotReady,
+    RecordingConflict,
+    RecordingNameError,
+    ServiceError,
+    StereoParamsRefused,
+)
+
+__all__ = ["STATUS_BY_ERROR", "error_detail", "install_error_handlers", "status_for"]
+
+log = logging.getLogger("service.app")
+
+#: Project exception → HTTP status (the most specific listed base class of an exception applies).
+STATUS_BY_ERROR: dict[type[Exception], int] = {
+    # service
+    NotFound: 404,  # RecordingNotFound, UnknownCamera, a dashboard asset
+    RecordingNameError: 422,
+    RecordingConflict: 409,
+    ConfidenceOff: 409,
+    StereoParamsRefused: 422,
+    NotReady: 503,
+    ServiceError: 500,
+    # rig
+    FaultNotSupported: 409,
+    ConfigError: 422,
+    DiskFullError: 507,
+    RigError: 500,
+    # calibration (the rig's own calibration: never the client's doing)
+    CalibrationError: 500,
+}
+
+
+def status_for(err: BaseException) -> int:
+    """The status :data:`STATUS_BY_ERROR` gives ``err`` (500 for anything not listed)."""
+    for cls in type(err).__mro__:
+        status = STATUS_BY_ERROR.get(cls)
+        if status is not None:
+            return status
+    return 500
+
+
+def error_detail(err: BaseException) -> Any:
+    """The ``detail`` of ``err``'s JSON body: its own ``detail`` if it carries one, else its message."""
+    detail = getattr(err, "detail", None)
+    return detail if detail is not None else str(err)
+
+
+async def project_error(request: Request, exc: Exception) -> JSONResponse:
+    status = status_for(exc)
+    if status >= 500:
+        log.error("%s %s: %s", request.method, request.url.path, exc)
+    return JSONResponse({"detail": error_detail(exc)}, status_code=status)
+
+
+async def internal_error(request: Request, exc: Exception) -> JSONResponse:
+    log.exception("%s %s failed", request.method, request.url.path)
+    return JSONResponse({"detail": f"internal error: {type(exc).__name__}"}, status_code=500)
+
+
+def _documented_methods(app: FastAPI, path: str) -> set[str]:
+    """HTTP methods the OpenAPI document lists for the path template matching ``path``."""
+    table: list[tuple[re.Pattern[str], set[str]]] | None = getattr(app.state, "allow_table", None)
+    if table is None:
+        table = [
+            (compile_path(template)[0], {m.upper() for m in ops})
+            for template, ops in app.openapi().get("paths", {}).items()
+        ]
+        app.state.allow_table = table
+    return {m for regex, methods in table if regex.match(path) for m in methods}
+
+
+async def http_error(request: Request, exc: Exception) -> Response:
+    """Starlette's HTTP errors (404 for an unknown URL, 405, 401, 413) as FastAPI answers them,
+    with ``Allow`` listing every documented method of the path on a 405."""
+    assert isinstance(exc, StarletteHTTPException)
+    response = await http_exception_handler(request, exc)
+    if exc.status_code == 405:
+        # Each method is its own route: list every documented method of the path.
+        methods = _documented_methods(request.app, request.url.path)
+        if methods:
+            response.headers["Allow"] = ", ".join(sorted(methods))
+    return response
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    """Register the mapping on ``app``."""
+    app.add_exception_handler(StarletteHTTPException, http_error)
+    for cls in (ServiceError, RigError, CalibrationError):
+        app.add_exception_handler(cls, project_error)
+    app.add_exception_handler(Exception, internal_error)
