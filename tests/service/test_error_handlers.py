@@ -1,0 +1,162 @@
+"""service.error_handlers: every project exception a route raises becomes its status code and a
+JSON ``{"detail": ...}``, through the app ``create_app(settings)`` builds (its middleware and
+handlers) under a real uvicorn server, for a tiny route that raises and for real routes."""
+
+from __future__ import annotations
+
+import logging
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+import uvicorn
+from fastapi import FastAPI
+
+import calibration.errors
+import rig.errors
+import service.errors
+from calibration.errors import CalibrationFileError, ModelError
+from service.app import create_app
+from service.errors import ApiError, StereoParamsRefused
+from service.settings import load_settings
+
+#: Every exported exception class → the status the API answers it with.
+EXPECTED: dict[str, int] = {
+    # service
+    "ServiceError": 500,
+    "SettingsError": 500,
+    "ApiError": 500,
+    "NotFound": 404,
+    "RecordingNotFound": 404,
+    "UnknownCamera": 404,
+    "RecordingNameError": 422,
+    "RecordingConflict": 409,
+    "ConfidenceOff": 409,
+    "StereoParamsRefused": 422,
+    "NotReady": 503,
+    # rig
+    "RigError": 500,
+    "ConfigError": 422,
+    "FaultNotSupported": 409,
+    "CameraUnavailable": 500,
+    "CameraFormatError": 500,
+    "CaptureTimeout": 500,
+    "RecordingError": 500,
+    "DiskFullError": 507,
+    "UsbError": 500,
+    "LutError": 500,
+    "PipelineError": 500,
+    "SimulationError": 500,
+    "EvaluationError": 500,
+    "CorruptFrameError": 500,
+    "EndOfStream": 500,
+    # calibration
+    "CalibrationError": 500,
+    "ModelError": 500,
+    "CalibrationFileError": 500,
+    "CalibrationFailed": 500,
+}
+MODULES = (service.errors, rig.errors, calibration.errors)
+
+
+def exported_errors() -> dict[str, type[Exception]]:
+    out = {}
+    for module in MODULES:
+        for name in module.__all__:
+            obj = getattr(module, name)
+            if isinstance(obj, type) and issubclass(obj, Exception):
+                out[name] = obj
+    return out
+
+
+ERRORS = exported_errors()
+
+
+def make(cls: type[Exception]) -> tuple[Exception, Any]:
+    """An instance of ``cls`` and the ``detail`` it must come back with."""
+    if cls is ApiError:
+        return ApiError(502, "upstream said no", "/x"), "upstream said no"
+    if cls is CalibrationFileError:
+        err = CalibrationFileError(Path("/etc/rig/rig.yaml"), "must be a number", "cam0.fx")
+        return err, "/etc/rig/rig.yaml: field 'cam0.fx': must be a number"
+    if cls is ModelError:
+        return ModelError("unknown model 'fisheye9'", "model"), "unknown model 'fisheye9'"
+    if cls is StereoParamsRefused:
+        fields = [{"loc": ["body", "stereo", "num_disparities"], "msg": "must be positive"}]
+        return StereoParamsRefused(fields), fields
+    message = f"{cls.__name__} happened: 'left' camera"
+    return cls(message), message
+
+
+@pytest.fixture(scope="module")
+def raising_app() -> Iterator[tuple[FastAPI, httpx.Client]]:
+    app = create_app(load_settings(None, {}))
+    pending: list[Exception] = []
+
+    @app.get("/test/raise")
+    def raise_pending() -> None:
+        raise pending.pop()
+
+    app.state.pending = pending
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)
+    sock.bind(("127.0.0.1", 0))
+    # No lifespan: the runtime is never built (none is needed to raise).
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off"))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started:
+        assert thread.is_alive() and time.monotonic() < deadline, "uvicorn did not start"
+        time.sleep(0.02)
+    # A fresh connection per request: after an unexpected exception uvicorn closes the one it used.
+    url = f"http://127.0.0.1:{sock.getsockname()[1]}"
+    with httpx.Client(base_url=url, timeout=10, limits=httpx.Limits(max_keepalive_connections=0)) as client:
+        yield app, client
+    server.should_exit = True
+    thread.join(20)
+    sock.close()
+
+
+def test_every_exported_exception_has_an_expected_status() -> None:
+    assert set(ERRORS) == set(EXPECTED)
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_each_project_exception_maps_to_its_status_and_detail(
+    name: str, raising_app: tuple[FastAPI, httpx.Client], caplog: pytest.LogCaptureFixture
+) -> None:
+    app, client = raising_app
+    err, detail = make(ERRORS[name])
+    app.state.pending.append(err)
+    with caplog.at_level(logging.ERROR, logger="service.app"):
+        r = client.get("/test/raise")
+    assert r.status_code == EXPECTED[name], r.text
+    assert r.headers["content-type"] == "application/json"
+    assert r.json() == {"detail": detail}
+    logged = [rec for rec in caplog.records if rec.name == "service.app"]
+    assert bool(logged) == (r.status_code >= 500)  # server faults are logged, client mistakes not
+
+
+def test_a_bug_is_500_with_only_its_type(raising_app: tuple[FastAPI, httpx.Client]) -> None:
+    app, client = raising_app
+    app.state.pending.append(ZeroDivisionError("secret internals"))
+    r = client.get("/test/raise")
+    assert r.status_code == 500 and r.json() == {"detail": "internal error: ZeroDivisionError"}
+
+
+def test_real_routes_raise_through_the_same_mapping(raising_app: tuple[FastAPI, httpx.Client]) -> None:
+    _, client = raising_app
+    r = client.get("/dashboard/nope.js")
+    assert r.status_code == 404 and r.json() == {"detail": "no dashboard asset 'nope.js'"}
+    for path in ("/depth", "/frames/left", "/calibration"):  # no runtime yet: NotReady
+        r = client.get(path)
+        assert r.status_code == 503 and r.json() == {"detail": "the service is starting"}, path
+    r = client.get("/no/such/path")
+    assert r.status_code == 404 and r.json() == {"detail": "Not Found"}
+    r = client.delete("/depth")
+    assert r.status_code == 405 and r.headers["Allow"] == "GET"
