@@ -20,6 +20,7 @@ from rich.table import Table
 
 from cli.console import console, progress_bar
 from cli.errors import fail
+from cli.sim import PresetOption, parse_distances
 from rig.evaluate import DEFAULT_MODELS, EvaluationRun, make_config, run_evaluation, write_outputs
 from rig.evaluate.agreement import mean_ratio
 from rig.evaluate.config import FULL_DISTANCES, QUICK_DISTANCES
@@ -50,18 +51,6 @@ def _parse_models(text: str | None) -> list[str] | None:
     if not models:
         fail(f"--models must be a comma-separated list of camera models, got {text!r}")
     return models
-
-
-def _parse_distances(text: str | None) -> list[float] | None:
-    if text is None:
-        return None
-    try:
-        values = [float(p) for p in text.split(",")]
-    except ValueError:
-        fail(f"--distances must be comma-separated numbers of baselines like 2,5,10, got {text!r}")
-    if not values or not all(math.isfinite(v) for v in values):
-        fail(f"--distances must be finite numbers of baselines, got {text!r}")
-    return values
 
 
 def _check_out(out: Path, force: bool) -> None:
@@ -101,9 +90,7 @@ def register(app: typer.Typer) -> None:
         out: Annotated[
             Path, typer.Option("--out", "-o", metavar="DIR", help="Output directory (new or empty).")
         ],
-        preset: Annotated[
-            str, typer.Option(metavar="PRESET", help=f"Simulated rig: {', '.join(PRESETS)}.")
-        ] = "paper-sim",
+        preset: PresetOption = "paper-sim",
         models: Annotated[
             str | None,
             typer.Option(
@@ -145,7 +132,7 @@ def register(app: typer.Typer) -> None:
             preset,
             quick=quick,
             models=_parse_models(models),
-            distances=_parse_distances(distances),
+            distances=parse_distances(distances) if distances is not None else None,
             textures=textures,
             seed=seed,
         )

@@ -26,7 +26,9 @@ from rig.sim.presets import PRESETS, get_preset
 from rig.sim.simulate import DEFAULT_DISTANCES, DEFAULT_ROOM_FRAMES, SCENES, simulate_recording
 from rig.sim.textures import TEXTURES, texture_name
 
-__all__ = ["parse_distances", "register"]
+__all__ = ["PresetOption", "parse_distances", "register"]
+
+PresetOption = Annotated[str, typer.Option(metavar="PRESET", help=f"Simulated rig: {', '.join(PRESETS)}.")]
 
 
 def _int(option: str, text: str, lo: int, hi: int) -> int:
@@ -67,9 +69,7 @@ def register(app: typer.Typer) -> None:
         out: Annotated[
             Path, typer.Option("--out", "-o", metavar="DIR", help="New (or empty) recording directory.")
         ],
-        preset: Annotated[
-            str, typer.Option(metavar="PRESET", help=f"Simulated rig: {', '.join(PRESETS)}.")
-        ] = "paper-sim",
+        preset: PresetOption = "paper-sim",
         scene: Annotated[
             str, typer.Option(metavar="SCENE", help="plane (the paper's target) or room (demo).")
         ] = "plane",
