@@ -7,6 +7,7 @@ Results go to stdout (``console``); progress, warnings and errors to stderr (``e
 from __future__ import annotations
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -24,8 +25,9 @@ err_console = Console(stderr=True)
 
 
 def one_line(message: object) -> str:
-    """``message`` with every run of whitespace (newlines included) collapsed to one space."""
-    return " ".join(str(message).split())
+    """``message`` with every run of whitespace (newlines included) collapsed to one space, and
+    escaped so that brackets in it (``[left]``, a path) print as they are, not as rich markup."""
+    return escape(" ".join(str(message).split()))
 
 
 def warn(message: str) -> None:

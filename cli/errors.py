@@ -79,6 +79,7 @@ def report(err: BaseException) -> int:
 
 
 def debugging() -> bool:
+    """RIG_DEBUG is set (and not 0): let exceptions through with their traceback."""
     return os.environ.get("RIG_DEBUG", "") not in ("", "0")
 
 

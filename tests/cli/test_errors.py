@@ -31,6 +31,7 @@ CASES: list[tuple[BaseException, int, str]] = [
     ),
     (ModelError("unknown model 'fisheye9'"), 2, "error: unknown model 'fisheye9'"),
     (RigError("camera\nleft gone"), 2, "error: camera left gone"),  # one line, even from two
+    (RigError("cameras [left] and [/right]"), 2, "error: cameras [left] and [/right]"),  # not markup
     (ConfigError("--vpc-size must look like 640x480"), 2, "error: --vpc-size must look like 640x480"),
     (DiskFullError("disk full"), 2, "error: disk full"),
     (ServiceError("cannot listen on 127.0.0.1:80"), 2, "error: cannot listen on 127.0.0.1:80"),
