@@ -109,7 +109,7 @@ class WorkerSession:
     def window(self, seconds: float, timeout_s: float = 30.0) -> Window:
         """Open the gate, skip :data:`SETTLE_RESULTS` results, time ``seconds``, shut the gate
         and wait until the pairs in flight are published (so the next floor window runs alone)."""
-        errors0 = self.runtime.worker.stats().errors
+        errors0 = self.runtime.worker.stats().counters["errors"]
         self.gate.open.set()
         try:
             first = self._next_result(self._index(), timeout_s)
@@ -130,7 +130,7 @@ class WorkerSession:
         self._drain(fps)
         # After the drain: the watcher has seen every result up to ``last`` by now.
         latencies = [ms for ns, ms in self._published if first.published_ns < ns <= last.published_ns]
-        errors = self.runtime.worker.stats().errors - errors0
+        errors = self.runtime.worker.stats().counters["errors"] - errors0
         cpu_ms = cores / fps * 1e3 if fps else float("nan")
         return Window(fps, frames, cpu_ms, cores, latencies, stage_ms, errors)
 

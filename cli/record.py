@@ -25,13 +25,12 @@ __all__ = ["register"]
 
 def _summary(out: Path, result_pairs: int, stopped_by: str, health: CaptureHealth) -> str:
     cams = health.cameras
-    dropped = ", ".join(f"{n} {c.frames_dropped}" for n, c in cams.items())
-    corrupt = ", ".join(f"{n} {c.frames_corrupt}" for n, c in cams.items())
-    p = health.pairing
-    skew = (
-        f"; skew p50 {p.skew_ms_p50:.2f} ms, p95 {p.skew_ms_p95:.2f} ms" if p.skew_ms_p50 is not None else ""
-    )
-    late = f"; pairs dropped (writer too slow): {p.pairs_evicted}" if p.pairs_evicted else ""
+    dropped = ", ".join(f"{n} {c.counters['frames_dropped']}" for n, c in cams.items())
+    corrupt = ", ".join(f"{n} {c.counters['frames_corrupt']}" for n, c in cams.items())
+    p = health.pairing.counters
+    p50, p95 = p["skew_ms"], p["skew_ms_p95"]
+    skew = f"; skew p50 {p50:.2f} ms, p95 {p95:.2f} ms" if p50 is not None and p95 is not None else ""
+    late = f"; pairs dropped (writer too slow): {p['pairs_evicted']}" if p["pairs_evicted"] else ""
     return (
         f"recorded {result_pairs} pairs to {out} (stopped: {stopped_by}); "
         f"frames dropped: {dropped}; corrupt: {corrupt}{skew}{late}"

@@ -21,6 +21,7 @@ from service.fast_path import answer_hot_request
 from service.routes import (
     calibration,
     config,
+    counters,
     dashboard,
     depth,
     faults,
@@ -81,7 +82,18 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
     app.state.settings = settings
     app.state.runtime = None
 
-    for module in (health, depth, stream, frames, calibration, config, recordings, metrics, dashboard):
+    for module in (
+        health,
+        counters,
+        depth,
+        stream,
+        frames,
+        calibration,
+        config,
+        recordings,
+        metrics,
+        dashboard,
+    ):
         app.include_router(module.router)
     if settings.server.fault_injection:
         app.include_router(faults.router)

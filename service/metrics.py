@@ -2,13 +2,14 @@
 global one: several apps may live in one process, e.g. in tests).
 
 Camera, pairing, worker, encode, heap and recording figures are read from the live objects at scrape
-time (a custom collector), so they always agree with ``/health``; per-stage processing time is
-also a histogram the worker feeds frame by frame.
+time (a custom collector), so they always agree with ``/health``; the camera, pairing and worker
+metrics are those of the counter table (:mod:`rig.counters`). Per-stage processing time is also
+a histogram the worker feeds frame by frame.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 from prometheus_client import CollectorRegistry, Histogram, ProcessCollector, generate_latest
@@ -16,6 +17,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.registry import Collector
 
 from rig.capture.health import CaptureHealth
+from rig.counters import Counts, Group, counters_of
 from rig.heap import HeapStats
 from service.recordings import RecordingStatus
 from service.store import PublishedResult
@@ -42,78 +44,11 @@ class _RuntimeCollector(Collector):
 
     def collect(self) -> Iterator[Metric]:
         s = self._snapshot()
-        cams = s.capture.cameras.values()
-
-        def per_camera(
-            name: str, doc: str, value: Callable[..., float | None], counter: bool = False
-        ) -> Metric:
-            fam: GaugeMetricFamily | CounterMetricFamily = (
-                CounterMetricFamily(name, doc, labels=["camera"])
-                if counter
-                else GaugeMetricFamily(name, doc, labels=["camera"])
-            )
-            for c in cams:
-                v = value(c)
-                if v is not None:
-                    fam.add_metric([c.name], float(v))
-            return fam
-
-        yield per_camera("rig_camera_connected", "1 while the camera delivers frames", lambda c: c.connected)
-        yield per_camera("rig_camera_fps", "frames per second received", lambda c: c.fps)
-        yield per_camera(
-            "rig_camera_last_frame_age_seconds",
-            "time since the last good frame",
-            lambda c: None if c.last_frame_age_ms is None else c.last_frame_age_ms / 1e3,
-        )
-        yield per_camera("rig_camera_frames_received", "good frames", lambda c: c.frames_received, True)
-        yield per_camera(
-            "rig_camera_frames_dropped", "lost + unpaired + evicted frames", lambda c: c.frames_dropped, True
-        )
-        yield per_camera(
-            "rig_camera_frames_corrupt", "frames the capture found broken", lambda c: c.frames_corrupt, True
-        )
-        yield per_camera(
-            "rig_camera_frames_undecodable",
-            "received frames that did not decode when the depth worker took them",
-            lambda c: c.frames_undecodable,
-            True,
-        )
-        yield per_camera("rig_camera_reconnects", "successful reconnects", lambda c: c.reconnects, True)
-        yield per_camera(
-            "rig_camera_timestamp_errors",
-            "frames with implausible timestamps",
-            lambda c: c.timestamp_errors,
-            True,
-        )
-
-        p = s.capture.pairing
-        skew = GaugeMetricFamily(
-            "rig_pairing_skew_ms", "left-right capture time difference", labels=["quantile"]
-        )
-        for q, v in (("0.5", p.skew_ms_p50), ("0.95", p.skew_ms_p95)):
-            if v is not None:
-                skew.add_metric([q], v)
-        yield skew
-        yield CounterMetricFamily("rig_pairs_formed", "pairs formed by the pairer", value=p.pairs_formed)
-        yield CounterMetricFamily(
-            "rig_pairs_skipped", "pairs superseded before the worker took them", value=p.pairs_skipped
-        )
-
+        cams = [((c.name,), c.counters) for c in s.capture.cameras.values()]
+        yield from _counter_families("camera", cams, ("camera",))
+        yield from _counter_families("pairing", [((), s.capture.pairing.counters)])
         w = s.worker
-        yield GaugeMetricFamily(
-            "rig_worker_alive", "1 while the depth worker thread runs", value=float(w.alive)
-        )
-        yield GaugeMetricFamily("rig_worker_fps", "depth frames per second", value=w.fps)
-        yield CounterMetricFamily("rig_worker_frames", "depth frames published", value=w.frames_processed)
-        yield CounterMetricFamily("rig_worker_errors", "pairs that failed to process", value=w.errors)
-        if w.latency_ms is not None:
-            yield GaugeMetricFamily(
-                "rig_worker_latency_ms", "mean processing time per pair", value=w.latency_ms
-            )
-        if w.age_ms is not None:
-            yield GaugeMetricFamily(
-                "rig_worker_result_age_ms", "mean time from frame arrival to its depth", value=w.age_ms
-            )
+        yield from _counter_families("worker", [((), w.counters)])
         stages = GaugeMetricFamily("rig_stage_latency_ms", "mean time per pipeline stage", labels=["stage"])
         for stage, ms in w.stage_ms.items():
             stages.add_metric([stage], ms)
@@ -156,6 +91,27 @@ class _RuntimeCollector(Collector):
             yield CounterMetricFamily(
                 "rig_recording_dropped", "pairs the running recording could not keep up with", value=r.dropped
             )
+
+
+def _counter_families(
+    group: Group, rows: Sequence[tuple[tuple[str, ...], Counts]], label_names: tuple[str, ...] = ()
+) -> Iterator[Metric]:
+    """One family per Prometheus metric of ``group`` in the counter table (:mod:`rig.counters`):
+    a sample per row (its ``label_names`` values and counters) and the entry's fixed labels;
+    null figures have no sample."""
+    families: dict[str, CounterMetricFamily | GaugeMetricFamily] = {}
+    for spec in counters_of(group):
+        fixed = spec.metric_labels
+        family = families.get(spec.metric_family)
+        if family is None:
+            kind = CounterMetricFamily if spec.kind == "counter" else GaugeMetricFamily
+            labels = [*label_names, *(k for k, _ in fixed)]
+            family = families[spec.metric_family] = kind(spec.metric_family, spec.help, labels=labels)
+        for label_values, counts in rows:
+            value = counts[spec.name]
+            if value is not None:
+                family.add_metric([*label_values, *(v for _, v in fixed)], float(value) * spec.metric_scale)
+    yield from families.values()
 
 
 class ServiceMetrics:

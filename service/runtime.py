@@ -230,10 +230,11 @@ class Runtime:
         if not worker.alive:
             reasons.append("depth worker not running")
         stale_ms = self.settings.server.stale_after_s * 1e3
-        if worker.last_result_age_ms is None:
+        result_age_ms = worker.counters["last_result_age_ms"]
+        if result_age_ms is None:
             reasons.append("no depth frame yet")
-        elif worker.last_result_age_ms > stale_ms:
-            reasons.append(f"no depth frame for {worker.last_result_age_ms / 1e3:.1f} s")
+        elif result_age_ms > stale_ms:
+            reasons.append(f"no depth frame for {result_age_ms / 1e3:.1f} s")
         if (
             worker.last_error is not None
             and worker.last_error_age_ms is not None

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal, Optional, get_args, get_origin
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Optional, get_args, get_origin
 
 from annotated_types import MultipleOf
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model, field_validator
 from pydantic.json_schema import JsonDict
 
 from rig.capture.faults import Fault
+from rig.counters import CounterSpec, CounterValue, Group, Kind, counters_of
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
 from service.recordings import NAME_PATTERN, validate_name
@@ -20,6 +21,7 @@ __all__ = [
     "CameraHealthModel",
     "ConfigModel",
     "ConfigPatch",
+    "CounterModel",
     "ErrorModel",
     "FaultRequest",
     "HealthModel",
@@ -53,25 +55,39 @@ class ProbeModel(BaseModel):
     detail: str | None = None
 
 
-class CameraHealthModel(BaseModel):
+class _CounterFields(BaseModel):
+    """A health model whose figures are generated from :mod:`rig.counters`."""
+
+    if TYPE_CHECKING:  # the generated fields, for the type checker
+
+        def __getattr__(self, name: str) -> CounterValue: ...
+
+
+def _counter_field(spec: CounterSpec) -> tuple[Any, Any]:
+    optional: Any = Optional
+    annotation = optional[spec.value] if spec.optional else spec.value
+    description = f"{spec.help} ({spec.kind}, {spec.unit})"
+    extra: JsonDict = {"x-kind": spec.kind, "x-unit": spec.unit, "x-metric": spec.metric_selector}
+    return annotation, Field(description=description, json_schema_extra=extra)
+
+
+def _with_counters(base: type[_CounterFields], group: Group, doc: str) -> Any:
+    """``base`` plus one field per counter of ``group`` in the table, in table order."""
+    taken = set(base.model_fields) & {c.name for c in counters_of(group)}
+    if taken:
+        raise ValueError(f"rig.counters ({group}) redeclares {sorted(taken)} of {base.__name__}")
+    fields: dict[str, Any] = {c.name: _counter_field(c) for c in counters_of(group)}
+    name = base.__name__.removesuffix("Base") + "Model"
+    return create_model(name, __base__=base, __doc__=doc, __module__=__name__, **fields)
+
+
+class CameraHealthBase(_CounterFields):
     name: str
     kind: str
     device: str
     state: str = Field(description="starting, available, unavailable, ended or stopped")
     reason: str | None = Field(description="why the camera is not available")
-    connected: bool
-    fps: float
     nominal_fps: float | None
-    frames_received: int
-    frames_dropped: int = Field(description="lost + unpaired + evicted")
-    frames_lost: int
-    frames_corrupt: int = Field(description="frames the capture thread found broken (never paired)")
-    frames_undecodable: int = Field(
-        description="received frames that did not decode when the depth worker took them"
-    )
-    timestamp_errors: int
-    reconnects: int
-    last_frame_age_ms: float | None
     last_seq: int | None
     last_error: str | None
     format: str
@@ -79,27 +95,60 @@ class CameraHealthModel(BaseModel):
     height: int
 
 
-class WorkerHealthModel(BaseModel):
-    alive: bool
-    fps: float
-    latency_ms: float | None = Field(description="mean processing time per pair (decode to depth)")
-    age_ms: float | None = Field(description="mean time from a frame's arrival to its depth being served")
-    frames_processed: int
-    errors: int
+class WorkerHealthBase(_CounterFields):
     last_error: str | None
     last_seq: int | None
-    last_result_age_ms: float | None
-    stage_ms: dict[str, float]
+    stage_ms: dict[str, float] = Field(description="mean time per pipeline stage over the recent frames")
 
 
-class PairingHealthModel(BaseModel):
-    skew_ms: float | None = Field(description="median |left - right| capture time difference")
-    skew_ms_p95: float | None
-    skew_gate_ms: float
-    pairs_formed: int
-    pairs_taken: int
-    pairs_skipped: int
-    pairs_evicted: int
+class PairingHealthBase(_CounterFields):
+    skew_gate_ms: float = Field(description="frames further apart than this are not paired")
+
+
+# Generated at import from the table (rig.counters), so the OpenAPI document describes every figure.
+if TYPE_CHECKING:
+    CameraHealthModel = CameraHealthBase
+    WorkerHealthModel = WorkerHealthBase
+    PairingHealthModel = PairingHealthBase
+else:
+    CameraHealthModel = _with_counters(CameraHealthBase, "camera", "One camera's state and figures.")
+    WorkerHealthModel = _with_counters(WorkerHealthBase, "worker", "The depth worker's figures.")
+    PairingHealthModel = _with_counters(PairingHealthBase, "pairing", "Stereo pairing's figures.")
+
+
+class CounterModel(BaseModel):
+    """One entry of the counter table (``rig.counters``): what a ``/health`` figure means and
+    where ``/metrics`` and the dashboard show it."""
+
+    name: str = Field(description="field name in its /health group")
+    group: Group
+    kind: Kind = Field(description="counter (only grows) or gauge (a current value)")
+    unit: str
+    help: str
+    metric: str = Field(description="Prometheus sample name (counters end in _total)")
+    metric_labels: dict[str, str] = Field(description="the sample's fixed labels (besides camera)")
+    metric_scale: float = Field(description="the sample is the /health value times this")
+    sum_of: list[str] = Field(description="a counter that is the sum of these others")
+    column: str | None = Field(
+        description="the dashboard's camera-table column showing it (a column sums its counters)"
+    )
+    digits: int = Field(description="decimals the dashboard shows")
+
+    @classmethod
+    def of(cls, spec: CounterSpec) -> CounterModel:
+        return cls(
+            name=spec.name,
+            group=spec.group,
+            kind=spec.kind,
+            unit=spec.unit,
+            help=spec.help,
+            metric=spec.metric_sample,
+            metric_labels=dict(spec.metric_labels),
+            metric_scale=spec.metric_scale,
+            sum_of=list(spec.sum_of),
+            column=spec.column,
+            digits=spec.digits,
+        )
 
 
 class HostModel(BaseModel):

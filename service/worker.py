@@ -33,6 +33,7 @@ from typing import Any, Generic, Protocol, TypeVar
 from numpy.typing import NDArray
 
 from rig.capture.frame import Frame, FramePair
+from rig.counters import Counts, Tally, complete
 from rig.errors import CorruptFrameError, RigError
 from rig.pipeline import DepthFrame, DepthPipeline, MatchedPair, RectifiedPair
 from rig.priority import apply_to_current_thread
@@ -61,23 +62,20 @@ class PairSource(Protocol):
 
 @dataclass(frozen=True)
 class WorkerStats:
-    """Snapshot for /health and /metrics. ``fps`` over the last ``window_s``; ``stage_ms`` mean
-    per stage over the recent frames; ``latency_ms`` mean processing time (decode → depth, the
-    sum of the stages); ``age_ms`` mean time from a frame's arrival in this process to its
-    result's publication (processing plus any wait between stages)."""
+    """Snapshot for /health and /metrics: ``counters`` are the figures of group ``worker`` in
+    :mod:`rig.counters` (``fps`` over the last ``window_s``; the means over the recent frames);
+    ``stage_ms`` is the mean time per stage over the recent frames."""
 
-    alive: bool
-    frames_processed: int
-    errors: int
     last_error: str | None
     last_error_age_ms: float | None
     last_seq: int | None
     last_index: int
-    last_result_age_ms: float | None
-    fps: float
-    latency_ms: float | None
-    age_ms: float | None
     stage_ms: dict[str, float]
+    counters: Counts
+
+    @property
+    def alive(self) -> bool:
+        return bool(self.counters["alive"])
 
 
 @dataclass
@@ -205,8 +203,7 @@ class DepthWorker:
         self._decoder: ThreadPoolExecutor | None = None
         self._lock = threading.Lock()
         self._recent: deque[tuple[int, dict[str, float], float]] = deque(maxlen=256)
-        self._processed = 0
-        self._errors = 0
+        self._counters = Tally("worker")  # under self._lock
         self._last_error: tuple[str, int] | None = None
         self._last_seq: int | None = None
         self._last_published_ns: int | None = None
@@ -360,8 +357,8 @@ class DepthWorker:
     def _publish(self, pair: FramePair, frame: DepthFrame, timings: dict[str, float]) -> None:
         arrived = max(pair.left.host_ns, pair.right.host_ns)
         with self._lock:
-            self._processed += 1
-            index = self._processed
+            self._counters.add("frames_processed")
+            index = self._counters["frames_processed"]
         result = PublishedResult(
             index=index,
             frame=frame,
@@ -401,7 +398,7 @@ class DepthWorker:
 
     def _failed(self, message: str) -> None:
         with self._lock:
-            self._errors += 1
+            self._counters.add("errors")
             first = self._last_error is None or self._last_error[0] != message
             self._last_error = (message, time.monotonic_ns())
         if first:
@@ -412,7 +409,7 @@ class DepthWorker:
         now = time.monotonic_ns()
         with self._lock:
             recent = [r for r in self._recent if now - r[0] <= self._window_ns]
-            processed, errors, last_error = self._processed, self._errors, self._last_error
+            counted, last_error = self._counters.snapshot(), self._last_error
             last_seq, last_pub = self._last_seq, self._last_published_ns
         fps = 0.0
         if len(recent) > 1 and recent[-1][0] > recent[0][0]:
@@ -423,17 +420,19 @@ class DepthWorker:
                 values = [t[stage] for _, t, _ in recent if stage in t]
                 if values:
                     stage_ms[stage] = sum(values) / len(values)
+        measured = {
+            **counted,
+            "alive": self.is_alive(),
+            "fps": fps,
+            "latency_ms": stage_ms.get("total"),
+            "age_ms": (sum(r[2] for r in recent) / len(recent)) if recent else None,
+            "last_result_age_ms": None if last_pub is None else (now - last_pub) / 1e6,
+        }
         return WorkerStats(
-            alive=self.is_alive(),
-            frames_processed=processed,
-            errors=errors,
             last_error=None if last_error is None else last_error[0],
             last_error_age_ms=None if last_error is None else (now - last_error[1]) / 1e6,
             last_seq=last_seq,
-            last_index=processed,
-            last_result_age_ms=None if last_pub is None else (now - last_pub) / 1e6,
-            fps=fps,
-            latency_ms=stage_ms.get("total"),
-            age_ms=(sum(r[2] for r in recent) / len(recent)) if recent else None,
+            last_index=int(counted["frames_processed"] or 0),
             stage_ms=stage_ms,
+            counters=complete("worker", measured),
         )

@@ -27,6 +27,7 @@ from rig.capture.health import CaptureHealth, PairingHealth
 from rig.capture.pairing import FramePairer
 from rig.capture.protocol import Camera, FaultInjectable, TimeBase
 from rig.capture.supervisor import CameraSupervisor
+from rig.counters import Tally, complete
 from rig.errors import ConfigError, FaultNotSupported
 
 __all__ = ["CAMERA_NAMES", "StereoCapture", "default_skew_gate_ns"]
@@ -70,7 +71,7 @@ class StereoCapture:
         self._pairer = FramePairer(gate, p.buffer_size, p.skew_window, CAMERA_NAMES)
         self._cond = threading.Condition()
         self._pairs: deque[FramePair] = deque()
-        self._taken = self._skipped = self._evicted = 0
+        self._counters = Tally("pairing")  # under self._cond; pairs_formed is the pairer's
         self._waiting = 0  # consumers waiting in next_pair (read unlocked by the decode choice)
         self._ended: set[str] = set()
         self._started = self._stopped = False
@@ -165,11 +166,11 @@ class StereoCapture:
                     self._waiting -= 1
             if newest:
                 pair = self._pairs.pop()
-                self._skipped += len(self._pairs)
+                self._counters.add("pairs_skipped", len(self._pairs))
                 self._pairs.clear()
             else:
                 pair = self._pairs.popleft()
-            self._taken += 1
+            self._counters.add("pairs_taken")
             self._cond.notify_all()  # room for a camera thread waiting under backpressure
             return pair
 
@@ -188,7 +189,7 @@ class StereoCapture:
             for pair in self._pairer.push(frame):
                 if len(self._pairs) >= p.pair_buffer:
                     self._pairs.popleft()
-                    self._evicted += 1
+                    self._counters.add("pairs_evicted")
                 self._pairs.append(pair)
             self._cond.notify_all()
 
@@ -221,24 +222,23 @@ class StereoCapture:
             p50, p95 = self._pairer.skew_percentiles_ms()
             pairing = PairingHealth(
                 skew_gate_ms=self._pairer.gate_ns / 1e6,
-                pairs_formed=counts.pairs_formed,
-                pairs_taken=self._taken,
-                pairs_skipped=self._skipped,
-                pairs_evicted=self._evicted,
-                pairs_pending=len(self._pairs),
-                skew_ms_p50=p50,
-                skew_ms_p95=p95,
                 skew_samples=self._pairer.skew_samples,
+                counters=complete(
+                    "pairing",
+                    {
+                        **self._counters.snapshot(),
+                        "pairs_formed": counts.pairs_formed,
+                        "pairs_pending": len(self._pairs),
+                        "skew_ms": p50,
+                        "skew_ms_p95": p95,
+                    },
+                ),
             )
             finished = self._pairer.exhausted and not self._pairs
             running = self._started and not self._stopped
         for n, h in cams.items():
-            cams[n] = replace(
-                h,
-                frames_unpaired=counts.unpaired[n],
-                frames_evicted=counts.evicted[n],
-                frames_dropped=h.frames_lost + counts.unpaired[n] + counts.evicted[n],
-            )
+            pairing_drops = {"frames_unpaired": counts.unpaired[n], "frames_evicted": counts.evicted[n]}
+            cams[n] = replace(h, counters=complete("camera", {**h.counters, **pairing_drops}))
         return CaptureHealth(running=running, finished=finished, cameras=cams, pairing=pairing)
 
     # ----- USB bandwidth -----------------------------------------------------------------------

@@ -8,7 +8,8 @@ has arrived for ``watchdog_s`` (OpenCV's ``read()`` can keep "succeeding" after 
 blocked read cannot report anything) and asks for a reconnect after ``reconnect_after_s``.
 Reconnects back off exponentially (``backoff_base_s`` doubling up to ``backoff_max_s``), re-open
 the camera (which re-resolves by-path device links) and, after ``usb_reset_after`` failed
-attempts in one outage, try ``camera.reset_hardware()`` (a USB reset) once.
+attempts in one outage, try ``camera.reset_hardware()`` (a USB reset) once. What it counts is
+declared in :mod:`rig.counters` (group ``camera``).
 """
 
 from __future__ import annotations
@@ -18,7 +19,6 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import cv2
 
@@ -26,24 +26,13 @@ from rig.capture.config import SupervisorConfig
 from rig.capture.frame import Frame
 from rig.capture.health import CameraHealth, CameraState
 from rig.capture.protocol import Camera, CameraInfo
+from rig.counters import Tally, complete
 from rig.errors import CorruptFrameError, EndOfStream, RigError
 from rig.priority import apply_to_current_thread
 
-__all__ = ["CameraSupervisor", "SupervisorCounters"]
+__all__ = ["CameraSupervisor"]
 
 log = logging.getLogger("rig.capture")
-
-
-@dataclass
-class SupervisorCounters:
-    frames_received: int = 0
-    frames_corrupt: int = 0
-    frames_undecodable: int = 0
-    frames_lost: int = 0
-    timestamp_errors: int = 0
-    reconnects: int = 0
-    reconnect_attempts: int = 0
-    usb_resets: int = 0
 
 
 class CameraSupervisor:
@@ -71,7 +60,7 @@ class CameraSupervisor:
         self._threads: list[threading.Thread] = []
         self._state: CameraState = "starting"
         self._reason: str | None = None
-        self.counters = SupervisorCounters()
+        self.counters = Tally("camera")  # under self._lock
         self._last_frame_ns: int | None = None
         self._opened_ns: int | None = None
         self._last_seq: int | None = None
@@ -119,7 +108,7 @@ class CameraSupervisor:
         consumer took it (with ``decode: false`` the capture thread checks only the structure):
         counted in ``frames_undecodable`` and kept as the last error, like a corrupt frame."""
         with self._lock:
-            self.counters.frames_undecodable += 1
+            self.counters.add("frames_undecodable")
         self._error(message, unavailable=False)
 
     # ----- state -------------------------------------------------------------------------------
@@ -184,7 +173,7 @@ class CameraSupervisor:
                         break
                     if opened_before:
                         with self._lock:
-                            self.counters.reconnect_attempts += 1
+                            self.counters.add("reconnect_attempts")
                     try:
                         cam.open()
                     except EndOfStream as err:
@@ -203,7 +192,7 @@ class CameraSupervisor:
                         self._info = cam.info()
                         self._fresh_open = True
                         if opened_before:
-                            self.counters.reconnects += 1
+                            self.counters.add("reconnects")
                     opened = opened_before = True
                     attempt, reset_tried = 0, False
                     self._reconnect.clear()
@@ -222,7 +211,7 @@ class CameraSupervisor:
                     return
                 except CorruptFrameError as err:
                     with self._lock:
-                        self.counters.frames_corrupt += 1
+                        self.counters.add("frames_corrupt")
                     self._error(str(err), unavailable=False)
                     continue
                 except Exception as err:  # device gone (or a driver error): reopen at once, then back off
@@ -248,7 +237,7 @@ class CameraSupervisor:
             log.warning("camera %s: reset failed: %s", self.name, err)
             return
         with self._lock:
-            self.counters.usb_resets += 1
+            self.counters.add("usb_resets")
         log.warning("camera %s: %s", self.name, what)
 
     def _accept(self, frame: Frame) -> None:
@@ -260,7 +249,7 @@ class CameraSupervisor:
                 self._fresh_open = False
             if self._last_seq is not None and frame.seq > self._last_seq + 1:
                 gap = frame.seq - self._last_seq - 1
-                self.counters.frames_lost += gap
+                self.counters.add("frames_lost", gap)
                 # Reported, not a state change: a camera dropping frames (or at half rate) still works.
                 self._last_error = (f"camera {self.name}: {gap} frame(s) lost before seq {frame.seq}", now)
             self._last_seq = frame.seq
@@ -270,13 +259,13 @@ class CameraSupervisor:
                 frame.gray  # noqa: B018 - decode (the luma depth needs) once here, cached for the consumer
         except CorruptFrameError as err:
             with self._lock:
-                self.counters.frames_corrupt += 1
+                self.counters.add("frames_corrupt")
             self._error(str(err), unavailable=False)
             return
         problem = self._timestamp_problem(frame)
         if problem:
             with self._lock:
-                self.counters.timestamp_errors += 1
+                self.counters.add("timestamp_errors")
                 self._last_ts = None  # the reconnect re-validates the clock
             self._error(f"camera {self.name}: {problem}", unavailable=True)
             self._reconnect.set()
@@ -285,7 +274,7 @@ class CameraSupervisor:
             self._last_ts = frame.ts_ns
             self._last_frame_ns = now
             self._arrivals.append(now)
-            self.counters.frames_received += 1
+            self.counters.add("frames_received")
         self._transition("available", None)
         self._sink(frame)
 
@@ -314,11 +303,10 @@ class CameraSupervisor:
 
     # ----- health ------------------------------------------------------------------------------
     def health(self) -> CameraHealth:
-        """Snapshot of this camera (pairing counts are filled in by StereoCapture)."""
+        """Snapshot of this camera (pairing's counters, 0 here, are filled in by StereoCapture)."""
         now = self._clock()
         window = round(self.config.fps_window_s * 1e9)
         with self._lock:
-            c = self.counters
             recent = [t for t in self._arrivals if now - t <= window]
             fps = (len(recent) - 1) / ((recent[-1] - recent[0]) / 1e9) if len(recent) > 1 else 0.0
             if recent and recent[-1] - recent[0] <= 0:
@@ -328,29 +316,21 @@ class CameraSupervisor:
             if self._last_error is not None:
                 err, err_age = self._last_error[0], (now - self._last_error[1]) / 1e6
             info = self._info
+            counters = {
+                **self.counters.snapshot(),
+                "connected": self._state == "available",
+                "fps": fps,
+                "last_frame_age_ms": age,
+            }
             return CameraHealth(
                 name=self.name,
                 kind=self.camera.kind,
                 device=info.device,
                 state=self._state,
                 reason=self._reason,
-                connected=self._state == "available",
-                fps=fps,
                 nominal_fps=self.camera.nominal_fps,
-                last_frame_age_ms=age,
                 last_seq=self._last_seq,
                 last_ts_ns=self._last_ts,
-                frames_received=c.frames_received,
-                frames_corrupt=c.frames_corrupt,
-                frames_undecodable=c.frames_undecodable,
-                frames_lost=c.frames_lost,
-                frames_unpaired=0,
-                frames_evicted=0,
-                frames_dropped=c.frames_lost,
-                timestamp_errors=c.timestamp_errors,
-                reconnects=c.reconnects,
-                reconnect_attempts=c.reconnect_attempts,
-                usb_resets=c.usb_resets,
                 timestamp_source=info.timestamp_source,
                 timestamp_note=info.timestamp_note,
                 last_error=err,
@@ -358,6 +338,7 @@ class CameraSupervisor:
                 format=info.format,
                 width=info.width,
                 height=info.height,
+                counters=complete("camera", counters),
             )
 
 

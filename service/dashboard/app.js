@@ -1,5 +1,7 @@
 // Dashboard: polls /health, refreshes the images when a new depth frame is out, and outlines the
-// VPC footprint (from /calibration) on the fisheye frames. Plain JS, no build step.
+// VPC footprint (from /calibration) on the fisheye frames. The camera table's figure columns come
+// from the counter table (/counters): each camera counter with a `column` is shown there, those
+// sharing a column summed. Plain JS, no build step.
 "use strict";
 
 const HEALTH_PERIOD_MS = 400;
@@ -7,6 +9,7 @@ const IMAGE_IDS = ["depth-img", "confidence-img", "vpc-left", "vpc-right", "raw-
 const CAMERAS = ["left", "right"];
 let lastSeq = null;
 let calibration = null;
+let columns = null; // [{id, label, names, digits}] from /counters
 
 const $ = (id) => document.getElementById(id);
 
@@ -56,6 +59,64 @@ function drawFootprint(camera) {
   ctx.stroke();
 }
 
+// The camera table's columns: camera counters with a `column`, in table order, one per label.
+function cameraColumns(counters) {
+  const byLabel = new Map();
+  for (const c of counters) {
+    if (c.group !== "camera" || !c.column) continue;
+    if (!byLabel.has(c.column)) {
+      const id = c.column.toLowerCase().replace(/[^a-z0-9]+/g, "-").replace(/^-|-$/g, "");
+      byLabel.set(c.column, { id, label: c.column, names: [], help: [], digits: c.digits });
+    }
+    const col = byLabel.get(c.column);
+    col.names.push(c.name);
+    col.help.push(`${c.name}: ${c.help} (${c.unit})`);
+  }
+  return [...byLabel.values()];
+}
+
+function buildColumns(cols) {
+  const head = $("health-head");
+  for (const col of cols) {
+    const th = document.createElement("th");
+    th.textContent = col.label;
+    th.id = "col-" + col.id;
+    th.title = (col.names.length > 1 ? col.names.join(" + ") + "\n" : "") + col.help.join("\n");
+    head.appendChild(th);
+  }
+  for (const name of CAMERAS) {
+    const row = $(`cam-${name}-row`);
+    for (const col of cols) {
+      const td = document.createElement("td");
+      td.id = `cam-${name}-${col.id}`;
+      td.textContent = "–";
+      row.appendChild(td);
+    }
+  }
+  columns = cols;
+}
+
+async function loadCounters() {
+  try {
+    const r = await fetch("/counters", { cache: "no-store" });
+    if (!r.ok) throw new Error("HTTP " + r.status);
+    buildColumns(cameraColumns(await r.json()));
+  } catch (err) {
+    setTimeout(loadCounters, 2000);
+  }
+}
+
+// A column's value: its counters summed; "–" while any of them is null.
+function columnText(cam, col) {
+  let sum = 0;
+  for (const name of col.names) {
+    const v = cam[name];
+    if (v === null || v === undefined) return "–";
+    sum += Number(v);
+  }
+  return sum.toFixed(col.digits);
+}
+
 async function loadCalibration() {
   try {
     const r = await fetch("/calibration", { cache: "no-store" });
@@ -96,11 +157,7 @@ function showHealth(h) {
     state.textContent = cam.state;
     state.className = cam.state;
     $(`cam-${name}-reason`).textContent = cam.connected ? "" : (cam.reason || cam.last_error || "");
-    $(`cam-${name}-fps`).textContent = fmt(cam.fps, 1);
-    $(`cam-${name}-dropped`).textContent = cam.frames_dropped;
-    $(`cam-${name}-broken`).textContent = cam.frames_corrupt + cam.frames_undecodable;
-    $(`cam-${name}-age`).textContent =
-      cam.last_frame_age_ms === null ? "–" : fmt(cam.last_frame_age_ms, 0) + " ms ago";
+    for (const col of columns || []) $(`cam-${name}-${col.id}`).textContent = columnText(cam, col);
     $(`banner-${name}`).hidden = cam.connected;
   }
   const seq = h.worker.last_seq;
@@ -123,5 +180,6 @@ async function pollHealth() {
   }
 }
 
+loadCounters();
 loadCalibration();
 pollHealth();

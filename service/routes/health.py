@@ -1,4 +1,4 @@
-"""``/health`` (DESIGN §7, extended), ``/livez`` and ``/readyz``."""
+"""``/health``, ``/livez`` and ``/readyz``; ``/health``'s figures are those of :mod:`rig.counters`."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ from fastapi import APIRouter, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
+from rig.counters import flatten
 from service.deps import RuntimeDep, SettingsDep
 from service.runtime import HealthReport, Runtime
 from service.schemas import (
@@ -27,27 +28,14 @@ HEALTH_MEDIA_TYPE = "application/json"
 
 
 def health_model(report: HealthReport) -> HealthModel:
-    p = report.capture.pairing
-    w = report.worker
-    cams = {
-        name: CameraHealthModel.model_validate(c, from_attributes=True)
-        for name, c in report.capture.cameras.items()
-    }
+    cams = {name: CameraHealthModel.model_validate(flatten(c)) for name, c in report.capture.cameras.items()}
     return HealthModel(
         status=report.status,
         reasons=report.reasons,
         uptime_s=report.uptime_s,
         cameras=cams,
-        worker=WorkerHealthModel.model_validate(w, from_attributes=True),
-        pairing=PairingHealthModel(
-            skew_ms=p.skew_ms_p50,
-            skew_ms_p95=p.skew_ms_p95,
-            skew_gate_ms=p.skew_gate_ms,
-            pairs_formed=p.pairs_formed,
-            pairs_taken=p.pairs_taken,
-            pairs_skipped=p.pairs_skipped,
-            pairs_evicted=p.pairs_evicted,
-        ),
+        worker=WorkerHealthModel.model_validate(flatten(report.worker)),
+        pairing=PairingHealthModel.model_validate(flatten(report.capture.pairing)),
         host=HostModel.model_validate(report.host, from_attributes=True),
         recording=None
         if report.recording is None

@@ -244,7 +244,7 @@ def test_pipelined_worker_publishes_every_pair_in_order_and_survives_a_bad_one(
     # The frame that did not decode is the camera's fault, reported to the source, not the worker's.
     assert [(cam, seq) for cam, seq, _ in source.undecodable] == [("right", 2)]
     assert "frame 2" in source.undecodable[0][2] and "truncated" in source.undecodable[0][2]
-    assert stats.errors == 0 and stats.last_error is None
+    assert stats.counters["errors"] == 0 and stats.last_error is None
     assert set(stats.stage_ms) >= {"decode", "remap", "match", "refine", "filters", "depth", "total"}
     assert stats.stage_ms["decode"] > 0  # the worker decoded (the frames came undecoded)
     latest = store.latest

@@ -58,7 +58,7 @@ def stats(cap: StereoCapture, name: str) -> Any:
 
 
 def dropped_by_pairing(c: CameraHealth) -> int:
-    return c.frames_unpaired + c.frames_evicted
+    return c.counters["frames_unpaired"] + c.counters["frames_evicted"]
 
 
 def capture(rec: Path, **kw: Any) -> StereoCapture:
@@ -66,7 +66,7 @@ def capture(rec: Path, **kw: Any) -> StereoCapture:
 
 
 def steady(h: CaptureHealth, n: int = 60) -> bool:
-    return all(c.connected and c.frames_received >= n for c in h.cameras.values())
+    return all(c.connected and c.counters["frames_received"] >= n for c in h.cameras.values())
 
 
 @pytest.mark.parametrize("kind,check", [("corrupt", "JPEG header damaged"), ("truncate", "JPEG truncated")])
@@ -76,14 +76,19 @@ def test_corrupt_and_truncated_frames_are_counted_exactly(rec: Path, kind: str, 
     h = cap.health()  # stopped: every counter is final
     left, right = h.cameras["left"], h.cameras["right"]
     assert (
-        left.frames_corrupt
+        left.counters["frames_corrupt"]
         == 3
         == getattr(stats(cap, "left"), "corrupted" if kind == "corrupt" else "truncated")
     )
     assert check in (left.last_error or "") and left.state == "stopped"
     # Their partners had nothing to pair with: dropped and counted, nothing else lost.
-    assert dropped_by_pairing(right) == 3 and right.frames_dropped == 3
-    assert (left.frames_dropped, left.frames_lost, right.frames_lost, right.frames_corrupt) == (0, 0, 0, 0)
+    assert dropped_by_pairing(right) == 3 and right.counters["frames_dropped"] == 3
+    assert (
+        left.counters["frames_dropped"],
+        left.counters["frames_lost"],
+        right.counters["frames_lost"],
+        right.counters["frames_corrupt"],
+    ) == (0, 0, 0, 0)
 
 
 def test_stall_is_reported_and_recovers_with_exact_losses(rec: Path) -> None:
@@ -92,26 +97,26 @@ def test_stall_is_reported_and_recovers_with_exact_losses(rec: Path) -> None:
         h = run_until(cap, lambda h: h.cameras["left"].state == "unavailable")
         assert h.cameras["left"].reason == "no frame for more than 0.30 s"
         assert h.cameras["right"].connected
-        run_until(cap, lambda h: steady(h) and h.cameras["left"].frames_received >= 40)
+        run_until(cap, lambda h: steady(h) and h.cameras["left"].counters["frames_received"] >= 40)
     h = cap.health()
     left, right = h.cameras["left"], h.cameras["right"]
     expected = math.ceil(duration * FPS)
-    assert left.frames_lost == expected == stats(cap, "left").lost
+    assert left.counters["frames_lost"] == expected == stats(cap, "left").lost
     assert dropped_by_pairing(right) == expected and dropped_by_pairing(left) == 0
-    assert left.frames_dropped == expected and right.frames_dropped == expected
+    assert left.counters["frames_dropped"] == expected and right.counters["frames_dropped"] == expected
 
 
 def test_disconnect_reconnects_with_exact_losses(rec: Path) -> None:
     with capture(rec, right_faults=({"kind": "disconnect", "at_frame": 10, "duration_s": 0.31},)) as cap:
         h = run_until(cap, lambda h: h.cameras["right"].state == "unavailable")
         assert "disconnected (injected fault)" in (h.cameras["right"].reason or "")
-        run_until(cap, lambda h: steady(h) and h.cameras["right"].reconnects == 1)
+        run_until(cap, lambda h: steady(h) and h.cameras["right"].counters["reconnects"] == 1)
     h = cap.health()
     left, right = h.cameras["left"], h.cameras["right"]
     s = stats(cap, "right")
-    assert right.frames_lost == s.lost >= math.ceil(0.31 * FPS)
-    assert s.disconnects == 1 and right.reconnect_attempts >= 1
-    assert dropped_by_pairing(left) == right.frames_lost and dropped_by_pairing(right) == 0
+    assert right.counters["frames_lost"] == s.lost >= math.ceil(0.31 * FPS)
+    assert s.disconnects == 1 and right.counters["reconnect_attempts"] >= 1
+    assert dropped_by_pairing(left) == right.counters["frames_lost"] and dropped_by_pairing(right) == 0
 
 
 @pytest.mark.parametrize("offset_ms,words", [(2000.0, "ahead of"), (-2000.0, "behind")])
@@ -120,15 +125,15 @@ def test_timestamp_jump_is_rejected_and_recovered_by_reconnect(
 ) -> None:
     fault = {"kind": "timestamp_jump", "at_frame": 10, "offset_ms": offset_ms}
     with capture(rec, right_faults=(fault,)) as cap:
-        h = run_until(cap, lambda h: h.cameras["right"].timestamp_errors >= 1)
+        h = run_until(cap, lambda h: h.cameras["right"].counters["timestamp_errors"] >= 1)
         assert words in (h.cameras["right"].last_error or "")
-        run_until(cap, lambda h: steady(h) and h.cameras["right"].reconnects == 1)
+        run_until(cap, lambda h: steady(h) and h.cameras["right"].counters["reconnects"] == 1)
     h = cap.health()
     left, right = h.cameras["left"], h.cameras["right"]
-    assert right.timestamp_errors == 1  # the reconnect re-validated the clock at once
+    assert right.counters["timestamp_errors"] == 1  # the reconnect re-validated the clock at once
     # The rejected frame's partner, plus anything the reconnect skipped, went unpaired.
-    assert dropped_by_pairing(left) == 1 + right.frames_lost
-    assert right.frames_lost == stats(cap, "right").lost
+    assert dropped_by_pairing(left) == 1 + right.counters["frames_lost"]
+    assert right.counters["frames_lost"] == stats(cap, "right").lost
 
 
 def test_half_rate_camera(rec: Path) -> None:
@@ -136,7 +141,7 @@ def test_half_rate_camera(rec: Path) -> None:
         run_until(cap, steady)
     h = cap.health()  # stopped: every counter is final
     left, right = h.cameras["left"], h.cameras["right"]
-    assert right.frames_lost == 10 == stats(cap, "right").lost
+    assert right.counters["frames_lost"] == 10 == stats(cap, "right").lost
     assert "1 frame(s) lost before seq" in (right.last_error or "")
     assert dropped_by_pairing(left) == 10 and dropped_by_pairing(right) == 0
 
@@ -145,7 +150,7 @@ def test_drop_fault(rec: Path) -> None:
     with capture(rec, left_faults=({"kind": "drop", "at_frame": 5, "count": 4},)) as cap:
         run_until(cap, steady)
     h = cap.health()
-    assert h.cameras["left"].frames_lost == 4 and dropped_by_pairing(h.cameras["right"]) == 4
+    assert h.cameras["left"].counters["frames_lost"] == 4 and dropped_by_pairing(h.cameras["right"]) == 4
 
 
 def test_runtime_injection_shows_in_health_and_clears(rec: Path) -> None:
@@ -154,9 +159,11 @@ def test_runtime_injection_shows_in_health_and_clears(rec: Path) -> None:
         cap.inject("left", DisconnectFault(duration_s=0.4))
         h = run_until(cap, lambda h: not h.cameras["left"].connected, timeout_s=1.0)
         assert "disconnected" in (h.cameras["left"].reason or "")
-        h = run_until(cap, lambda h: h.cameras["left"].connected and h.cameras["left"].reconnects == 1)
-        taken = h.pairing.pairs_taken
-        run_until(cap, lambda h: h.pairing.pairs_taken > taken + 5)  # depth would resume
+        h = run_until(
+            cap, lambda h: h.cameras["left"].connected and h.cameras["left"].counters["reconnects"] == 1
+        )
+        taken = h.pairing.counters["pairs_taken"]
+        run_until(cap, lambda h: h.pairing.counters["pairs_taken"] > taken + 5)  # depth would resume
 
 
 def test_pair_hand_out_and_health_document(rec: Path) -> None:
@@ -170,8 +177,9 @@ def test_pair_hand_out_and_health_document(rec: Path) -> None:
         assert oldest is not None and oldest.seq > newest.seq
         h = cap.health()
     p = h.pairing
-    assert p.pairs_formed == p.pairs_taken + p.pairs_skipped + p.pairs_evicted + p.pairs_pending
-    assert p.skew_ms_p50 == 0.0 and p.skew_gate_ms == pytest.approx(10.0)
+    parts = ("pairs_taken", "pairs_skipped", "pairs_evicted", "pairs_pending")
+    assert p.counters["pairs_formed"] == sum(p.counters[k] for k in parts)  # type: ignore[misc]
+    assert p.counters["skew_ms"] == 0.0 and p.skew_gate_ms == pytest.approx(10.0)
     doc = json.loads(json.dumps(h.as_dict()))
     assert set(doc["cameras"]["left"]) >= {"connected", "fps", "frames_dropped", "last_frame_age_ms"}
     assert doc["cameras"]["left"]["timestamp_source"] == "live"
@@ -217,4 +225,4 @@ def test_backpressure_replay_hands_out_every_pair_to_a_slow_consumer(tmp_path: P
                     time.sleep(0.01)  # a consumer that sometimes falls behind
         assert seqs == expected
         h = cap.health()
-        assert h.pairing.pairs_evicted == 0 and h.cameras["left"].frames_evicted == 0
+        assert h.pairing.counters["pairs_evicted"] == 0 and h.cameras["left"].counters["frames_evicted"] == 0

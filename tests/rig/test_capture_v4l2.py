@@ -283,14 +283,14 @@ def test_supervisor_resets_usb_once_after_repeated_failures_then_recovers() -> N
     try:
         wait_for(lambda: sup.state[0] == "available")
         hw.present = False  # unplugged: grab fails and so does every re-open
-        wait_for(lambda: sup.counters.reconnect_attempts >= FAST_SUPERVISOR.usb_reset_after + 2)
+        wait_for(lambda: sup.counters["reconnect_attempts"] >= FAST_SUPERVISOR.usb_reset_after + 2)
         assert resets == ["/dev/video3"]  # once per outage, after usb_reset_after failures
-        assert sup.counters.usb_resets == 1
+        assert sup.counters["usb_resets"] == 1
         state, reason = sup.state
         assert state == "unavailable" and "cannot open" in (reason or "")
         hw.present = True
         wait_for(lambda: sup.state[0] == "available")
-        assert sup.counters.reconnects == 1
+        assert sup.counters["reconnects"] == 1
     finally:
         sup.stop()
 

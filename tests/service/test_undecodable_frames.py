@@ -96,11 +96,11 @@ def test_an_undecodable_frame_is_counted_against_its_camera(
         capture.stop()
     assert seen == [s for s in range(PAIRS) if s != BAD_SEQ], "no depth from the bad pair, none lost"
     right, left = health.cameras["right"], health.cameras["left"]
-    counted = (right.frames_corrupt, right.frames_undecodable)
+    counted = (right.counters["frames_corrupt"], right.counters["frames_undecodable"])
     assert counted == ((1, 0) if decode else (0, 1))
-    assert (left.frames_corrupt, left.frames_undecodable) == (0, 0)
+    assert (left.counters["frames_corrupt"], left.counters["frames_undecodable"]) == (0, 0)
     assert f"frame {BAD_SEQ}" in (right.last_error or "") and "does not decode" in (right.last_error or "")
     assert right.state != "unavailable" and left.last_error is None
     # Received: the worker only sees frames that reached pairing; the capture's decode stops it before.
-    assert right.frames_received == PAIRS - (1 if decode else 0)
-    assert stats.errors == 0 and stats.last_error is None
+    assert right.counters["frames_received"] == PAIRS - (1 if decode else 0)
+    assert stats.counters["errors"] == 0 and stats.last_error is None
