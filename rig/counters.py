@@ -13,7 +13,7 @@ happens); a gauge, and the pairing figures, are measured where the snapshot is m
 (``CameraSupervisor.health``, ``StereoCapture.health``, ``DepthWorker.stats``); a counter with
 ``sum_of`` is the sum of others and needs no code. :func:`complete` refuses a snapshot that
 misses a declared figure or has an undeclared one, so the table and the counting code cannot
-drift apart.
+drift apart. Then regenerate ``docs/counters.md`` (a test compares it with :func:`markdown`).
 """
 
 from __future__ import annotations
@@ -384,6 +384,8 @@ def markdown() -> str:
         "as JSON by `GET /counters`). A *counter* only grows (Prometheus adds `_total` to its name);",
         "a *gauge* is a current value. `bool` gauges are `true`/`false` in `/health` and 1/0 in",
         "`/metrics`; gauges that are null in `/health` (nothing measured yet) have no sample.",
+        "Not in this table: the worker's per-stage times (`worker.stage_ms`, `rig_stage_latency_ms`",
+        "and the `rig_stage_seconds` histogram) and the encode, memory and recording metrics.",
         "",
     ]
     for group in GROUPS:

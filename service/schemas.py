@@ -18,6 +18,7 @@ __all__ = [
     "BODY_ERRORS",
     "CalibrationModel",
     "CameraCalibrationModel",
+    "CameraHealthBase",
     "CameraHealthModel",
     "ConfigModel",
     "ConfigPatch",
@@ -26,6 +27,7 @@ __all__ = [
     "FaultRequest",
     "HealthModel",
     "HostModel",
+    "PairingHealthBase",
     "PairingHealthModel",
     "ProbeModel",
     "RecordingInfo",
@@ -33,6 +35,7 @@ __all__ = [
     "ServerPublicModel",
     "StereoPatch",
     "VpcModel",
+    "WorkerHealthBase",
     "WorkerHealthModel",
 ]
 
@@ -105,7 +108,8 @@ class PairingHealthBase(_CounterFields):
     skew_gate_ms: float = Field(description="frames further apart than this are not paired")
 
 
-# Generated at import from the table (rig.counters), so the OpenAPI document describes every figure.
+# Generated from the table (rig.counters) when this module is imported, so the OpenAPI document
+# describes every figure; a test that extends the table does so before importing the service.
 if TYPE_CHECKING:
     CameraHealthModel = CameraHealthBase
     WorkerHealthModel = WorkerHealthBase

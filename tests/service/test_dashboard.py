@@ -1,10 +1,11 @@
 """The dashboard in a real headless Chromium (Debian's, driven by Playwright): it loads, its
-images refresh, the footprint is drawn, broken frames are counted and a stopped camera shows up
-as unavailable."""
+images refresh, the footprint is drawn, the camera table has the counter table's columns, broken
+frames are counted and a stopped camera shows up as unavailable."""
 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -71,6 +72,23 @@ def test_dashboard_live_in_chromium(start_server: Callable[..., LiveServer], tmp
             assert drawn > 500
             assert page.text_content("#cam-left-state") == "available"
             assert float(page.text_content("#fps") or "0") > 0
+
+            # The camera table's figure columns are the counter table's (GET /counters), in its order.
+            counters = httpx.get(live.base_url + "/counters").json()
+            columns = list(
+                dict.fromkeys(c["column"] for c in counters if c["group"] == "camera" and c["column"])
+            )
+            page.wait_for_function("document.getElementById('cam-left-fps') !== null", timeout=20_000)
+            headers = page.eval_on_selector_all("#health-head th", "els => els.map(e => e.textContent)")
+            assert headers == ["camera", "state", "reason", *columns]
+            assert {"fps", "dropped", "broken"} <= set(columns)
+            title = page.get_attribute("#col-broken", "title") or ""
+            assert title.startswith("frames_corrupt + frames_undecodable\nframes_corrupt: frames the camera")
+            page.wait_for_function(
+                "Number(document.getElementById('cam-left-fps').textContent) > 0", timeout=20_000
+            )
+            assert re.fullmatch(r"\d+\.\d", page.text_content("#cam-left-fps") or "")  # digits: 1
+            assert re.fullmatch(r"\d+", page.text_content("#cam-left-dropped") or "")
             page.screenshot(path=str(tmp_path / "dashboard-ok.png"), full_page=True)
 
             def inject_until(camera: str, fault: dict[str, Any], element: str, text: str) -> None:
