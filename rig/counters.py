@@ -270,39 +270,29 @@ def _grouped(table: tuple[CounterSpec, ...]) -> dict[Group, tuple[CounterSpec, .
 
 def _check(table: tuple[CounterSpec, ...]) -> None:
     """A table the code can derive everything from, or ValueError naming the entry."""
-    families: dict[str, CounterSpec] = {}
-    seen: set[tuple[Group, str]] = set()
+    plain = {(c.group, c.name) for c in table if c.kind == "counter" and not c.sum_of}
+    if len({(c.group, c.name) for c in table}) != len(table):
+        raise ValueError("a counter is declared twice in its group")
     for c in table:
         where = f"counter {c.group}.{c.name}"
         if c.group not in GROUPS or c.kind not in ("counter", "gauge"):
             raise ValueError(f"{where}: unknown group {c.group!r} or kind {c.kind!r}")
-        if (c.group, c.name) in seen:
-            raise ValueError(f"{where}: declared twice")
-        seen.add((c.group, c.name))
         if c.kind == "counter" and (c.value is not int or c.optional):
             raise ValueError(f"{where}: a counter is a non-null integer")
-        for part in c.sum_of:
-            spec = next((s for s in table if s.group == c.group and s.name == part), None)
-            if spec is None or spec.kind != "counter" or spec.sum_of:
-                raise ValueError(f"{where}: sum_of names {part!r}, not a plain counter of its group")
-        first = families.setdefault(c.metric_family, c)
-        labels = [k for k, _ in c.metric_labels]
-        if first is not c and (
-            (first.group, first.kind) != (c.group, c.kind)
-            or labels != [k for k, _ in first.metric_labels]
-            or not labels
-        ):
-            raise ValueError(f"{where}: shares metric {c.metric_family} but not its group, kind and labels")
-    for name, family in _by_family(table).items():
-        if len({c.metric_labels for c in family}) != len(family):
-            raise ValueError(f"metric {name}: two counters with the same labels")
-
-
-def _by_family(table: tuple[CounterSpec, ...]) -> dict[str, list[CounterSpec]]:
-    out: dict[str, list[CounterSpec]] = {}
+        if any((c.group, part) not in plain for part in c.sum_of):
+            raise ValueError(f"{where}: sum_of names what is not a plain counter of its group")
+    families: dict[str, list[CounterSpec]] = {}
     for c in table:
-        out.setdefault(c.metric_family, []).append(c)
-    return out
+        families.setdefault(c.metric_family, []).append(c)
+    for name, family in families.items():
+        first, keys = family[0], [k for k, _ in family[0].metric_labels]
+        alike = all(
+            (c.group, c.kind, [k for k, _ in c.metric_labels]) == (first.group, first.kind, keys)
+            for c in family
+        )
+        distinct = len({c.metric_labels for c in family}) == len(family)
+        if len(family) > 1 and not (alike and keys and distinct):
+            raise ValueError(f"metric {name}: shared by counters of another group, kind or labels")
 
 
 def counters_of(group: Group) -> tuple[CounterSpec, ...]:

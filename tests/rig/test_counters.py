@@ -47,8 +47,18 @@ def test_the_table_holds_each_group_with_unique_names_and_metrics() -> None:
         (_spec("frames_x", value=float), "non-null integer"),
         (_spec("frames_x", sum_of=("fps",)), "not a plain counter"),
         (_spec("frames_x", sum_of=("frames_dropped",)), "not a plain counter"),
-        (_spec("frames_x", metric="rig_camera_fps"), "shares metric"),
-        (_spec("x", group="pairing", kind="gauge", metric="rig_pairing_skew_ms"), "shares metric"),
+        (_spec("frames_x", metric="rig_camera_fps"), "shared by counters of another"),
+        (_spec("x", group="pairing", kind="gauge", metric="rig_pairing_skew_ms"), "shared by counters"),
+        (
+            _spec(
+                "x",
+                group="pairing",
+                kind="gauge",
+                metric="rig_pairing_skew_ms",
+                metric_labels=(("quantile", "0.5"),),
+            ),
+            "shared by counters",
+        ),
     ],
 )
 def test_a_table_the_code_cannot_derive_from_is_refused(
