@@ -29,9 +29,10 @@ from service.errors import (
     RecordingNameError,
     ServiceError,
     StereoParamsRefused,
+    Unauthorized,
 )
 
-__all__ = ["STATUS_BY_ERROR", "error_detail", "install_error_handlers", "status_for"]
+__all__ = ["HEADERS_BY_ERROR", "STATUS_BY_ERROR", "error_detail", "install_error_handlers", "status_for"]
 
 log = logging.getLogger("service.app")
 
@@ -44,6 +45,7 @@ STATUS_BY_ERROR: dict[type[Exception], int] = {
     ConfidenceOff: 409,
     StereoParamsRefused: 422,
     NotReady: 503,
+    Unauthorized: 401,
     ServiceError: 500,
     # rig
     FaultNotSupported: 409,
@@ -53,6 +55,10 @@ STATUS_BY_ERROR: dict[type[Exception], int] = {
     # calibration (the rig's own calibration: never the client's doing)
     CalibrationError: 500,
 }
+
+
+#: Headers that go with an error's response.
+HEADERS_BY_ERROR: dict[type[Exception], dict[str, str]] = {Unauthorized: {"WWW-Authenticate": "Bearer"}}
 
 
 def status_for(err: BaseException) -> int:
@@ -74,7 +80,8 @@ async def project_error(request: Request, exc: Exception) -> JSONResponse:
     status = status_for(exc)
     if status >= 500:
         log.error("%s %s: %s", request.method, request.url.path, exc)
-    return JSONResponse({"detail": error_detail(exc)}, status_code=status)
+    headers = next((h for cls, h in HEADERS_BY_ERROR.items() if isinstance(exc, cls)), None)
+    return JSONResponse({"detail": error_detail(exc)}, status_code=status, headers=headers)
 
 
 async def internal_error(request: Request, exc: Exception) -> JSONResponse:
@@ -95,7 +102,7 @@ def _documented_methods(app: FastAPI, path: str) -> set[str]:
 
 
 async def http_error(request: Request, exc: Exception) -> Response:
-    """Starlette's HTTP errors (404 for an unknown URL, 405, 401, 413) as FastAPI answers them,
+    """Starlette's HTTP errors (404 for an unknown URL, 405, 413) as FastAPI answers them,
     with ``Allow`` listing every documented method of the path on a 405."""
     assert isinstance(exc, StarletteHTTPException)
     response = await http_exception_handler(request, exc)

@@ -19,6 +19,7 @@ __all__ = [
     "ServiceError",
     "SettingsError",
     "StereoParamsRefused",
+    "Unauthorized",
     "UnknownCamera",
 ]
 
@@ -65,6 +66,10 @@ class RecordingNotFound(NotFound):
 
 class UnknownCamera(NotFound):
     """No camera of that name (the rig has 'left' and 'right')."""
+
+
+class Unauthorized(ServiceError):
+    """A state-changing request without the right bearer token (or with none configured)."""
 
 
 class NotReady(ServiceError):

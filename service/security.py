@@ -20,6 +20,8 @@ from fastapi import Depends, HTTPException, Request, Response
 from fastapi.routing import APIRoute
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from service.errors import Unauthorized
+
 __all__ = ["STATE_CHANGING_METHODS", "AuthDep", "BodySizeLimit", "TokenFirstRoute", "require_token"]
 
 STATE_CHANGING_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
@@ -28,19 +30,16 @@ STATE_CHANGING_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 async def require_token(request: Request) -> None:
     """FastAPI dependency: 401 unless the request carries the configured bearer token."""
     expected = request.app.state.settings.server.token
-    challenge = {"WWW-Authenticate": "Bearer"}
     if expected is None:
-        raise HTTPException(
-            401,
-            "state-changing endpoints are disabled: no API token configured (set RIG_API_TOKEN)",
-            challenge,
+        raise Unauthorized(
+            "state-changing endpoints are disabled: no API token configured (set RIG_API_TOKEN)"
         )
     header = request.headers.get("authorization", "")
     scheme, _, token = header.partition(" ")
     if scheme.lower() != "bearer" or not token:
-        raise HTTPException(401, "missing bearer token (Authorization: Bearer <token>)", challenge)
+        raise Unauthorized("missing bearer token (Authorization: Bearer <token>)")
     if not hmac.compare_digest(token.strip().encode(), expected.encode()):
-        raise HTTPException(401, "invalid bearer token", challenge)
+        raise Unauthorized("invalid bearer token")
 
 
 AuthDep = Annotated[None, Depends(require_token)]

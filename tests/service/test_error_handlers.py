@@ -39,6 +39,7 @@ EXPECTED: dict[str, int] = {
     "ConfidenceOff": 409,
     "StereoParamsRefused": 422,
     "NotReady": 503,
+    "Unauthorized": 401,
     # rig
     "RigError": 500,
     "ConfigError": 422,
@@ -95,7 +96,7 @@ def make(cls: type[Exception]) -> tuple[Exception, Any]:
 
 @pytest.fixture(scope="module")
 def raising_app() -> Iterator[tuple[FastAPI, httpx.Client]]:
-    app = create_app(load_settings(None, {}))
+    app = create_app(load_settings(None, {"server": {"api_token": None}}))  # whatever RIG_API_TOKEN says
     pending: list[Exception] = []
 
     @app.get("/test/raise")
@@ -140,6 +141,7 @@ def test_each_project_exception_maps_to_its_status_and_detail(
     assert r.json() == {"detail": detail}
     logged = [rec for rec in caplog.records if rec.name == "service.app"]
     assert bool(logged) == (r.status_code >= 500)  # server faults are logged, client mistakes not
+    assert r.headers.get("WWW-Authenticate") == ("Bearer" if r.status_code == 401 else None)
 
 
 def test_a_bug_is_500_with_only_its_type(raising_app: tuple[FastAPI, httpx.Client]) -> None:
@@ -160,3 +162,8 @@ def test_real_routes_raise_through_the_same_mapping(raising_app: tuple[FastAPI, 
     assert r.status_code == 404 and r.json() == {"detail": "Not Found"}
     r = client.delete("/depth")
     assert r.status_code == 405 and r.headers["Allow"] == "GET"
+    r = client.patch("/config", json={"stereo": {}})  # no token configured: nobody may change state
+    assert r.status_code == 401 and r.headers["WWW-Authenticate"] == "Bearer"
+    assert r.json() == {
+        "detail": "state-changing endpoints are disabled: no API token configured (set RIG_API_TOKEN)"
+    }
