@@ -3,7 +3,10 @@
 Depth is z in the left VPC frame, metres, float32, NaN invalid; ``Z = fx·B/d``, invalid where
 d ≤ 0. The 16-bit PNG form is millimetres with 0 = invalid (RealSense/DepthAI convention);
 depths beyond 65.535 m do not fit and are written as 0 (invalid), never saturated.
-PLY: binary little-endian, ``x y z`` float32 (+ ``red green blue`` uchar).
+PLY: binary little-endian, ``x y z`` float32 (+ ``red green blue`` uchar). Range is the
+distance along each pixel's ray (``|ray| · z``), what a lidar or a ROS range image holds.
+:func:`pack_xyzrgb` is the one point layout of ROS ``PointCloud2``, Foxglove ``PointCloud`` and
+PCD files (``x y z`` float32, colour as PCL's packed ``rgb``).
 """
 
 from __future__ import annotations
@@ -19,10 +22,14 @@ from calibration.models import PinholeModel
 from rig.errors import PipelineError
 
 __all__ = [
+    "XYZRGB_DTYPE",
     "depth_from_png_mm",
     "depth_points",
     "depth_to_png_mm",
+    "depth_to_range",
     "disparity_to_depth",
+    "pack_xyzrgb",
+    "pixel_ray_norms",
     "read_ply",
     "write_ply",
 ]
@@ -83,6 +90,52 @@ def depth_points(
         T = np.asarray(T_rig_vpc, dtype=np.float64)
         pts = pts @ T[:3, :3].T + T[:3, 3]
     return pts.astype(np.float32), rows[r_idx] * w + cols[c_idx]
+
+
+def pixel_ray_norms(camera: PinholeModel) -> F32:
+    """(H, W) float32 length of each pixel's ray scaled to z = 1, ``√(1 + x² + y²)`` with
+    ``x = (u − cx)/fx``, ``y = (v − cy)/fy`` (the pinhole's distortion-free rays)."""
+    x = (np.arange(camera.width, dtype=np.float64) - camera.cx) / camera.fx
+    y = (np.arange(camera.height, dtype=np.float64) - camera.cy) / camera.fy
+    return np.sqrt(1.0 + x[None, :] ** 2 + y[:, None] ** 2).astype(np.float32)
+
+
+def depth_to_range(depth: F32, camera: PinholeModel, ray_norms: F32 | None = None) -> F32:
+    """Range (H, W) float32 m: distance from the camera centre along each pixel's ray,
+    ``depth · |ray|`` (:func:`pixel_ray_norms`); NaN where depth is. ``ray_norms`` may be
+    passed in when the caller keeps them (they depend on the camera only)."""
+    norms = pixel_ray_norms(camera) if ray_norms is None else ray_norms
+    d = np.asarray(depth, dtype=np.float32)
+    if d.shape != norms.shape:
+        raise PipelineError(
+            f"range: depth is {d.shape[1]}x{d.shape[0]}, camera {camera.width}x{camera.height}"
+        )
+    return np.multiply(d, norms, dtype=np.float32)
+
+
+#: One point of :func:`pack_xyzrgb`: 16 bytes, little-endian. ``rgb`` is PCL's packed colour,
+#: ``0xAARRGGBB`` as a little-endian uint32 (bytes B, G, R, A), as RViz and PCL read it.
+XYZRGB_DTYPE = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("rgb", "<u4")])
+
+
+def pack_xyzrgb(points: ArrayLike, colors: ArrayLike | None = None) -> NDArray[np.void]:
+    """Points (N, 3) and colours (N, 3) uint8 RGB (None: white) as (N,) :data:`XYZRGB_DTYPE`
+    records, alpha 255."""
+    pts = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+    out = np.empty(pts.shape[0], dtype=XYZRGB_DTYPE)
+    out["x"], out["y"], out["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
+    if colors is None:
+        out["rgb"] = 0xFFFFFFFF
+        return out
+    rgb = np.asarray(colors, dtype=np.uint8).reshape(-1, 3)
+    if rgb.shape[0] != pts.shape[0]:
+        raise PipelineError(f"point cloud: {pts.shape[0]} points but {rgb.shape[0]} colours")
+    packed = np.full(pts.shape[0], 0xFF000000, dtype=np.uint32)
+    packed |= rgb[:, 0].astype(np.uint32) << 16
+    packed |= rgb[:, 1].astype(np.uint32) << 8
+    packed |= rgb[:, 2].astype(np.uint32)
+    out["rgb"] = packed
+    return out
 
 
 def write_ply(path: str | Path, points: ArrayLike, colors: ArrayLike | None = None) -> Path:

@@ -40,6 +40,7 @@ __all__ = [
     "PairRecord",
     "Recording",
     "RecordingWriter",
+    "StoredFrame",
 ]
 
 log = logging.getLogger(__name__)
@@ -72,6 +73,29 @@ class PairRecord:
         if camera == "right":
             return self.right_ts_ns
         raise RecordingError(f"unknown camera {camera!r} (expected 'left' or 'right')")
+
+
+@dataclass(frozen=True, eq=False)
+class StoredFrame:
+    """One recorded frame as stored: ``format`` ``jpeg``/``png`` with its ``raw`` bytes, or
+    ``bgr`` with only a decoded ``image`` (gray (H, W) or BGR (H, W, 3) uint8: frames a bag
+    holds as raw pixels). ``source`` names it in messages (file, or bag and topic)."""
+
+    format: str
+    raw: bytes | None = None
+    image: NDArray[Any] | None = None
+    source: str = ""
+
+    def decoded(self) -> NDArray[Any]:
+        """The image as OpenCV decodes it (``IMREAD_UNCHANGED``); RecordingError naming the
+        source when the bytes are not an image."""
+        if self.image is not None:
+            return self.image
+        data = self.raw or b""
+        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+        if img is None:
+            raise RecordingError(f"{self.source or 'frame'}: not a readable image")
+        return np.asarray(img)
 
 
 class Recording:
@@ -187,6 +211,19 @@ class Recording:
             raise RecordingError(
                 f"{p}: {camera} frame of seq {pair.seq} unreadable ({err.strerror})"
             ) from err
+
+    def read_frame(self, pair: PairRecord, camera: str) -> StoredFrame:
+        """The frame file as a :class:`StoredFrame` (format from its extension, bytes as stored);
+        RecordingError naming the file for a missing file or an unsupported file type."""
+        path = self.path(pair.file(camera))
+        lower = path.name.lower()
+        if lower.endswith((".jpg", ".jpeg")):
+            fmt = "jpeg"
+        elif lower.endswith(".png"):
+            fmt = "png"
+        else:
+            raise RecordingError(f"{path}: unsupported frame file type (expected .jpg or .png)")
+        return StoredFrame(fmt, raw=self.read_bytes(pair, camera), source=str(path))
 
     def read_image(self, pair: PairRecord, camera: str, flags: int = cv2.IMREAD_UNCHANGED) -> NDArray[Any]:
         """Decoded frame; RecordingError naming the file and seq if it is missing or corrupt."""

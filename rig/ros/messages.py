@@ -1,0 +1,177 @@
+"""What the rig publishes, topic by topic, as plain data: one builder for the MCAP export, the
+MCAP recorder and the live Foxglove server, so all three carry the same topics and contents.
+
+:class:`MessageBuilder` turns a pipeline's geometry and its frames into messages: the static
+transforms, the raw frames with their camera infos, and for each processed pair the rectified
+views, depth (REP 118), range, confidence and the point cloud, each stamped with the pair's
+capture time. The encoders (:mod:`rig.ros.cdr` for ROS 2, ``service.foxglove`` for Foxglove's
+schemas) only translate these.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from rig.depth import depth_to_png_mm, depth_to_range, pack_xyzrgb, pixel_ray_norms
+from rig.pipeline import DepthFrame, DepthPipeline
+from rig.recording import StoredFrame
+from rig.ros.camera_info import CameraInfo, raw_camera_info, rectified_camera_info
+from rig.ros.images import RawPixels, raw_pixels
+from rig.ros.names import RosNames
+from rig.ros.tf import StaticTransform, static_transforms
+
+__all__ = [
+    "CameraInfoMessage",
+    "CompressedImageMessage",
+    "ImageMessage",
+    "Message",
+    "MessageBuilder",
+    "PointCloudMessage",
+    "TransformsMessage",
+]
+
+
+@dataclass(frozen=True)
+class ImageMessage:
+    topic: str
+    frame_id: str
+    stamp_ns: int
+    pixels: RawPixels
+
+
+@dataclass(frozen=True)
+class CompressedImageMessage:
+    topic: str
+    frame_id: str
+    stamp_ns: int
+    format: str
+    data: bytes
+
+
+@dataclass(frozen=True)
+class CameraInfoMessage:
+    topic: str
+    stamp_ns: int
+    info: CameraInfo
+
+
+@dataclass(frozen=True)
+class PointCloudMessage:
+    """Unordered cloud (height 1): ``points`` are :data:`rig.depth.XYZRGB_DTYPE` records."""
+
+    topic: str
+    frame_id: str
+    stamp_ns: int
+    points: NDArray[np.void]
+
+
+@dataclass(frozen=True)
+class TransformsMessage:
+    topic: str
+    stamp_ns: int
+    transforms: list[StaticTransform]
+
+
+Message = ImageMessage | CompressedImageMessage | CameraInfoMessage | PointCloudMessage | TransformsMessage
+
+
+@dataclass
+class MessageBuilder:
+    """Messages of one pipeline's rig (see the module docstring). ``cloud_stride``: every
+    n-th pixel of each axis goes into the point cloud; ``rectified_images``: publish the VPC
+    pair (a ``stereo_image_proc`` input) or only its camera infos."""
+
+    pipeline: DepthPipeline
+    names: RosNames = field(default_factory=RosNames)
+    cloud_stride: int = 1
+    rectified_images: bool = True
+
+    def __post_init__(self) -> None:
+        pair = self.pipeline.pair
+        rig = self.pipeline.rig
+        self.cameras = (pair.left, pair.right)
+        self.raw_infos = {c: raw_camera_info(rig.cameras[c], pair, c, self.names) for c in self.cameras}
+        self.rect_infos = {c: rectified_camera_info(pair, c, self.names) for c in self.cameras}
+        self.transforms = static_transforms(rig, pair, self.names)
+        self._ray_norms = pixel_ray_norms(pair.camera)
+
+    # ----- static ------------------------------------------------------------------------------
+    def static(self, stamp_ns: int) -> list[Message]:
+        """``/tf_static``: the whole tree in one message."""
+        return [TransformsMessage(self.names.tf_static, stamp_ns, list(self.transforms))]
+
+    def camera_infos(self, stamp_ns: int) -> list[Message]:
+        """Every camera info (raw, rectified, depth) at one stamp."""
+        out: list[Message] = [
+            CameraInfoMessage(self.names.raw_info(c), stamp_ns, self.raw_infos[c]) for c in self.cameras
+        ]
+        out += [
+            CameraInfoMessage(self.names.rect_info(c), stamp_ns, self.rect_infos[c]) for c in self.cameras
+        ]
+        out.append(CameraInfoMessage(self.names.depth_info, stamp_ns, self.rect_infos[self.cameras[0]]))
+        return out
+
+    # ----- raw frames --------------------------------------------------------------------------
+    def raw_frame(self, camera: str, frame: StoredFrame, stamp_ns: int) -> list[Message]:
+        """``camera``'s raw frame (JPEG bytes as they are, anything else as pixels) and its info."""
+        frame_id = self.names.camera_frame(camera)
+        image: Message
+        if frame.format == "jpeg" and frame.raw is not None:
+            topic = self.names.raw_image(camera, compressed=True)
+            image = CompressedImageMessage(topic, frame_id, stamp_ns, "jpeg", frame.raw)
+        else:
+            topic = self.names.raw_image(camera, compressed=False)
+            image = ImageMessage(topic, frame_id, stamp_ns, raw_pixels(frame.decoded()))
+        return [image, CameraInfoMessage(self.names.raw_info(camera), stamp_ns, self.raw_infos[camera])]
+
+    # ----- depth -------------------------------------------------------------------------------
+    def depth_image(self, frame: DepthFrame, stamp_ns: int) -> ImageMessage:
+        """REP 118 depth in the left rectified frame: 32FC1 m, NaN invalid, or 16UC1 mm, 0 invalid."""
+        frame_id = self.names.rect_frame(self.cameras[0])
+        if self.names.depth_encoding == "16UC1":
+            pixels = raw_pixels(depth_to_png_mm(frame.depth), depth_mm=True)
+        else:
+            pixels = raw_pixels(frame.depth)
+        return ImageMessage(self.names.depth_image, frame_id, stamp_ns, pixels)
+
+    def depth_outputs(
+        self, frame: DepthFrame, stamp_ns: int, *, left_image: NDArray[Any] | None = None
+    ) -> list[Message]:
+        """Everything made from one processed pair: rectified views and their infos, depth and
+        its info, range, confidence (when on) and the point cloud (coloured from ``left_image``,
+        the left VPC view in colour, or else the frame's own)."""
+        left, right = self.cameras
+        rect_frame = self.names.rect_frame(left)
+        out: list[Message] = []
+        if self.rectified_images:
+            for cam, img in ((left, frame.left_vpc), (right, frame.right_vpc)):
+                out.append(
+                    ImageMessage(
+                        self.names.rect_image(cam), self.names.rect_frame(cam), stamp_ns, raw_pixels(img)
+                    )
+                )
+        out += [
+            CameraInfoMessage(self.names.rect_info(c), stamp_ns, self.rect_infos[c]) for c in self.cameras
+        ]
+        out.append(self.depth_image(frame, stamp_ns))
+        out.append(CameraInfoMessage(self.names.depth_info, stamp_ns, self.rect_infos[left]))
+        rng = depth_to_range(frame.depth, self.pipeline.pair.camera, self._ray_norms)
+        out.append(ImageMessage(self.names.range_image, rect_frame, stamp_ns, raw_pixels(rng)))
+        if frame.confidence is not None:
+            conf = np.asarray(frame.confidence, dtype=np.float32)
+            out.append(ImageMessage(self.names.confidence_image, rect_frame, stamp_ns, raw_pixels(conf)))
+        out.append(self.point_cloud(frame, stamp_ns, left_image))
+        return out
+
+    def point_cloud(
+        self, frame: DepthFrame, stamp_ns: int, left_image: NDArray[Any] | None = None
+    ) -> PointCloudMessage:
+        """The valid depth pixels (every ``cloud_stride``-th) as points in the rig frame."""
+        points, colors = self.pipeline.point_cloud(frame, self.cloud_stride, image=left_image)
+        return PointCloudMessage(
+            self.names.points, self.names.rig_frame, stamp_ns, pack_xyzrgb(points, colors)
+        )
