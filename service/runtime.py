@@ -23,9 +23,9 @@ from rig import priority
 from rig.capture.capture import CAMERA_NAMES, StereoCapture
 from rig.capture.config import CaptureConfig, FileCameraConfig
 from rig.capture.health import CaptureHealth
+from rig.capture.recorded import open_recording
 from rig.heap import heap_stats
 from rig.pipeline import DepthPipeline
-from rig.recording import Recording
 from service.encoders import confidence_png, depth_png, disparity_png, npy_bytes
 from service.errors import SettingsError
 from service.host import HostInfo, host_info
@@ -153,7 +153,13 @@ class Runtime:
         for name in CAMERA_NAMES:
             cam = settings.cameras.camera(name)
             if isinstance(cam, FileCameraConfig):
-                Recording(cam.recording)  # RecordingError naming the file, before any thread starts
+                # RecordingError naming the file (or bag topic), before any thread starts.
+                open_recording(
+                    cam.recording,
+                    left_topic=cam.left_topic,
+                    right_topic=cam.right_topic,
+                    max_skew_ms=cam.max_skew_ms,
+                )
         capture = StereoCapture(settings.cameras)
         _check_sizes(settings.cameras, capture, rig)
         return cls(settings, rig, pipeline, capture, calibration)

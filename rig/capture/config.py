@@ -11,6 +11,10 @@ cameras:
 A file-backed camera replays one camera of a recording instead::
 
   left: {kind: file, recording: rec/, camera: left, pace: 30, loop: true, timestamps: live}
+
+or of a ROS bag (MCAP, ``.db3``, bag directory), its two image topics paired by header stamp::
+
+  left: {kind: file, recording: run.mcap, left_topic: /cam0/image_raw, right_topic: /cam1/image_raw}
 """
 
 from __future__ import annotations
@@ -84,6 +88,11 @@ class FileCameraConfig(BaseModel):
         "live", description="'recorded' = verbatim ts and seq; 'live' = rebased onto time.monotonic_ns()"
     )
     faults: tuple[Fault, ...] = ()
+    left_topic: str | None = Field(None, description="a bag's image topic of the left camera")
+    right_topic: str | None = Field(None, description="a bag's image topic of the right camera")
+    max_skew_ms: float | None = Field(
+        None, gt=0.0, description="a bag's pairing gate on header stamps; default half a frame period"
+    )
 
     @field_validator("pace")
     @classmethod
@@ -91,6 +100,12 @@ class FileCameraConfig(BaseModel):
         if isinstance(v, float) and not (0.0 < v <= 1000.0):
             raise ValueError("a numeric pace is frames per second in (0, 1000]")
         return v
+
+    @model_validator(mode="after")
+    def _both_topics(self) -> FileCameraConfig:
+        if (self.left_topic is None) != (self.right_topic is None):
+            raise ValueError("a bag needs both left_topic and right_topic (its two image topics)")
+        return self
 
     @model_validator(mode="after")
     def _live_needs_pacing(self) -> FileCameraConfig:

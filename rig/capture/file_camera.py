@@ -1,4 +1,5 @@
-"""A camera that replays one camera of a recording directory (DESIGN §7), with fault injection.
+"""A camera that replays one camera of a recording directory (DESIGN §7) or of a ROS bag
+(:mod:`rig.capture.recorded`), with fault injection.
 
 It goes through the same protocol, supervisor and pairing as a V4L2 camera. Timing:
 
@@ -26,14 +27,13 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
-import numpy as np
 
 from rig.capture.config import FileCameraConfig
 from rig.capture.faults import Fault, FaultPlan, parse_fault
-from rig.capture.frame import Frame, FrameFormat, format_of_path
+from rig.capture.frame import Frame, FrameFormat
 from rig.capture.protocol import CameraInfo, TimeBase
+from rig.capture.recorded import open_recording
 from rig.errors import CameraUnavailable, ConfigError, CorruptFrameError, EndOfStream, RecordingError
-from rig.recording import Recording
 
 __all__ = ["FileCamera", "FileCameraStats"]
 
@@ -82,18 +82,20 @@ class FileCamera:
         self._clock = clock
         self._timebase = timebase or TimeBase(clock)
         self._cam = config.camera or name
-        rec = Recording(config.recording)
+        rec = open_recording(
+            config.recording,
+            left_topic=config.left_topic,
+            right_topic=config.right_topic,
+            max_skew_ms=config.max_skew_ms,
+        )
         if self._cam not in rec.cameras or self._cam not in ("left", "right"):
-            raise ConfigError(
-                f"{rec.root / 'recording.json'}: recording has no camera {self._cam!r} (has {rec.cameras})"
-            )
+            raise ConfigError(f"{rec.root}: recording has no camera {self._cam!r} (has {rec.cameras})")
         if not rec.pairs:
-            raise RecordingError(f"{rec.root / 'frames.csv'}: recording holds no frames")
+            raise RecordingError(f"{rec.root}: recording holds no frames")
         self._rec = rec
         pairs = rec.pairs
         self._seqs = [p.seq for p in pairs]
         self._ts = [p.ts_ns(self._cam) for p in pairs]
-        self._files = [p.file(self._cam) for p in pairs]
         # One reference for both cameras of the recording keeps their relative skew when rebased.
         self._ref_ns = min(pairs[0].left_ts_ns, pairs[0].right_ts_ns)
         diffs = [b.left_ts_ns - a.left_ts_ns for a, b in itertools.pairwise(pairs)]
@@ -104,7 +106,7 @@ class FileCamera:
         self._seq_span = self._seqs[-1] - self._seqs[0] + 1
         pace = config.pace
         self._period_ns = round(1e9 / pace) if isinstance(pace, float) else self._rec_period_ns
-        self._size = self._probe_size()
+        self._format, self._size = self._probe()
 
         self._cond = threading.Condition()
         self._plan = FaultPlan(list(config.faults))
@@ -120,12 +122,11 @@ class FileCamera:
         return 1e9 / self._period_ns
 
     def info(self) -> CameraInfo:
-        fmt = self._files[0].rsplit(".", 1)[-1].lower()
         return CameraInfo(
             name=self.name,
             kind=self.kind,
             device=f"{self._rec.root}:{self._cam}",
-            format="jpeg" if fmt in ("jpg", "jpeg") else fmt,
+            format=self._format,
             width=self._size[0],
             height=self._size[1],
             fps=self.nominal_fps,
@@ -260,29 +261,34 @@ class FileCamera:
         else:
             seq, ts = self._seqs[i], self._ts[i]
         ts += self._plan.jump_offset_ns
-        rel = self._files[i]
         s = self._stats
         self._stats = replace(s, delivered=s.delivered + 1)
-        source = str(self._rec.root / rel)
         try:
-            # The index may name anything: refuse paths leaving the recording first, then judge
-            # the type by the full path so the message names the file.
-            fmt: FrameFormat = format_of_path(str(self._rec.path(rel)))
-            data = self._rec.read_bytes(self._rec.pairs[i], self._cam)
+            # The index may name anything: the recording refuses paths leaving it and names
+            # the file in its message.
+            stored = self._rec.read_frame(self._rec.pairs[i], self._cam)
         except (RecordingError, CorruptFrameError) as err:
             self._stats = replace(self._stats, unreadable=self._stats.unreadable + 1)
             raise CorruptFrameError(f"camera {self.name}: frame {seq}: {err}") from err
-        data, mangled = self._plan.mangle(data)
+        if stored.raw is None:  # a bag's raw pixels: nothing encoded to corrupt
+            assert stored.image is not None
+            return Frame.from_image(self.name, seq, ts, stored.image, self._clock(), stored.source)
+        data, mangled = self._plan.mangle(stored.raw)
         if mangled == "corrupt":
             self._stats = replace(self._stats, corrupted=self._stats.corrupted + 1)
         elif mangled == "truncate":
             self._stats = replace(self._stats, truncated=self._stats.truncated + 1)
-        return Frame(self.name, seq, ts, fmt, self._clock(), raw=data, source=source)
+        fmt: FrameFormat = "png" if stored.format == "png" else "jpeg"
+        return Frame(self.name, seq, ts, fmt, self._clock(), raw=data, source=stored.source)
 
-    def _probe_size(self) -> tuple[int, int]:
+    def _probe(self) -> tuple[str, tuple[int, int]]:
+        """The first frame's format and size ((0, 0) when it does not decode)."""
         try:
-            data = self._rec.read_bytes(self._rec.pairs[0], self._cam)
-            img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+            stored = self._rec.read_frame(self._rec.pairs[0], self._cam)
+        except RecordingError:
+            return "unknown", (0, 0)
+        try:
+            img = stored.decoded()
         except (RecordingError, cv2.error):
-            return (0, 0)
-        return (0, 0) if img is None else (int(img.shape[1]), int(img.shape[0]))
+            return stored.format, (0, 0)
+        return stored.format, (int(img.shape[1]), int(img.shape[0]))
