@@ -97,6 +97,18 @@ class StoredFrame:
             raise RecordingError(f"{self.source or 'frame'}: not a readable image")
         return np.asarray(img)
 
+    def pipeline_image(self) -> NDArray[np.uint8]:
+        """The image as the depth pipeline takes frames: uint8 gray or BGR (16-bit scaled to
+        8, alpha dropped)."""
+        img = self.decoded()
+        if img.dtype == np.uint16:
+            img = (img >> 8).astype(np.uint8)
+        if img.ndim == 3 and img.shape[2] == 4:
+            img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+        elif img.ndim == 3 and img.shape[2] == 1:
+            img = img[:, :, 0]
+        return np.asarray(img, dtype=np.uint8)
+
 
 class Recording:
     """A recording directory opened for reading; validates ``recording.json`` and ``frames.csv``.

@@ -155,23 +155,27 @@ class McapRosWriter:
         self._counts[topic] = 0
         return channel
 
-    def write(self, message: RigMessage, log_time_ns: int | None = None) -> None:
+    def write(self, message: RigMessage, log_time_ns: int | None = None, sequence: int = 0) -> None:
         """One message, logged at ``log_time_ns`` (default: its header stamp)."""
         if self._file is None:
             raise RecordingError(f"{self.path}: MCAP writer already closed")
         t = message.stamp_ns if log_time_ns is None else int(log_time_ns)
         channel = self._channel(message.topic, cdr.ros_type(message))
         data = cdr.serialize(message)
-        self._guard(lambda: self._writer.add_message(channel, log_time=t, data=data, publish_time=t))
+        self._guard(
+            lambda: self._writer.add_message(
+                channel, log_time=t, data=data, publish_time=t, sequence=sequence
+            )
+        )
         self._counts[message.topic] += 1
         self.messages += 1
         self._first_ns = t if self._first_ns is None else min(self._first_ns, t)
         self._last_ns = max(self._last_ns, t)
 
-    def write_all(self, messages: Iterable[RigMessage]) -> None:
+    def write_all(self, messages: Iterable[RigMessage], sequence: int = 0) -> None:
         """Several messages, then (``durable``) the flushes that keep them safe."""
         for m in messages:
-            self.write(m)
+            self.write(m, sequence=sequence)
         if self.durable:
             self.flush(force=time.monotonic() - self._last_flush >= self.flush_interval_s)
 

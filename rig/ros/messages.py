@@ -32,6 +32,7 @@ __all__ = [
     "MessageBuilder",
     "PointCloudMessage",
     "TransformsMessage",
+    "raw_image_message",
 ]
 
 
@@ -79,6 +80,17 @@ class TransformsMessage:
 Message = ImageMessage | CompressedImageMessage | CameraInfoMessage | PointCloudMessage | TransformsMessage
 
 
+def raw_image_message(names: RosNames, camera: str, frame: StoredFrame, stamp_ns: int) -> Message:
+    """``camera``'s raw frame: JPEG bytes untouched as ``CompressedImage`` on ``…/compressed``,
+    anything else (PNG, decoded frames) as its pixels."""
+    frame_id = names.camera_frame(camera)
+    if frame.format == "jpeg" and frame.raw is not None:
+        topic = names.raw_image(camera, compressed=True)
+        return CompressedImageMessage(topic, frame_id, stamp_ns, "jpeg", frame.raw)
+    topic = names.raw_image(camera, compressed=False)
+    return ImageMessage(topic, frame_id, stamp_ns, raw_pixels(frame.decoded()))
+
+
 @dataclass
 class MessageBuilder:
     """Messages of one pipeline's rig (see the module docstring). ``cloud_stride``: every
@@ -117,16 +129,11 @@ class MessageBuilder:
 
     # ----- raw frames --------------------------------------------------------------------------
     def raw_frame(self, camera: str, frame: StoredFrame, stamp_ns: int) -> list[Message]:
-        """``camera``'s raw frame (JPEG bytes as they are, anything else as pixels) and its info."""
-        frame_id = self.names.camera_frame(camera)
-        image: Message
-        if frame.format == "jpeg" and frame.raw is not None:
-            topic = self.names.raw_image(camera, compressed=True)
-            image = CompressedImageMessage(topic, frame_id, stamp_ns, "jpeg", frame.raw)
-        else:
-            topic = self.names.raw_image(camera, compressed=False)
-            image = ImageMessage(topic, frame_id, stamp_ns, raw_pixels(frame.decoded()))
-        return [image, CameraInfoMessage(self.names.raw_info(camera), stamp_ns, self.raw_infos[camera])]
+        """``camera``'s raw frame (:func:`raw_image_message`) and its camera info."""
+        return [
+            raw_image_message(self.names, camera, frame, stamp_ns),
+            CameraInfoMessage(self.names.raw_info(camera), stamp_ns, self.raw_infos[camera]),
+        ]
 
     # ----- depth -------------------------------------------------------------------------------
     def depth_image(self, frame: DepthFrame, stamp_ns: int) -> ImageMessage:
