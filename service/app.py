@@ -18,6 +18,7 @@ from starlette.types import Receive, Scope, Send
 
 from service.error_handlers import install_error_handlers
 from service.fast_path import answer_hot_request
+from service.foxglove import FoxgloveLive, start_foxglove
 from service.routes import (
     calibration,
     config,
@@ -32,6 +33,7 @@ from service.routes import (
     stream,
 )
 from service.runtime import Runtime
+from service.schemas import HealthModel
 from service.security import BodySizeLimit
 from service.settings import Settings, load_settings
 
@@ -66,9 +68,20 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
         rt = runtime if runtime is not None else await run_in_threadpool(Runtime.build, settings)
         app.state.runtime = rt
         await run_in_threadpool(rt.start)
+        fox: FoxgloveLive | None = None
         try:
+            if settings.server.foxglove.enabled:
+                fox = await run_in_threadpool(
+                    start_foxglove,
+                    rt,
+                    lambda: health.health_body(rt, settings)[0],
+                    HealthModel.model_json_schema(),
+                )
+            app.state.foxglove = fox
             yield
         finally:
+            if fox is not None:
+                await run_in_threadpool(fox.stop)
             await run_in_threadpool(rt.stop)
             log.info("stopped: depth worker and camera threads joined")
 
@@ -81,6 +94,7 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
     )
     app.state.settings = settings
     app.state.runtime = None
+    app.state.foxglove = None
 
     for module in (
         health,

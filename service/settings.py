@@ -6,13 +6,15 @@ config file (``--config FILE`` or ``RIG_CONFIG``), defaults. Relative paths in t
 resolve relative to the file; relative paths from the environment to the working directory.
 
 ```yaml
-server: {host: 127.0.0.1, port: 8000, depth_scale_m: 0.001, recordings_dir: recordings}
+server: {host: 127.0.0.1, port: 8000, depth_scale_m: 0.001, recordings_dir: recordings,
+         foxglove: {enabled: false, host: 127.0.0.1, port: 8765}}
 cameras:                         # rig.capture.CaptureConfig; omitted = no cameras (demo)
   left:  {kind: v4l2, device: /dev/rig/left}
   right: {kind: v4l2, device: /dev/rig/right}
 calibration: {path: rig.yaml}    # rig.yaml or Kalibr camchain.yaml
 vpc: {width: 640, height: 480, hfov_deg: 90}
 stereo: {disparity_range: 128}   # rig.stereo.StereoParams
+ros: {namespace: /rig}           # rig.ros.RosNames: topic names and frame ids (Foxglove, MCAP)
 cache_dir: null                  # LUT cache (default: $RIG_CACHE_DIR or the user cache dir)
 ```
 
@@ -45,6 +47,7 @@ from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
 from rig.capture.config import CaptureConfig
+from rig.ros.names import RosNames
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
 from service.errors import SettingsError
@@ -53,6 +56,7 @@ __all__ = [
     "CONFIG_ENV",
     "TOKEN_ENV",
     "CalibrationSettings",
+    "FoxgloveSettings",
     "ServerSettings",
     "Settings",
     "is_loopback",
@@ -79,6 +83,24 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host.strip("[]")).is_loopback
     except ValueError:
         return False
+
+
+class FoxgloveSettings(BaseModel):
+    """The Foxglove WebSocket server (foxglove-sdk) of ``rig serve``: read-only, off by default."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    enabled: bool = Field(False, description="run the Foxglove WebSocket server")
+    host: str = Field("127.0.0.1", min_length=1, description="bind address; non-loopback needs api_token set")
+    port: int = Field(8765, ge=0, le=65535, description="TCP port (0 = any free port)")
+    max_fps: float = Field(10.0, gt=0.0, le=60.0, description="most depth frames per second sent to viewers")
+    cloud_stride: int = Field(2, ge=1, le=64, description="every n-th pixel of each axis in the point cloud")
+    message_backlog: int = Field(
+        64,
+        ge=4,
+        le=4096,
+        description="messages queued per viewer; a viewer that falls behind loses the oldest",
+    )
 
 
 class ServerSettings(BaseModel):
@@ -116,6 +138,7 @@ class ServerSettings(BaseModel):
         0.1, ge=0.0, le=1.0, description="/health document shared by requests within this age (0 = none)"
     )
     fault_injection: bool = Field(False, description="expose POST /cameras/{name}/faults (file cameras)")
+    foxglove: FoxgloveSettings = Field(default_factory=FoxgloveSettings)
     depth_nice: int | None = Field(
         -5,
         ge=-20,
@@ -160,10 +183,12 @@ class ServerSettings(BaseModel):
 
     @model_validator(mode="after")
     def _loopback_or_token(self) -> ServerSettings:
-        if not is_loopback(self.host) and self.api_token is None:
-            raise ValueError(
-                f"refusing to bind non-loopback address {self.host!r} without an API token: set {TOKEN_ENV}"
-            )
+        for what, host in (("", self.host), ("the Foxglove server on ", self.foxglove.host)):
+            if not is_loopback(host) and self.api_token is None:
+                raise ValueError(
+                    f"refusing to bind {what}non-loopback address {host!r} without an API token: "
+                    f"set {TOKEN_ENV}"
+                )
         return self
 
     @property
@@ -213,6 +238,7 @@ class Settings(BaseSettings):
     calibration: CalibrationSettings = Field(default_factory=CalibrationSettings)
     vpc: VpcConfig = Field(default_factory=VpcConfig)
     stereo: StereoParams = Field(default_factory=StereoParams)
+    ros: RosNames = Field(default_factory=RosNames)
     cache_dir: Path | None = Field(None, description="LUT cache directory (env RIG_CACHE_DIR)")
 
     @classmethod

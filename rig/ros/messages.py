@@ -10,6 +10,7 @@ schemas) only translate these.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -80,6 +81,10 @@ class TransformsMessage:
 Message = ImageMessage | CompressedImageMessage | CameraInfoMessage | PointCloudMessage | TransformsMessage
 
 
+def _everything(topic: str) -> bool:
+    return True
+
+
 def raw_image_message(names: RosNames, camera: str, frame: StoredFrame, stamp_ns: int) -> Message:
     """``camera``'s raw frame: JPEG bytes untouched as ``CompressedImage`` on ``…/compressed``,
     anything else (PNG, decoded frames) as its pixels."""
@@ -128,12 +133,17 @@ class MessageBuilder:
         return out
 
     # ----- raw frames --------------------------------------------------------------------------
-    def raw_frame(self, camera: str, frame: StoredFrame, stamp_ns: int) -> list[Message]:
-        """``camera``'s raw frame (:func:`raw_image_message`) and its camera info."""
-        return [
-            raw_image_message(self.names, camera, frame, stamp_ns),
-            CameraInfoMessage(self.names.raw_info(camera), stamp_ns, self.raw_infos[camera]),
-        ]
+    def raw_frame(
+        self, camera: str, frame: StoredFrame, stamp_ns: int, *, want: Callable[[str], bool] = _everything
+    ) -> list[Message]:
+        """``camera``'s raw frame (:func:`raw_image_message`) and its camera info, those ``want``
+        accepts."""
+        out: list[Message] = []
+        if want(self.names.raw_image(camera, compressed=frame.format == "jpeg" and frame.raw is not None)):
+            out.append(raw_image_message(self.names, camera, frame, stamp_ns))
+        if want(topic := self.names.raw_info(camera)):
+            out.append(CameraInfoMessage(topic, stamp_ns, self.raw_infos[camera]))
+        return out
 
     # ----- depth -------------------------------------------------------------------------------
     def depth_image(self, frame: DepthFrame, stamp_ns: int) -> ImageMessage:
@@ -146,32 +156,38 @@ class MessageBuilder:
         return ImageMessage(self.names.depth_image, frame_id, stamp_ns, pixels)
 
     def depth_outputs(
-        self, frame: DepthFrame, stamp_ns: int, *, left_image: NDArray[Any] | None = None
+        self,
+        frame: DepthFrame,
+        stamp_ns: int,
+        *,
+        left_image: NDArray[Any] | Callable[[], NDArray[Any]] | None = None,
+        want: Callable[[str], bool] = _everything,
     ) -> list[Message]:
         """Everything made from one processed pair: rectified views and their infos, depth and
         its info, range, confidence (when on) and the point cloud (coloured from ``left_image``,
-        the left VPC view in colour, or else the frame's own)."""
+        the left VPC view in colour or a function making it, else the frame's own view). Only
+        topics ``want(topic)`` accepts are made (a live server skips what nobody watches)."""
         left, right = self.cameras
         rect_frame = self.names.rect_frame(left)
         out: list[Message] = []
         if self.rectified_images:
             for cam, img in ((left, frame.left_vpc), (right, frame.right_vpc)):
-                out.append(
-                    ImageMessage(
-                        self.names.rect_image(cam), self.names.rect_frame(cam), stamp_ns, raw_pixels(img)
-                    )
-                )
-        out += [
-            CameraInfoMessage(self.names.rect_info(c), stamp_ns, self.rect_infos[c]) for c in self.cameras
-        ]
-        out.append(self.depth_image(frame, stamp_ns))
-        out.append(CameraInfoMessage(self.names.depth_info, stamp_ns, self.rect_infos[left]))
-        rng = depth_to_range(frame.depth, self.pipeline.pair.camera, self._ray_norms)
-        out.append(ImageMessage(self.names.range_image, rect_frame, stamp_ns, raw_pixels(rng)))
-        if frame.confidence is not None:
+                if want(topic := self.names.rect_image(cam)):
+                    out.append(ImageMessage(topic, self.names.rect_frame(cam), stamp_ns, raw_pixels(img)))
+        infos = [(self.names.rect_info(c), self.rect_infos[c]) for c in self.cameras]
+        infos.append((self.names.depth_info, self.rect_infos[left]))
+        out += [CameraInfoMessage(topic, stamp_ns, info) for topic, info in infos if want(topic)]
+        if want(self.names.depth_image):
+            out.append(self.depth_image(frame, stamp_ns))
+        if want(topic := self.names.range_image):
+            rng = depth_to_range(frame.depth, self.pipeline.pair.camera, self._ray_norms)
+            out.append(ImageMessage(topic, rect_frame, stamp_ns, raw_pixels(rng)))
+        if frame.confidence is not None and want(topic := self.names.confidence_image):
             conf = np.asarray(frame.confidence, dtype=np.float32)
-            out.append(ImageMessage(self.names.confidence_image, rect_frame, stamp_ns, raw_pixels(conf)))
-        out.append(self.point_cloud(frame, stamp_ns, left_image))
+            out.append(ImageMessage(topic, rect_frame, stamp_ns, raw_pixels(conf)))
+        if want(self.names.points):
+            colour = left_image() if callable(left_image) else left_image
+            out.append(self.point_cloud(frame, stamp_ns, colour))
         return out
 
     def point_cloud(

@@ -20,7 +20,7 @@ from service.schemas import (
 )
 from service.settings import Settings
 
-__all__ = ["HEALTH_MEDIA_TYPE", "fresh_health", "health_model", "router"]
+__all__ = ["HEALTH_MEDIA_TYPE", "fresh_health", "health_body", "health_model", "router"]
 
 router = APIRouter(tags=["health"])
 
@@ -50,12 +50,11 @@ def health_model(report: HealthReport) -> HealthModel:
     responses={503: {"model": HealthModel, "description": "down: no camera delivers or the worker stopped"}},
 )
 async def get_health(runtime: RuntimeDep, settings: SettingsDep) -> Response:
-    max_age = settings.server.health_max_age_s
     # A fresh shared document is answered on the event loop; building one reads the host's
     # state (file systems, sensors), which may block, so that runs in a thread.
     snapshot = fresh_health(runtime, settings)
     if snapshot is None:
-        snapshot = await run_in_threadpool(runtime.health_snapshot, _render, max_age)
+        snapshot = await run_in_threadpool(health_body, runtime, settings)
     body, status = snapshot
     return Response(body, status_code=status, media_type=HEALTH_MEDIA_TYPE)
 
@@ -65,6 +64,13 @@ def fresh_health(runtime: Runtime, settings: Settings) -> tuple[bytes, int] | No
     exists (no I/O; also answered by :mod:`service.fast_path`), else None."""
     snapshot: tuple[bytes, int] | None = runtime.fresh_health_snapshot(settings.server.health_max_age_s)
     return snapshot
+
+
+def health_body(runtime: Runtime, settings: Settings) -> tuple[bytes, int]:
+    """The ``/health`` body and status, shared with the requests within
+    ``server.health_max_age_s`` (may read the host's state: call it off the event loop)."""
+    body: tuple[bytes, int] = runtime.health_snapshot(_render, settings.server.health_max_age_s)
+    return body
 
 
 def _render(report: HealthReport) -> tuple[bytes, int]:
