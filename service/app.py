@@ -21,6 +21,7 @@ from service.fast_path import answer_hot_request
 from service.foxglove import FoxgloveLive, start_foxglove
 from service.routes import (
     calibration,
+    camera_info,
     config,
     counters,
     dashboard,
@@ -103,6 +104,7 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
         stream,
         frames,
         calibration,
+        camera_info,
         config,
         recordings,
         metrics,

@@ -16,6 +16,7 @@ import numpy as np
 from isal import isal_zlib
 from numpy.typing import NDArray
 
+from rig.depth import pack_xyzrgb
 from rig.errors import PipelineError
 
 __all__ = [
@@ -32,6 +33,7 @@ __all__ = [
     "encode_jpeg",
     "encode_png",
     "npy_bytes",
+    "pcd_bytes",
     "ply_bytes",
 ]
 
@@ -203,6 +205,20 @@ def ply_bytes(points: NDArray[np.float32], colors: NDArray[np.uint8] | None = No
         ["ply", "format binary_little_endian 1.0", f"element vertex {pts.shape[0]}", *props, "end_header"]
     )
     return header.encode("ascii") + b"\n" + rec.tobytes()
+
+
+def pcd_bytes(points: NDArray[np.float32], colors: NDArray[np.uint8] | None = None) -> bytes:
+    """Binary PCD (PCL's format, version 0.7): ``x y z`` float32 and PCL's packed ``rgb``
+    (float32 bits of 0xAARRGGBB, as PCL writes it), unorganised; the point layout of
+    :func:`rig.depth.pack_xyzrgb`, which the ROS and Foxglove point clouds share."""
+    rec = pack_xyzrgb(points, colors)
+    n = rec.shape[0]
+    header = (
+        "# .PCD v0.7 - Point Cloud Data file format\n"
+        "VERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+        f"WIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA binary\n"
+    )
+    return header.encode("ascii") + rec.tobytes()
 
 
 def depth_png(depth: F32, scale_m: float, compression: int = PNG_COMPRESSION_DEFAULT) -> bytes:

@@ -20,6 +20,7 @@ __all__ = [
     "CameraCalibrationModel",
     "CameraHealthBase",
     "CameraHealthModel",
+    "CameraInfoModel",
     "ConfigModel",
     "ConfigPatch",
     "CounterModel",
@@ -51,6 +52,40 @@ BODY_ERRORS: dict[int | str, dict[str, Any]] = {
     413: {"model": ErrorModel, "description": "body larger than server.max_body_bytes"},
     422: {"model": ErrorModel, "description": "invalid parameters"},
 }
+
+
+class RosTime(BaseModel):
+    sec: int
+    nanosec: int
+
+
+class RosHeader(BaseModel):
+    stamp: RosTime = Field(description="capture time of the latest depth frame (0 before the first)")
+    frame_id: str
+
+
+class RosRegionOfInterest(BaseModel):
+    x_offset: int
+    y_offset: int
+    height: int
+    width: int
+    do_rectify: bool
+
+
+class CameraInfoModel(BaseModel):
+    """ROS 2 ``sensor_msgs/msg/CameraInfo`` as JSON (``k``, ``r`` row-major 3×3, ``p`` 3×4)."""
+
+    header: RosHeader
+    height: int
+    width: int
+    distortion_model: str = Field(description="equidistant (Kannala-Brandt), plumb_bob, or our model's name")
+    d: list[float]
+    k: list[float] = Field(min_length=9, max_length=9)
+    r: list[float] = Field(min_length=9, max_length=9)
+    p: list[float] = Field(min_length=12, max_length=12)
+    binning_x: int
+    binning_y: int
+    roi: RosRegionOfInterest
 
 
 class ProbeModel(BaseModel):

@@ -21,6 +21,7 @@ from service.encoders import (
     DISPARITY_PNG_SCALE,
     colorize_depth,
     encode_jpeg,
+    pcd_bytes,
     ply_bytes,
 )
 from service.runtime import Runtime
@@ -33,6 +34,8 @@ router = APIRouter(tags=["depth"])
 
 NPY = "application/x-npy"
 PLY = "application/x-ply"
+PCD = "application/x-pcd"
+CloudFormat = Literal["ply", "pcd"]
 ArrayFormat = Literal["png", "npy"]
 ArrayEndpoint = Literal["depth", "disparity", "confidence"]
 _SCALE_HEADERS: dict[str, str] = {
@@ -170,24 +173,30 @@ async def get_depth_colorized(runtime: RuntimeDep, result: ResultDep) -> Respons
 @router.get(
     "/pointcloud",
     response_class=Response,
-    summary="Latest point cloud (binary PLY, rig frame, metres)",
+    summary="Latest point cloud (binary PLY or PCD, rig frame, metres)",
     responses=binary_response_doc(
-        "binary little-endian PLY: x y z float32 (rig frame, m) and red green blue uchar", PLY
+        "ply: binary little-endian PLY, x y z float32 (rig frame, m) and red green blue uchar; "
+        "pcd: binary PCD 0.7 (PCL), x y z float32 and PCL's packed rgb",
+        PLY,
+        PCD,
     ),
 )
 async def get_pointcloud(
     runtime: RuntimeDep,
     result: ResultDep,
     stride: Annotated[int, Query(ge=1, le=64, description="use every stride-th pixel of each axis")] = 1,
+    format: Annotated[CloudFormat, Query(description="ply or pcd")] = "ply",
 ) -> Response:
     pipeline = runtime.pipeline
+    encode = ply_bytes if format == "ply" else pcd_bytes
 
     def produce() -> bytes:
         points, colors = pipeline.point_cloud(result.frame, stride, image=result.vpc_image("left"))
-        return ply_bytes(points, colors)
+        return encode(points, colors)
 
-    body = await cached_body(result, f"pointcloud:{stride}", produce)
+    key = f"pointcloud:{stride}" if format == "ply" else f"pointcloud:{format}:{stride}"
+    body = await cached_body(result, key, produce)
     headers = frame_headers(
-        result, **{"Content-Disposition": f'inline; filename="depth_{result.seq:06d}.ply"'}
+        result, **{"Content-Disposition": f'inline; filename="depth_{result.seq:06d}.{format}"'}
     )
-    return Response(body, media_type=PLY, headers=headers)
+    return Response(body, media_type=PLY if format == "ply" else PCD, headers=headers)
