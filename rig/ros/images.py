@@ -69,7 +69,7 @@ def decode_raw_image(
 ) -> NDArray[Any]:
     """A ROS raw image as the pipeline takes frames: uint8/uint16 gray (H, W) or BGR (H, W, 3).
     ValueError for encodings it does not read (Bayer, floats for frames...)."""
-    buf = np.frombuffer(memoryview(data), dtype=np.uint8)
+    buf = data.view(np.uint8).reshape(-1) if isinstance(data, np.ndarray) else np.frombuffer(data, np.uint8)
     if encoding in _YUV:
         rows = _rows(buf, height, step, width * 2)
         return np.asarray(cv2.cvtColor(rows.reshape(height, width, 2), _YUV[encoding]))

@@ -188,7 +188,7 @@ class McapRosWriter:
 
         def step() -> None:
             if force:
-                self._writer.flush()
+                _call(self._writer.flush)
                 self._last_flush = time.monotonic()
                 if self.fsync:
                     os.fsync(file.fileno())
@@ -245,7 +245,7 @@ class McapRosWriter:
 
         def finish() -> None:
             self._writer.add_metadata("rosbag2", {"serialized_metadata": self._bag_metadata()})
-            self._writer.finish()
+            _call(self._writer.finish)
             file.flush()
             os.fsync(file.fileno())
 
@@ -270,6 +270,11 @@ class McapRosWriter:
                 file.close()
         if not keep:
             self.partial.unlink(missing_ok=True)
+
+
+def _call(method: Callable[[], object]) -> None:
+    """Call one of mcap's unannotated methods (typed here, for mypy's strict mode)."""
+    method()
 
 
 def _fsync_dir(path: Path) -> None:
@@ -344,5 +349,5 @@ def _copy_records(source: IO[bytes], writer: Writer) -> tuple[int, bool]:
         pass  # the cut: keep what came before
     if not channel_ids:
         raise RecordingError("holds no complete MCAP chunk; nothing to recover")
-    writer.finish()
+    _call(writer.finish)
     return kept, complete
