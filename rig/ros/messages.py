@@ -34,6 +34,7 @@ __all__ = [
     "PointCloudMessage",
     "TransformsMessage",
     "raw_image_message",
+    "travels_compressed",
 ]
 
 
@@ -85,11 +86,16 @@ def _everything(topic: str) -> bool:
     return True
 
 
+def travels_compressed(frame: StoredFrame) -> bool:
+    """Whether a raw frame goes out as ``CompressedImage`` (its JPEG bytes) or as pixels."""
+    return frame.format == "jpeg" and frame.raw is not None
+
+
 def raw_image_message(names: RosNames, camera: str, frame: StoredFrame, stamp_ns: int) -> Message:
     """``camera``'s raw frame: JPEG bytes untouched as ``CompressedImage`` on ``…/compressed``,
     anything else (PNG, decoded frames) as its pixels."""
     frame_id = names.camera_frame(camera)
-    if frame.format == "jpeg" and frame.raw is not None:
+    if travels_compressed(frame) and frame.raw is not None:
         topic = names.raw_image(camera, compressed=True)
         return CompressedImageMessage(topic, frame_id, stamp_ns, "jpeg", frame.raw)
     topic = names.raw_image(camera, compressed=False)
@@ -121,17 +127,6 @@ class MessageBuilder:
         """``/tf_static``: the whole tree in one message."""
         return [TransformsMessage(self.names.tf_static, stamp_ns, list(self.transforms))]
 
-    def camera_infos(self, stamp_ns: int) -> list[Message]:
-        """Every camera info (raw, rectified, depth) at one stamp."""
-        out: list[Message] = [
-            CameraInfoMessage(self.names.raw_info(c), stamp_ns, self.raw_infos[c]) for c in self.cameras
-        ]
-        out += [
-            CameraInfoMessage(self.names.rect_info(c), stamp_ns, self.rect_infos[c]) for c in self.cameras
-        ]
-        out.append(CameraInfoMessage(self.names.depth_info, stamp_ns, self.rect_infos[self.cameras[0]]))
-        return out
-
     # ----- raw frames --------------------------------------------------------------------------
     def raw_frame(
         self, camera: str, frame: StoredFrame, stamp_ns: int, *, want: Callable[[str], bool] = _everything
@@ -139,7 +134,7 @@ class MessageBuilder:
         """``camera``'s raw frame (:func:`raw_image_message`) and its camera info, those ``want``
         accepts."""
         out: list[Message] = []
-        if want(self.names.raw_image(camera, compressed=frame.format == "jpeg" and frame.raw is not None)):
+        if want(self.names.raw_image(camera, compressed=travels_compressed(frame))):
             out.append(raw_image_message(self.names, camera, frame, stamp_ns))
         if want(topic := self.names.raw_info(camera)):
             out.append(CameraInfoMessage(topic, stamp_ns, self.raw_infos[camera]))
