@@ -1,5 +1,6 @@
 """`rig process RECORDING --calibration FILE --out DIR`: depth for every pair of a recording,
-headless (recording layout: see docs/cameras.md).
+headless (recording layout: see docs/cameras.md), or of a ROS bag's two image topics (see
+docs/ros.md).
 
 Output: ``DIR/depth/NNNNNN.png`` (uint16 mm, 0 = invalid, aligned with the left VPC image),
 ``DIR/left/NNNNNN.png``, ``DIR/right/NNNNNN.png`` (the VPC images), ``DIR/vpc.json``
@@ -28,6 +29,7 @@ from rich.progress import TimeRemainingColumn
 
 from cli.console import console, one_line, progress_bar, warn
 from cli.errors import fail
+from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption, open_source
 from cli.vpc_options import (
     CacheDirOption,
     CalibrationOption,
@@ -42,7 +44,6 @@ from rig.depth import depth_to_png_mm, write_ply
 from rig.errors import ConfigError, PipelineError, RecordingError
 from rig.lut import percent_valid
 from rig.pipeline import DepthPipeline
-from rig.recording import Recording
 from rig.stereo import StereoParams
 
 __all__ = ["depth_preview", "load_stereo_params", "register"]
@@ -77,7 +78,12 @@ def register(app: typer.Typer) -> None:
     @app.command("process")
     def process(
         recording: Annotated[
-            Path, typer.Argument(metavar="RECORDING", help="Recording directory (frames.csv, left/, right/).")
+            Path,
+            typer.Argument(
+                metavar="RECORDING",
+                help="Recording directory (frames.csv, left/, right/), or a ROS bag (MCAP, .db3, bag dir) "
+                "with --left-topic and --right-topic.",
+            ),
         ],
         out: Annotated[Path, typer.Option("--out", "-o", metavar="DIR", help="Output directory.")],
         calibration: CalibrationOption = None,
@@ -97,9 +103,12 @@ def register(app: typer.Typer) -> None:
             typer.Option("--preview", help="Also write DIR/preview/NNNNNN.png (left VPC | colour depth)."),
         ] = False,
         cache_dir: CacheDirOption = None,
+        left_topic: LeftTopicOption = None,
+        right_topic: RightTopicOption = None,
+        max_skew_ms: MaxSkewOption = None,
     ) -> None:
         """Depth for every pair of RECORDING into --out: depth/, left/, right/ PNGs and vpc.json."""
-        rec = Recording(recording)
+        rec = open_source(recording, left_topic, right_topic, max_skew_ms)
         rig, cal_path = load_calibration(calibration, rec.calibration_path)
         config = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
         params = load_stereo_params(stereo) if stereo is not None else None
@@ -120,9 +129,9 @@ def register(app: typer.Typer) -> None:
             task = progress.add_task("depth", total=len(rec.pairs))
             for pair in rec.pairs:
                 try:
-                    left = rec.read_image(pair, "left", cv2.IMREAD_UNCHANGED)
-                    right = rec.read_image(pair, "right", cv2.IMREAD_UNCHANGED)
-                    frame = pipeline.process(_as_u8(left), _as_u8(right), pair.seq, pair.left_ts_ns)
+                    left = rec.read_frame(pair, "left").pipeline_image()
+                    right = rec.read_frame(pair, "right").pipeline_image()
+                    frame = pipeline.process(left, right, pair.seq, pair.left_ts_ns)
                 except (RecordingError, PipelineError) as err:
                     skipped += 1
                     progress.console.print(
@@ -175,14 +184,3 @@ def depth_preview(left_vpc: np.ndarray[Any, Any], depth: np.ndarray[Any, Any]) -
     out = np.hstack([left, vis])
     cv2.putText(out, label, (left.shape[1] + 8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 2)
     return out
-
-
-def _as_u8(img: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
-    """Frames as the pipeline takes them: uint8 gray or BGR (16-bit scaled, alpha dropped)."""
-    if img.dtype == np.uint16:
-        img = (img >> 8).astype(np.uint8)
-    if img.ndim == 3 and img.shape[2] == 4:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
-    elif img.ndim == 3 and img.shape[2] == 1:
-        img = img[:, :, 0]
-    return img

@@ -3,11 +3,12 @@ docs/cameras.md)."""
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import threading
 from pathlib import Path
 from types import FrameType
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import typer
 
@@ -17,8 +18,10 @@ from rig.capture.capture import StereoCapture
 from rig.capture.config import load_capture_config
 from rig.capture.health import CaptureHealth
 from rig.capture.recorder import Recorder, RecordResult, copy_calibration, replay_capture_config
-from rig.errors import DiskFullError
-from rig.recording import RecordingWriter
+from rig.errors import DiskFullError, RigError
+from rig.recording import PairWriter, RecordingWriter
+from rig.ros.mcap_export import McapRecordingWriter
+from rig.ros.mcap_writer import partial_path, recover_mcap
 
 __all__ = ["register"]
 
@@ -62,10 +65,14 @@ def register(app: typer.Typer) -> None:
     @app.command(
         "record",
         help="Record synchronised frame pairs from the cameras of a config file (--config), or "
-        "re-record a recording (--replay), into a recording directory.",
+        "re-record a recording (--replay), into a recording directory or an MCAP file (--format mcap); "
+        "--recover FILE.partial finishes an MCAP recording cut short.",
     )
     def record(
-        out: Annotated[Path, typer.Option("--out", metavar="DIR", help="Recording directory to create.")],
+        out: Annotated[
+            Path | None,
+            typer.Option("--out", metavar="PATH", help="Recording directory, or MCAP file, to create."),
+        ] = None,
         config: Annotated[
             Path | None,
             typer.Option("--config", metavar="FILE", help="YAML file with a 'cameras:' section."),
@@ -91,7 +98,35 @@ def register(app: typer.Typer) -> None:
                 help="Fail if a camera gives no pair by then.",
             ),
         ] = 10.0,
+        format: Annotated[
+            Literal["dir", "mcap"],
+            typer.Option(
+                "--format",
+                help="dir: a recording directory; mcap: an MCAP file in ROS 2's profile (docs/ros.md).",
+            ),
+        ] = "dir",
+        recover: Annotated[
+            Path | None,
+            typer.Option(
+                "--recover",
+                metavar="FILE.partial",
+                help="Write the complete chunks of an MCAP recording cut short as a complete file.",
+            ),
+        ] = None,
     ) -> None:
+        if recover is not None:
+            if config is not None or replay is not None:
+                fail("--recover excludes --config and --replay")
+            recovered = recover_mcap(recover, out)
+            state = "complete" if recovered.complete else "cut short"
+            console.print(
+                f"recovered {recovered.messages} messages from {recover} ({state}) -> {recovered.path}",
+                highlight=False,
+                soft_wrap=True,
+            )
+            return
+        if out is None:
+            fail("--out PATH is required")
         if (config is None) == (replay is None):
             fail("give exactly one of --config FILE or --replay RECORDING")
         if seconds is not None and frames is not None:
@@ -112,10 +147,16 @@ def register(app: typer.Typer) -> None:
             total = frames
         meta["capture"] = capture_cfg.model_dump(mode="json")
 
-        if (out / "frames.csv").exists():
+        if format == "mcap":
+            for path in (out, partial_path(out)):
+                if path.exists():
+                    fail(f"{path}: already exists" + (" (recover it with --recover)" if path != out else ""))
+        elif (out / "frames.csv").exists():
             fail(f"{out}: already holds a recording (frames.csv exists)")
 
-        def open_writer() -> RecordingWriter:
+        def open_writer() -> PairWriter:
+            if format == "mcap":
+                return McapRecordingWriter(out, fsync=fsync)
             writer = RecordingWriter(out, meta=meta, fsync=fsync)
             if source_rec is not None:
                 copy_calibration(source_rec, out)
@@ -138,8 +179,10 @@ def register(app: typer.Typer) -> None:
                 )
         except DiskFullError as err:
             capture.stop()
-            recorder.close()
-            raise DiskFullError(f"{err} ({recorder.written} pairs written, {out} stays readable)") from err
+            with contextlib.suppress(RigError):  # an MCAP file cannot be finished either: it stays partial
+                recorder.close()
+            where = f", {out} stays readable" if format == "dir" else ""
+            raise DiskFullError(f"{err} ({recorder.written} pairs written{where})") from err
         finally:
             capture.stop()
             recorder.close()

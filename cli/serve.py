@@ -9,6 +9,7 @@ runtime is built (calibration, LUTs, cameras).
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -16,8 +17,9 @@ import typer
 
 from cli.console import console, err_console, progress_bar
 from cli.errors import fail
+from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption
+from rig.capture.recorded import open_recording
 from rig.errors import RecordingError
-from rig.recording import Recording
 from service.demo import (
     DemoSpec,
     cached_demo_recording,
@@ -25,6 +27,7 @@ from service.demo import (
     ensure_demo_recording,
     replay_overrides,
 )
+from service.errors import ServiceError
 from service.settings import Settings, load_settings
 
 __all__ = ["register", "serve_settings"]
@@ -37,16 +40,20 @@ def _deep_merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def recording_overrides(recording: Path, calibration: Path | None) -> dict[str, Any]:
-    """File cameras replaying ``recording`` at its recorded pace, looping, live timestamps."""
+def recording_overrides(
+    recording: Path, calibration: Path | None, bag: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
+    """File cameras replaying ``recording`` at its recorded pace, looping, live timestamps;
+    ``bag``: a ROS bag's ``left_topic``, ``right_topic`` and ``max_skew_ms``."""
+    fields = {k: v for k, v in (bag or {}).items() if v is not None}
     try:
-        rec = Recording(recording)
+        rec = open_recording(recording, **fields)
     except RecordingError as err:
         fail(f"--recording: {err}")
     calib = calibration or rec.calibration_path
     if calib is None:
         fail(f"--recording {recording}: it has no calibration.yaml; give --calibration FILE")
-    return replay_overrides(rec.root, calib, "recorded")
+    return replay_overrides(rec.root, calib, "recorded", fields)
 
 
 def demo_recording() -> Path:
@@ -75,6 +82,7 @@ def serve_settings(
     port: int | None = None,
     recording: Path | None = None,
     calibration: Path | None = None,
+    bag: Mapping[str, Any] | None = None,
 ) -> Settings:
     """The settings ``rig serve`` runs with (renders the demo if it is used and not cached)."""
     if demo and recording is not None:
@@ -88,7 +96,7 @@ def serve_settings(
         overrides["calibration"] = {"path": str(calibration)}
     base = load_settings(config, overrides)  # validates the bind before any slow work
     if recording is not None:
-        overrides = _deep_merge(overrides, recording_overrides(recording, calibration))
+        overrides = _deep_merge(overrides, recording_overrides(recording, calibration, bag))
     elif demo or base.cameras is None:
         if not demo:
             console.print("no cameras configured: serving the built-in demo (simulated rig)")
@@ -106,6 +114,7 @@ def run_serve(
     port: int | None = None,
     recording: Path | None = None,
     calibration: Path | None = None,
+    bag: Mapping[str, Any] | None = None,
     log_level: str = "info",
 ) -> None:
     # FastAPI and uvicorn are imported only when serving (the other commands start faster).
@@ -122,8 +131,14 @@ def run_serve(
     bound_port = sock.getsockname()[1]
     try:
         settings = serve_settings(
-            config, demo=demo, host=host, port=port, recording=recording, calibration=calibration
+            config, demo=demo, host=host, port=port, recording=recording, calibration=calibration, bag=bag
         )
+        fox = settings.server.foxglove
+        if fox.enabled and fox.port:  # a busy port is one line now, not a failed startup later
+            try:
+                bind_socket(fox.host, fox.port).close()
+            except ServiceError as err:
+                raise ServiceError(f"server.foxglove: {err}") from err
         runtime = Runtime.build(settings)
     except BaseException:
         sock.close()
@@ -165,8 +180,15 @@ def register(app: typer.Typer) -> None:
         ] = None,
         recording: Annotated[
             Path | None,
-            typer.Option("--recording", metavar="DIR", help="Serve a recording directory (looped)."),
+            typer.Option(
+                "--recording",
+                metavar="PATH",
+                help="Serve a recording directory, or a ROS bag with --left-topic/--right-topic (looped).",
+            ),
         ] = None,
+        left_topic: LeftTopicOption = None,
+        right_topic: RightTopicOption = None,
+        max_skew_ms: MaxSkewOption = None,
         calibration: Annotated[
             Path | None,
             typer.Option(
@@ -192,5 +214,6 @@ def register(app: typer.Typer) -> None:
             port=port,
             recording=recording,
             calibration=calibration,
+            bag={"left_topic": left_topic, "right_topic": right_topic, "max_skew_ms": max_skew_ms},
             log_level=log_level.lower(),
         )

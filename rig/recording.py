@@ -26,7 +26,7 @@ import os
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -38,6 +38,7 @@ __all__ = [
     "FRAMES_HEADER",
     "RECORDING_VERSION",
     "PairRecord",
+    "PairWriter",
     "Recording",
     "RecordingWriter",
     "StoredFrame",
@@ -256,6 +257,27 @@ class Recording:
     @property
     def ground_truth_dir(self) -> Path:
         return self.root / "ground_truth"
+
+
+class PairWriter(Protocol):
+    """What a recorder writes pairs into: a recording directory (:class:`RecordingWriter`) or an
+    MCAP file (``rig.ros.mcap_export.McapRecordingWriter``)."""
+
+    root: Path
+    count: int
+
+    def write_pair(
+        self, seq: int, left_ts_ns: int, right_ts_ns: int, left: bytes, right: bytes, ext: str = ".jpg"
+    ) -> object:
+        """Two encoded frames, stored byte-exact."""
+
+    def write_images(
+        self, seq: int, left_ts_ns: int, right_ts_ns: int, left: NDArray[Any], right: NDArray[Any]
+    ) -> object:
+        """Two decoded frames, stored losslessly."""
+
+    def close(self) -> None:
+        """Finish what was written."""
 
 
 class RecordingWriter:

@@ -15,7 +15,7 @@ import hashlib
 import json
 import os
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -182,15 +182,19 @@ def ensure_demo_recording(
     return final / "loop"
 
 
-def replay_overrides(recording: Path, calibration: Path, pace: float | str) -> dict[str, Any]:
+def replay_overrides(
+    recording: Path, calibration: Path, pace: float | str, source: Mapping[str, Any] | None = None
+) -> dict[str, Any]:
     """Settings overrides: file cameras replaying ``recording`` at ``pace`` (fps or
-    ``"recorded"``), looping with live timestamps, and ``calibration`` for the rig."""
+    ``"recorded"``), looping with live timestamps, and ``calibration`` for the rig. ``source``:
+    more file-camera fields (a bag's ``left_topic``, ``right_topic``, ``max_skew_ms``)."""
     camera = {
         "kind": "file",
         "recording": str(recording),
         "pace": pace,
         "loop": True,
         "timestamps": "live",
+        **(source or {}),
     }
     return {
         "cameras": {

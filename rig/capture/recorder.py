@@ -1,8 +1,9 @@
-"""Capture → recording directory (``rig record``): every pair, in order, byte-exact.
+"""Capture → recording directory or MCAP file (``rig record``): every pair, in order, byte-exact.
 
 Pairs are taken oldest-first from a :class:`~rig.capture.capture.StereoCapture` and written
-with :class:`~rig.recording.RecordingWriter` (frame files first, then the ``frames.csv`` row),
-so a killed recorder loses at most the pair in flight. MJPEG/PNG frames are stored as
+with a :class:`~rig.recording.PairWriter`: :class:`~rig.recording.RecordingWriter` (frame files
+first, then the ``frames.csv`` row, so a killed recorder loses at most the pair in flight), or
+an MCAP writer (a killed recorder loses at most the chunk in progress). MJPEG/PNG frames are stored as
 delivered; frames that arrive decoded (YUYV) are stored as lossless PNG. A replayed recording
 (``replay_capture_config``) reproduces its source byte for byte: same ``seq``, timestamps,
 file names and bytes.
@@ -23,7 +24,7 @@ from rig.capture.config import CaptureConfig, FileCameraConfig, PairingConfig, S
 from rig.capture.frame import FramePair
 from rig.capture.health import CaptureHealth
 from rig.errors import CameraUnavailable, RecordingError
-from rig.recording import Recording, RecordingWriter
+from rig.recording import PairWriter, Recording
 
 __all__ = ["RecordResult", "Recorder", "copy_calibration", "replay_capture_config"]
 
@@ -76,14 +77,14 @@ class Recorder:
     :meth:`finish`), so a recorder that fails to start leaves nothing behind.
     """
 
-    def __init__(self, capture: StereoCapture, open_writer: Callable[[], RecordingWriter]) -> None:
+    def __init__(self, capture: StereoCapture, open_writer: Callable[[], PairWriter]) -> None:
         self.capture = capture
         self._open_writer = open_writer
-        self.writer: RecordingWriter | None = None
+        self.writer: PairWriter | None = None
         self.written = 0
         self._last_seq: int | None = None
 
-    def _writer(self) -> RecordingWriter:
+    def _writer(self) -> PairWriter:
         if self.writer is None:
             self.writer = self._open_writer()
         return self.writer

@@ -72,10 +72,12 @@ def _library() -> str:
     return f"odfc-rig/{version('odfc-rig')}; mcap/{version('mcap')}; rosbags/{version('rosbags')}"
 
 
-def _translate(err: OSError, path: Path) -> RecordingError:
+def _translate(err: OSError, path: Path, keep: bool = False) -> RecordingError:
+    """The error of a failed write; ``keep``: the partial file stays, say how to recover it."""
+    hint = f"; what was written is recovered with `rig record --recover {path}`" if keep else ""
     if err.errno in _NO_SPACE:
-        return DiskFullError(f"{path}: disk full; the MCAP file stopped ({err.strerror})")
-    return RecordingError(f"{path}: cannot write MCAP ({err.strerror or err})")
+        return DiskFullError(f"{path}: disk full; the MCAP file stopped ({err.strerror}){hint}")
+    return RecordingError(f"{path}: cannot write MCAP ({err.strerror or err}){hint}")
 
 
 class McapRosWriter:
@@ -136,7 +138,7 @@ class McapRosWriter:
         try:
             step()
         except OSError as err:
-            raise _translate(err, self.partial) from err
+            raise _translate(err, self.partial, keep=self.durable) from err
 
     def _channel(self, topic: str, typename: str) -> int:
         known = self._channels.get(topic)

@@ -1,0 +1,142 @@
+"""``rig export mcap REC --out FILE.mcap``: a recording's depth as a ROS 2 MCAP file (see
+docs/ros.md): raw frames, camera infos, rectified views, depth, range, confidence, point cloud and
+the static transforms, in ROS 2's MCAP profile, written atomically.
+
+REC is a recording directory or a ROS bag (``--left-topic``/``--right-topic``). A pair whose
+frame does not read is reported on stderr and skipped. Exit status 0 when at least one pair was
+exported, 2 for bad input (then no file is left behind).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+import typer
+from pydantic import ValidationError
+from rich.progress import TimeRemainingColumn
+
+from cli.console import console, one_line, progress_bar, warn
+from cli.process import load_stereo_params
+from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption, open_source
+from cli.vpc_options import (
+    CacheDirOption,
+    CalibrationOption,
+    PitchOption,
+    VpcHfovOption,
+    VpcSizeOption,
+    YawOption,
+    load_calibration,
+    make_vpc_config,
+)
+from rig.errors import ConfigError
+from rig.lut import percent_valid
+from rig.pipeline import DepthPipeline
+from rig.recording import PairRecord
+from rig.ros.mcap_export import export_mcap
+from rig.ros.names import DepthEncoding, RosNames
+
+__all__ = ["register"]
+
+
+def _names(namespace: str, frame_prefix: str, depth_encoding: DepthEncoding) -> RosNames:
+    try:
+        return RosNames(namespace=namespace, frame_prefix=frame_prefix, depth_encoding=depth_encoding)
+    except ValidationError as err:
+        first = err.errors()[0]
+        option = {"namespace": "--namespace", "frame_prefix": "--frame-prefix"}.get(str(first["loc"][0]), "")
+        raise ConfigError(f"{option}: {first['msg'].removeprefix('Value error, ')}") from None
+
+
+def register(app: typer.Typer) -> None:
+    export = typer.Typer(
+        name="export",
+        help="Export a recording's depth for other tools (MCAP for ROS 2 and Foxglove).",
+        no_args_is_help=True,
+    )
+    app.add_typer(export)
+
+    @export.command("mcap")
+    def mcap(
+        recording: Annotated[
+            Path,
+            typer.Argument(metavar="REC", help="Recording directory, or a ROS bag (MCAP, .db3, bag dir)."),
+        ],
+        out: Annotated[Path, typer.Option("--out", "-o", metavar="FILE.mcap", help="MCAP file to write.")],
+        calibration: CalibrationOption = None,
+        left_topic: LeftTopicOption = None,
+        right_topic: RightTopicOption = None,
+        max_skew_ms: MaxSkewOption = None,
+        vpc_hfov: VpcHfovOption = 90.0,
+        vpc_size: VpcSizeOption = "640x480",
+        yaw: YawOption = 0.0,
+        pitch: PitchOption = 0.0,
+        stereo: Annotated[
+            Path | None,
+            typer.Option("--stereo", metavar="FILE", help="YAML of stereo parameters (ROS names)."),
+        ] = None,
+        depth_encoding: Annotated[
+            Literal["32FC1", "16UC1"],
+            typer.Option(
+                "--depth-encoding", help="32FC1 metres, NaN invalid (REP 118), or 16UC1 mm, 0 invalid."
+            ),
+        ] = "32FC1",
+        namespace: Annotated[
+            str, typer.Option("--namespace", metavar="NS", help="Topic namespace.")
+        ] = "/rig",
+        frame_prefix: Annotated[
+            str, typer.Option("--frame-prefix", metavar="PREFIX", help="Prefix of the frame ids.")
+        ] = "rig",
+        cloud_stride: Annotated[
+            int,
+            typer.Option("--cloud-stride", metavar="N", min=1, max=64, help="Every N-th pixel in the cloud."),
+        ] = 1,
+        rectified_images: Annotated[
+            bool,
+            typer.Option("--rectified-images/--no-rectified-images", help="Write the rectified (VPC) views."),
+        ] = True,
+        compression: Annotated[
+            Literal["zstd", "lz4", "none"], typer.Option("--compression", help="Chunk compression.")
+        ] = "zstd",
+        cache_dir: CacheDirOption = None,
+    ) -> None:
+        """Depth and everything around it for every pair of REC, as a ROS 2 MCAP file."""
+        names = _names(namespace, frame_prefix, depth_encoding)
+        rec = open_source(recording, left_topic, right_topic, max_skew_ms)
+        rig, cal_path = load_calibration(calibration, rec.calibration_path)
+        config = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
+        params = load_stereo_params(stereo) if stereo is not None else None
+        pipeline = DepthPipeline(rig, config, params, cache_dir=cache_dir)
+        for name, frac in pipeline.valid_fraction.items():
+            if frac < 1.0:
+                warn(f"the VPC leaves camera '{name}''s field: {percent_valid(frac)} of its pixels are valid")
+        with progress_bar(TimeRemainingColumn()) as progress:
+            task = progress.add_task("export", total=len(rec.pairs))
+
+            def on_pair(pair: PairRecord, error: str | None) -> None:
+                if error is not None:
+                    progress.console.print(
+                        f"[yellow]skipped seq {pair.seq}:[/yellow] {one_line(error)}",
+                        highlight=False,
+                        soft_wrap=True,
+                    )
+                progress.advance(task)
+
+            result = export_mcap(
+                rec,
+                pipeline,
+                out,
+                names=names,
+                cloud_stride=cloud_stride,
+                rectified_images=rectified_images,
+                compression=compression,
+                on_pair=on_pair,
+            )
+        note = f", [yellow]{len(result.skipped)} skipped[/yellow]" if result.skipped else ""
+        console.print(
+            f"exported {result.pairs} of {len(rec.pairs)} pairs{note} -> {result.path} "
+            f"({result.messages} messages; calibration {cal_path}, VPC {config.width}x{config.height}, "
+            f"B {pipeline.baseline_m:.4f} m)",
+            highlight=False,
+            soft_wrap=True,
+        )

@@ -1,0 +1,43 @@
+"""Options naming what a recording is when it is a ROS bag: its two image topics and the pairing
+gate, shared by ``rig process``, ``rig export mcap`` and ``rig serve --recording``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from rig.capture.recorded import RecordedPairs, open_recording
+
+__all__ = ["LeftTopicOption", "MaxSkewOption", "RightTopicOption", "open_source"]
+
+LeftTopicOption = Annotated[
+    str | None,
+    typer.Option(
+        "--left-topic",
+        metavar="TOPIC",
+        help="A ROS bag's image topic of the left camera (e.g. /cam0/image_raw).",
+    ),
+]
+RightTopicOption = Annotated[
+    str | None,
+    typer.Option("--right-topic", metavar="TOPIC", help="A ROS bag's image topic of the right camera."),
+]
+MaxSkewOption = Annotated[
+    float | None,
+    typer.Option(
+        "--max-skew-ms",
+        metavar="MS",
+        min=0.0,
+        help="A bag's pairing gate on header stamps.",
+        show_default="half a frame period",
+    ),
+]
+
+
+def open_source(
+    recording: Path, left_topic: str | None, right_topic: str | None, max_skew_ms: float | None
+) -> RecordedPairs:
+    """A recording directory, or a ROS bag (MCAP, .db3, bag directory) with its two image topics."""
+    return open_recording(recording, left_topic=left_topic, right_topic=right_topic, max_skew_ms=max_skew_ms)
