@@ -62,7 +62,9 @@ def register(app: typer.Typer) -> None:
             Path,
             typer.Argument(metavar="REC", help="Recording directory, or a ROS bag (MCAP, .db3, bag dir)."),
         ],
-        out: Annotated[Path, typer.Option("--out", "-o", metavar="FILE.mcap", help="MCAP file to write.")],
+        out: Annotated[
+            Path, typer.Option("--out", "-o", metavar="FILE", help="MCAP file to write (FILE.mcap).")
+        ],
         calibration: CalibrationOption = None,
         left_topic: LeftTopicOption = None,
         right_topic: RightTopicOption = None,
@@ -76,9 +78,11 @@ def register(app: typer.Typer) -> None:
             typer.Option("--stereo", metavar="FILE", help="YAML of stereo parameters (ROS names)."),
         ] = None,
         depth_encoding: Annotated[
-            Literal["32FC1", "16UC1"],
+            DepthEncoding,
             typer.Option(
-                "--depth-encoding", help="32FC1 metres, NaN invalid (REP 118), or 16UC1 mm, 0 invalid."
+                "--depth-encoding",
+                metavar="ENCODING",
+                help="32FC1 metres, NaN invalid (REP 118), or 16UC1 mm, 0 invalid.",
             ),
         ] = "32FC1",
         namespace: Annotated[
@@ -96,7 +100,10 @@ def register(app: typer.Typer) -> None:
             typer.Option("--rectified-images/--no-rectified-images", help="Write the rectified (VPC) views."),
         ] = True,
         compression: Annotated[
-            Literal["zstd", "lz4", "none"], typer.Option("--compression", help="Chunk compression.")
+            Literal["zstd", "lz4", "none"],
+            typer.Option(
+                "--compression", metavar="COMPRESSION", help="Chunk compression: zstd, lz4 or none."
+            ),
         ] = "zstd",
         cache_dir: CacheDirOption = None,
     ) -> None:

@@ -102,6 +102,7 @@ def register(app: typer.Typer) -> None:
             Literal["dir", "mcap"],
             typer.Option(
                 "--format",
+                metavar="FORMAT",
                 help="dir: a recording directory; mcap: an MCAP file in ROS 2's profile (docs/ros.md).",
             ),
         ] = "dir",
@@ -109,7 +110,7 @@ def register(app: typer.Typer) -> None:
             Path | None,
             typer.Option(
                 "--recover",
-                metavar="FILE.partial",
+                metavar="FILE",
                 help="Write the complete chunks of an MCAP recording cut short as a complete file.",
             ),
         ] = None,
