@@ -16,8 +16,8 @@ import typer
 from pydantic import ValidationError
 from rich.progress import TimeRemainingColumn
 
-from cli.console import console, one_line, progress_bar, warn
-from cli.process import load_stereo_params
+from cli.console import console, one_line, progress_bar
+from cli.process import StereoOption, build_pipeline
 from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption, open_source
 from cli.vpc_options import (
     CacheDirOption,
@@ -26,12 +26,9 @@ from cli.vpc_options import (
     VpcHfovOption,
     VpcSizeOption,
     YawOption,
-    load_calibration,
     make_vpc_config,
 )
 from rig.errors import ConfigError
-from rig.lut import percent_valid
-from rig.pipeline import DepthPipeline
 from rig.recording import PairRecord
 from rig.ros.mcap_export import export_mcap
 from rig.ros.names import DepthEncoding, RosNames
@@ -73,10 +70,7 @@ def register(app: typer.Typer) -> None:
         vpc_size: VpcSizeOption = "640x480",
         yaw: YawOption = 0.0,
         pitch: PitchOption = 0.0,
-        stereo: Annotated[
-            Path | None,
-            typer.Option("--stereo", metavar="FILE", help="YAML of stereo parameters (ROS names)."),
-        ] = None,
+        stereo: StereoOption = None,
         depth_encoding: Annotated[
             DepthEncoding,
             typer.Option(
@@ -110,13 +104,8 @@ def register(app: typer.Typer) -> None:
         """Depth and everything around it for every pair of REC, as a ROS 2 MCAP file."""
         names = _names(namespace, frame_prefix, depth_encoding)
         rec = open_source(recording, left_topic, right_topic, max_skew_ms)
-        rig, cal_path = load_calibration(calibration, rec.calibration_path)
         config = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
-        params = load_stereo_params(stereo) if stereo is not None else None
-        pipeline = DepthPipeline(rig, config, params, cache_dir=cache_dir)
-        for name, frac in pipeline.valid_fraction.items():
-            if frac < 1.0:
-                warn(f"the VPC leaves camera '{name}''s field: {percent_valid(frac)} of its pixels are valid")
+        pipeline, cal_path = build_pipeline(calibration, rec.calibration_path, config, stereo, cache_dir)
         with progress_bar(TimeRemainingColumn()) as progress:
             task = progress.add_task("export", total=len(rec.pairs))
 

@@ -45,8 +45,9 @@ from rig.errors import ConfigError, PipelineError, RecordingError
 from rig.lut import percent_valid
 from rig.pipeline import DepthPipeline
 from rig.stereo import StereoParams
+from rig.vpc import VpcConfig
 
-__all__ = ["depth_preview", "load_stereo_params", "register"]
+__all__ = ["StereoOption", "build_pipeline", "depth_preview", "load_stereo_params", "register"]
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +68,29 @@ def load_stereo_params(path: Path) -> StereoParams:
         first = err.errors()[0]
         field = ".".join(str(x) for x in first["loc"]) or "(document)"
         raise ConfigError(f"{path}: field '{field}': {first['msg']}") from None
+
+
+StereoOption = Annotated[
+    Path | None, typer.Option("--stereo", metavar="FILE", help="YAML of stereo parameters (ROS names).")
+]
+
+
+def build_pipeline(
+    calibration: Path | None,
+    fallback: Path | None,
+    config: VpcConfig,
+    stereo: Path | None,
+    cache_dir: Path | None,
+) -> tuple[DepthPipeline, Path]:
+    """The depth pipeline of the options (calibration, VPC, stereo file, cache), with a warning
+    when the VPC leaves a camera's field; and the calibration file used."""
+    rig, cal_path = load_calibration(calibration, fallback)
+    params = load_stereo_params(stereo) if stereo is not None else None
+    pipeline = DepthPipeline(rig, config, params, cache_dir=cache_dir)
+    for name, frac in pipeline.valid_fraction.items():
+        if frac < 1.0:
+            warn(f"the VPC leaves camera '{name}''s field: {percent_valid(frac)} of its pixels are valid")
+    return pipeline, cal_path
 
 
 def _write_png(path: Path, image: np.ndarray[Any, Any]) -> None:
@@ -91,10 +115,7 @@ def register(app: typer.Typer) -> None:
         vpc_size: VpcSizeOption = "640x480",
         yaw: YawOption = 0.0,
         pitch: PitchOption = 0.0,
-        stereo: Annotated[
-            Path | None,
-            typer.Option("--stereo", metavar="FILE", help="YAML of stereo parameters (ROS names)."),
-        ] = None,
+        stereo: StereoOption = None,
         ply: Annotated[
             bool, typer.Option("--ply", help="Also write DIR/cloud/NNNNNN.ply (rig frame).")
         ] = False,
@@ -109,13 +130,8 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Depth for every pair of RECORDING into --out: depth/, left/, right/ PNGs and vpc.json."""
         rec = open_source(recording, left_topic, right_topic, max_skew_ms)
-        rig, cal_path = load_calibration(calibration, rec.calibration_path)
         config = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
-        params = load_stereo_params(stereo) if stereo is not None else None
-        pipeline = DepthPipeline(rig, config, params, cache_dir=cache_dir)
-        for name, frac in pipeline.valid_fraction.items():
-            if frac < 1.0:
-                warn(f"the VPC leaves camera '{name}''s field: {percent_valid(frac)} of its pixels are valid")
+        pipeline, cal_path = build_pipeline(calibration, rec.calibration_path, config, stereo, cache_dir)
         extra = (("cloud",) if ply else ()) + (("preview",) if preview else ())
         dirs = {k: out / k for k in ("depth", "left", "right", *extra)}
         try:
