@@ -23,7 +23,8 @@ from calibration.targets import (
     read_corner_lists,
     read_omnidir_corners,
 )
-from tests.calibration.calibration_renders import (
+from tests.conftest import shared_file
+from tests.helpers.boards import (
     BOARD,
     circle_views,
     lens_difference,
@@ -31,7 +32,6 @@ from tests.calibration.calibration_renders import (
     true_corners,
     true_lenses,
 )
-from tests.conftest import shared_file
 
 SQUARE = 0.05
 X = board_object_points(*BOARD, SQUARE)

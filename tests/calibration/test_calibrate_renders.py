@@ -16,7 +16,7 @@ import pytest
 
 from calibration.calibrate import calibrate_camera
 from calibration.targets import board_object_points
-from tests.calibration.calibration_renders import BOARD, image_difference, rendered_views, true_lenses
+from tests.helpers.boards import BOARD, image_difference, rendered_views, true_lenses
 
 MODELS = sorted(true_lenses(480))
 X = board_object_points(*BOARD, 0.05)

@@ -28,9 +28,10 @@ from calibration.corner_refine import (
 from calibration.errors import CalibrationError, CalibrationFileError
 from calibration.models import create
 from calibration.targets import board_object_points, detect_chessboard, detect_chessboard_files
+from rig.evaluate.renders import BOARD_BACKGROUND
 from rig.sim import chessboard_scene, render
-from tests.calibration.calibration_renders import (
-    BACKGROUND,
+from tests.conftest import shared_file
+from tests.helpers.boards import (
     BOARD,
     FINE_SUPERSAMPLE,
     board_pose,
@@ -40,7 +41,6 @@ from tests.calibration.calibration_renders import (
     true_corners,
     true_lenses,
 )
-from tests.conftest import shared_file
 
 X = board_object_points(*BOARD, 0.05)
 KB = true_lenses(480)["kannala_brandt"]
@@ -142,7 +142,7 @@ def test_uneven_light_and_noise() -> None:
     T = RIM[0]
     scene = chessboard_scene(*BOARD, 0.05, T)
     image = render(scene, KB, np.eye(4), supersample=FINE_SUPERSAMPLE, vignetting=1.0, noise_std=1.5, seed=3,
-                   background=BACKGROUND).image  # fmt: skip
+                   background=BOARD_BACKGROUND).image  # fmt: skip
     found = detect_chessboard(image, BOARD)
     assert found is not None
     truth, _ = true_corners(KB, T)

@@ -21,7 +21,8 @@ from calibration.models import CameraModel, create
 from calibration.stereo_calibrate import StereoCalibration, average_transforms, calibrate_stereo
 from calibration.targets import board_object_points, detect_chessboard, read_corner_lists
 from rig.sim import divergent_rig
-from tests.calibration.calibration_renders import (
+from tests.conftest import shared_file
+from tests.helpers.boards import (
     BOARD,
     FINE_SUPERSAMPLE,
     board_pose,
@@ -32,7 +33,6 @@ from tests.calibration.calibration_renders import (
     true_lenses,
     twin_lens,
 )
-from tests.conftest import shared_file
 
 X = board_object_points(*BOARD, 0.05)
 LENSES = true_lenses(480)

@@ -23,15 +23,9 @@ from schemathesis.checks import positive_data_acceptance
 from service.app import create_app
 from service.client import RigClient
 from service.errors import ApiError
-from tests.reliability.common import (
-    AUTH,
-    TOKEN,
-    clean_env,
-    service_settings,
-    start_serve,
-    write_serve_config,
-)
-from tests.service.conftest import LiveServer, wait_for
+from tests.helpers.command import clean_env, start_serve
+from tests.helpers.service import AUTH, TOKEN, LiveServer, service_settings, write_serve_config
+from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.timeout(900)]
 

@@ -19,8 +19,9 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.reliability.common import Served, clean_env, start_serve, write_serve_config
-from tests.service.conftest import wait_for
+from tests.helpers.command import Served, clean_env, start_serve
+from tests.helpers.service import write_serve_config
+from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 

@@ -22,7 +22,7 @@ from rig.filters import (
 from rig.pipeline import DepthFrame, DepthPipeline
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
-from tests.rig.stereo_renders import StereoShot, add_noise, central_box, plane_shot, room_shot
+from tests.helpers.shots import StereoShot, add_noise, central_box, plane_shot, room_shot
 
 F32 = NDArray[np.float32]
 VPC = VpcConfig(width=320, height=240)
@@ -150,8 +150,8 @@ def room() -> StereoShot:
 
 
 @pytest.fixture(scope="module")
-def pipe(tmp_path_factory: pytest.TempPathFactory) -> DepthPipeline:
-    return DepthPipeline(room_shot(0, scale=0.5, vpc=VPC).rig, VPC, cache_dir=tmp_path_factory.mktemp("lut"))
+def pipe(lut_cache: Path) -> DepthPipeline:
+    return DepthPipeline(room_shot(0, scale=0.5, vpc=VPC).rig, VPC, cache_dir=lut_cache)
 
 
 def _measure(pipe: DepthPipeline, shot: StereoShot, noise_seed: int = 1, **params: Any) -> DepthFrame:
@@ -238,10 +238,10 @@ def test_confidence_ranks_errors_in_the_room(pipe: DepthPipeline, room: StereoSh
     assert bad1[0] > 5 * bad1[-1] and med[0] > 1.5 * med[-1]
 
 
-def test_temporal_filter_measured_on_noisy_frames(tmp_path: Path) -> None:
+def test_temporal_filter_measured_on_noisy_frames(lut_cache: Path) -> None:
     """A static plane under heavy sensor noise (6 grey levels), 8 frames."""
     shot = plane_shot(7.6, scale=0.5, vpc=VPC)
-    pipe = DepthPipeline(shot.rig, VPC, cache_dir=tmp_path)
+    pipe = DepthPipeline(shot.rig, VPC, cache_dir=lut_cache)
     box = central_box(shot.depth.shape)
     last = {}
     for alpha in (0.0, 0.8):

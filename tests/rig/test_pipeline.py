@@ -18,19 +18,19 @@ from rig.errors import ConfigError, LutError, PipelineError
 from rig.pipeline import DepthPipeline
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
-from tests.rig.stereo_renders import StereoShot, central_box, plane_shot, prototype_rig
+from tests.helpers.shots import StereoShot, central_box, plane_shot, prototype_rig
 
 VPC = VpcConfig(width=320, height=240)
 SMALL_STEREO = StereoParams(disparity_range=64)
 
 
 @pytest.mark.slow
-def test_done_when_prototype_plane_depth_within_2_percent(tmp_path: Path) -> None:
+def test_done_when_prototype_plane_depth_within_2_percent(lut_cache: Path) -> None:
     """Issue #3: prototype renders (full 1280×960 KB 190° lenses, the preset's 1.5 grey levels
     of noise and vignetting) of a textured plane at 3.7, 7.6 and 14.2 baselines; default VPC
     (640×480, 90°) and default stereo parameters; ≥ 95 % of the central 50 % × 50 % box has
     depth within 2 % of the truth."""
-    pipe = DepthPipeline(prototype_rig(1.0), cache_dir=tmp_path)
+    pipe = DepthPipeline(prototype_rig(1.0), cache_dir=lut_cache)
     print("\nprototype plane, default VPC + stereo: fraction of central box within 2% of true depth")
     for k in (3.7, 7.6, 14.2):
         shot = plane_shot(k, scale=1.0, noise_std=1.5, vignetting=0.35)
@@ -55,8 +55,8 @@ def shot() -> StereoShot:
 
 
 @pytest.fixture()
-def pipe(shot: StereoShot, tmp_path: Path) -> DepthPipeline:
-    return DepthPipeline(shot.rig, VPC, SMALL_STEREO, cache_dir=tmp_path)
+def pipe(shot: StereoShot, lut_cache: Path) -> DepthPipeline:
+    return DepthPipeline(shot.rig, VPC, SMALL_STEREO, cache_dir=lut_cache)
 
 
 def test_depth_frame_contract(pipe: DepthPipeline, shot: StereoShot) -> None:
@@ -80,17 +80,17 @@ def test_depth_frame_contract(pipe: DepthPipeline, shot: StereoShot) -> None:
 
 @pytest.mark.parametrize("stereo", [{}, {"subpixel": False}, {"median": 0}, {"temporal_alpha": 0.5}])
 def test_finish_on_the_active_columns_is_exactly_the_whole_frame(
-    shot: StereoShot, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, stereo: dict[str, float]
+    shot: StereoShot, lut_cache: Path, monkeypatch: pytest.MonkeyPatch, stereo: dict[str, float]
 ) -> None:
     """The finish stage works on the columns around the valid pixels only (the matcher leaves
     its first disparity_range columns invalid): bit for bit what the whole frame gives."""
-    pipe = DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=64, **stereo), cache_dir=tmp_path)  # type: ignore[arg-type]
+    pipe = DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=64, **stereo), cache_dir=lut_cache)  # type: ignore[arg-type]
     matched = pipe.match(pipe.rectify(shot.left, shot.right))
     cols = pipeline_module._active_columns(pipe._disparity(matched).valid, 9)
     assert cols.start >= 64 - 9, "nothing to leave out"
     window = [pipe.finish(matched, i) for i in range(2)]
     monkeypatch.setattr(pipeline_module, "_active_columns", lambda valid, margin: slice(0, valid.shape[1]))
-    pipe = DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=64, **stereo), cache_dir=tmp_path)  # type: ignore[arg-type]
+    pipe = DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=64, **stereo), cache_dir=lut_cache)  # type: ignore[arg-type]
     whole = [pipe.finish(matched, i) for i in range(2)]  # twice: the temporal filter's history
     for a, b in zip(window, whole, strict=True):
         assert np.array_equal(a.valid, b.valid) and a.valid.mean() > 0.5
@@ -160,11 +160,11 @@ def test_lut_comes_from_the_cache_the_second_time(shot: StereoShot, tmp_path: Pa
     "config", [VpcConfig(hfov_deg=150.0), VpcConfig(yaw_deg=60.0)], ids=["hfov150", "yaw60"]
 )
 def test_vpc_leaving_the_lens_reports_its_valid_fraction(
-    config: VpcConfig, tmp_path: Path, caplog: pytest.LogCaptureFixture
+    config: VpcConfig, lut_cache: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     rig = prototype_rig(1.0)
     with caplog.at_level(logging.WARNING, logger="rig.pipeline"):
-        pipe = DepthPipeline(rig, config, cache_dir=tmp_path)
+        pipe = DepthPipeline(rig, config, cache_dir=lut_cache)
     low = {n: f for n, f in pipe.valid_fraction.items() if f < 1.0}
     assert low, "this VPC leaves a lens's field"
     assert all(0.0 < f < 1.0 for f in low.values())

@@ -15,14 +15,14 @@ import numpy as np
 from rig.pipeline import DepthPipeline
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
-from tests.rig.stereo_renders import central_box, plane_shot, prototype_rig
+from tests.helpers.shots import central_box, plane_shot, prototype_rig
 
 VPC = VpcConfig(width=320, height=240)
 TRUE_DISPARITIES = (12.1, 16.25, 20.4, 24.5, 28.6, 33.75)  # fx·B/Z with fx = 160 px
 
 
-def test_subpixel_refinement_beats_plain_sgbm_at_every_fractional_distance(tmp_path: Path) -> None:
-    pipe = DepthPipeline(prototype_rig(0.5), VPC, cache_dir=tmp_path)
+def test_subpixel_refinement_beats_plain_sgbm_at_every_fractional_distance(lut_cache: Path) -> None:
+    pipe = DepthPipeline(prototype_rig(0.5), VPC, cache_dir=lut_cache)
     fx = pipe.pair.fx
     variants = {
         "plain SGBM": StereoParams(disparity_range=64, subpixel=False, median=0),

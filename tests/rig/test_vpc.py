@@ -15,7 +15,7 @@ from rig.errors import ConfigError
 from rig.lut import build_vpc_lut
 from rig.sim import divergent_rig
 from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
-from tests.rig.stereo_renders import StereoShot, plane_shot, prototype_rig, room_shot
+from tests.helpers.shots import StereoShot, plane_shot, prototype_rig, room_shot
 
 
 def project(pair: VpcPair, name: str, pts_rig: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -17,7 +17,8 @@ from calibration import load_rig
 from calibration.geometry import invert_transform, transform_points
 from rig.vpc import design_vpc_pair
 from service.client import RigClient, parse_ply
-from tests.service.conftest import SMALL_SPEC, LiveServer, SmallRecording, wait_for
+from tests.helpers.service import SMALL_SPEC, LiveServer, SmallRecording
+from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -18,8 +18,8 @@ from rig.recording import Recording
 from service.client import RigClient
 from service.encoders import depth_to_png16
 from service.errors import ApiError
-from tests.service.conftest import TOKEN, LiveServer, SmallRecording, wait_for
-from tests.service.test_api import metric_values, same_frame
+from tests.helpers.service import TOKEN, LiveServer, SmallRecording, metric_values, same_frame
+from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.timeout(180)
 

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 import service.app
-from tests.service.conftest import SMALL_SPEC, LiveServer, wait_for
+from tests.helpers.service import SMALL_SPEC, LiveServer
+from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -14,7 +14,7 @@ import pytest
 
 import rig.pipeline as pipeline_module
 from rig import priority
-from tests.service.conftest import LiveServer
+from tests.helpers.service import LiveServer
 
 NICE = -3
 
