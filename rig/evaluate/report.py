@@ -2,9 +2,10 @@
 
 ``results.json`` (issue #7's keys, exactly: preset, calibration, image_difference, depth,
 matchers; NaN written as null), ``run.json`` (settings, σd of the theory, fits, failures,
-timings, versions), the tables as CSV, the figures as PNG, ``difference/`` (the VPC images and
-contrast-enhanced difference images) and ``report.md`` (tables, figures, agreement with the
-paper). ``results.json`` is written last, atomically: its presence marks a complete run.
+timings, the git commit of the code, versions), the tables as CSV, the figures as PNG,
+``difference/`` (the VPC images and contrast-enhanced difference images) and ``report.md``
+(tables, figures, agreement with the paper). ``results.json`` is written last, atomically: its
+presence marks a complete run.
 """
 
 from __future__ import annotations
@@ -170,6 +171,7 @@ def _run_document(run: EvaluationRun) -> dict[str, Any]:
                 for lens, v in cal.views.items()
             },
             "timings_s": run.timings_s,
+            "source": run.source.as_json() if run.source else None,
             "versions": {
                 "python": platform.python_version(),
                 "numpy": np.__version__,
