@@ -17,7 +17,7 @@ from tests.helpers.command import (
     clean_env,
     run_rig,
     start_serve,
-    wait_answering,
+    wait_healthy,
 )
 from tests.helpers.service import SmallRecording
 
@@ -73,14 +73,6 @@ def _empty_config(tmp: Path) -> Path:
         "  right: {kind: v4l2, device: /dev/null-right}\ncalibration: {path: missing.yaml}\n"
     )
     return cfg
-
-
-def wait_healthy(url: str, timeout: float) -> dict[str, object]:
-    def ok(r: httpx.Response) -> bool:
-        return r.status_code == 200 and r.json()["status"] == "ok"
-
-    health: dict[str, object] = wait_answering(url, "health", timeout, ok).json()
-    return health
 
 
 @pytest.fixture

@@ -12,12 +12,22 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import httpx
 
 from tests.helpers.waiting import wait_for
 
-__all__ = ["RIG", "Served", "assert_one_line_error", "clean_env", "run_rig", "start_serve", "wait_answering"]
+__all__ = [
+    "RIG",
+    "Served",
+    "assert_one_line_error",
+    "clean_env",
+    "run_rig",
+    "start_serve",
+    "wait_answering",
+    "wait_healthy",
+]
 
 #: The console script installed next to this interpreter (``pip install -e .``).
 RIG = Path(sys.executable).with_name("rig")
@@ -134,3 +144,13 @@ def wait_answering(
         return r if accept(r) else None
 
     return wait_for(answer, timeout_s, f"{url}{path} to answer", poll_s=0.1)
+
+
+def wait_healthy(url: str, timeout_s: float = 60.0) -> dict[str, Any]:
+    """The first ``/health`` document of the service at ``url`` whose status is ok."""
+
+    def ok(r: httpx.Response) -> bool:
+        return r.status_code == 200 and r.json()["status"] == "ok"
+
+    health: dict[str, Any] = wait_answering(url, "health", timeout_s, ok).json()
+    return health

@@ -159,6 +159,15 @@ def _measure(pipe: DepthPipeline, shot: StereoShot, noise_seed: int = 1, **param
     return pipe.process(add_noise(shot.left, 1.5, noise_seed), add_noise(shot.right, 1.5, noise_seed + 1))
 
 
+#: Measured (the README's post-filter table): valid fraction, RMS of errors < 3 px, median error,
+#: fractions of errors > 1 px and > 3 px.
+ROOM_FIGURES = {
+    "all filters off": (0.782, 0.346, 0.194, 0.0190, 0.00363),
+    "defaults": (0.780, 0.222, 0.085, 0.0104, 0.00160),
+    "+ LR check": (0.770, 0.210, 0.085, 0.0070, 0.0),
+}
+
+
 def test_each_filter_measured_in_the_room(pipe: DepthPipeline, room: StereoShot) -> None:
     """Room scene (walls, floor, boxes: slants, depth edges, occlusions, a repetitive text
     wall), 1.5 grey levels of noise. Each filter is judged by what it removes or changes."""
@@ -179,6 +188,10 @@ def test_each_filter_measured_in_the_room(pipe: DepthPipeline, room: StereoShot)
             f"{name:20s} valid {st['valid']:.3f}  RMS<3 {st['rms3']:.3f} px  median {st['median']:.3f} px  "
             f">1px {100 * st['bad1']:.2f}%  >3px {100 * st['bad3']:.3f}%"
         )
+    for name, want in ROOM_FIGURES.items():
+        st = stats[name]
+        got = (st["valid"], st["rms3"], st["median"], st["bad1"], st["bad3"])
+        assert got == pytest.approx(want, rel=0.15, abs=3e-4), name
     d, df = stats["defaults"], frames["defaults"]
     # Speckle removal: the pixels it removes are mostly gross errors; it costs < 1 % of pixels.
     nosp = frames["no speckle removal"]
@@ -236,6 +249,7 @@ def test_confidence_ranks_errors_in_the_room(pipe: DepthPipeline, room: StereoSh
     assert all(a > b for a, b in itertools.pairwise(med))
     assert all(a > b for a, b in itertools.pairwise(rms3))
     assert bad1[0] > 5 * bad1[-1] and med[0] > 1.5 * med[-1]
+    assert (med[0], med[-1]) == pytest.approx((0.154, 0.058), rel=0.15)  # measured, in the README
 
 
 def test_temporal_filter_measured_on_noisy_frames(lut_cache: Path) -> None:
@@ -255,4 +269,5 @@ def test_temporal_filter_measured_on_noisy_frames(lut_cache: Path) -> None:
         f"alpha 0.8 RMS {last[0.8][1]:.3f} px (valid {last[0.0][0]:.3f} / {last[0.8][0]:.3f})"
     )
     assert last[0.8][1] < 0.85 * last[0.0][1]
+    assert (last[0.0][1], last[0.8][1]) == pytest.approx((0.036, 0.024), rel=0.15)  # measured
     assert last[0.8][0] >= last[0.0][0] - 0.01
