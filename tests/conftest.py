@@ -5,13 +5,19 @@ when it is absent."""
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.helpers.service import LiveServer, SmallRecording, render_small_recording, service_settings
+from tests.helpers.service import (
+    LiveServer,
+    SmallRecording,
+    StartServer,
+    render_small_recording,
+    service_settings,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("RIG_SHARED_DATA", REPO.parent / "shared" / "data"))
@@ -52,9 +58,7 @@ def served_recording(small_recording: SmallRecording) -> Path:
 
 
 @pytest.fixture
-def start_server(
-    served_recording: Path, lut_cache: Path, tmp_path: Path
-) -> Iterator[Callable[..., LiveServer]]:
+def start_server(served_recording: Path, lut_cache: Path, tmp_path: Path) -> Iterator[StartServer]:
     """Factory: a fresh server replaying :func:`served_recording` (keyword arguments as for
     ``service_settings``: ``server:`` fields, ``camera_faults``, ...), waited for until it serves
     depth unless ``ready=False``; stopped at teardown."""

@@ -31,6 +31,7 @@ __all__ = [
     "TOKEN",
     "LiveServer",
     "SmallRecording",
+    "StartServer",
     "metric_values",
     "render_small_recording",
     "same_frame",
@@ -153,6 +154,11 @@ class LiveServer:
         self.server.should_exit = True
         self.thread.join(20)
         self.sock.close()
+
+
+#: The ``start_server`` fixture's factory (tests/conftest.py): keyword arguments as for
+#: :func:`service_settings`, plus ``ready`` (wait for the first depth frame, default True).
+StartServer = Callable[..., LiveServer]
 
 
 def metric_values(text: str) -> dict[tuple[str, tuple[tuple[str, str], ...]], float]:

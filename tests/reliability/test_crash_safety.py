@@ -34,7 +34,7 @@ from rig.recording import Recording
 from service.client import RigClient
 from tests.helpers.command import RIG, assert_one_line_error, clean_env, run_rig
 from tests.helpers.recordings import write_recording
-from tests.helpers.service import TOKEN, LiveServer
+from tests.helpers.service import TOKEN, StartServer
 from tests.helpers.waiting import wait_for
 from tests.reliability.fake_disk import limited_open
 
@@ -219,7 +219,7 @@ def test_full_disk_stops_rig_record_with_one_line_and_keeps_what_was_written(
 
 @pytest.mark.parametrize("kind", DISKS)
 def test_full_disk_under_the_running_service(
-    start_server: Callable[..., LiveServer], jpeg_recording: Path, tmp_path: Path, kind: str
+    start_server: StartServer, jpeg_recording: Path, tmp_path: Path, kind: str
 ) -> None:
     src = Recording(jpeg_recording)
     with DISKS[kind](tmp_path / "disk", 2 * 1024 * 1024) as disk:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import socket
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -15,12 +15,10 @@ import pytest
 
 from service.settings import ServerSettings, Settings, is_loopback
 from tests.helpers.command import assert_one_line_error, clean_env, run_rig, start_serve, wait_answering
-from tests.helpers.service import AUTH, TOKEN, LiveServer, write_serve_config
+from tests.helpers.service import AUTH, TOKEN, LiveServer, StartServer, write_serve_config
 from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.timeout(300)]
-
-StartServer = Callable[..., LiveServer]
 
 
 # ----- bind address ------------------------------------------------------------------------------

@@ -5,16 +5,13 @@ and a real Chromium with every request off loopback refused shows the operations
 from __future__ import annotations
 
 import re
-from collections.abc import Callable
 from urllib.parse import urlparse
 
 import httpx
 import pytest
 
 from tests.helpers.browser import CHROMIUM, CHROMIUM_ARGS, needs_chromium
-from tests.helpers.service import LiveServer
-
-StartServer = Callable[..., LiveServer]
+from tests.helpers.service import StartServer
 
 
 def test_docs_page_loads_everything_from_the_service(start_server: StartServer) -> None:

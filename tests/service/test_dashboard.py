@@ -5,7 +5,6 @@ frames are counted and a stopped camera shows up as unavailable."""
 from __future__ import annotations
 
 import re
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -13,12 +12,12 @@ import httpx
 import pytest
 
 from tests.helpers.browser import CHROMIUM, CHROMIUM_ARGS, needs_chromium
-from tests.helpers.service import TOKEN, LiveServer
+from tests.helpers.service import TOKEN, StartServer
 
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(180), needs_chromium]
 
 
-def test_dashboard_live_in_chromium(start_server: Callable[..., LiveServer], tmp_path: Path) -> None:
+def test_dashboard_live_in_chromium(start_server: StartServer, tmp_path: Path) -> None:
     from playwright.sync_api import sync_playwright
 
     live = start_server()

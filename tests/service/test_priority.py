@@ -8,13 +8,13 @@ import logging
 import os
 import resource
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import pytest
 
 import rig.pipeline as pipeline_module
 from rig import priority
-from tests.helpers.service import LiveServer
+from tests.helpers.service import StartServer
 
 NICE = -3
 
@@ -41,7 +41,7 @@ def _nices(prefix: str) -> dict[str, int]:
 
 
 def test_depth_threads_take_the_nice_value_http_keeps_its_own(
-    start_server: Callable[..., LiveServer], caplog: pytest.LogCaptureFixture
+    start_server: StartServer, caplog: pytest.LogCaptureFixture
 ) -> None:
     own = priority.thread_nice()
     caplog.set_level(logging.INFO, logger="rig.priority")
