@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 
+from tests.helpers.recordings import jpeg_copy
 from tests.helpers.service import (
     LiveServer,
     SmallRecording,
@@ -52,20 +53,27 @@ def small_recording(tmp_path_factory: pytest.TempPathFactory) -> SmallRecording:
 
 
 @pytest.fixture(scope="session")
-def served_recording(small_recording: SmallRecording) -> Path:
-    """What :func:`start_server` replays (the reliability suite overrides it with JPEG frames)."""
+def jpeg_recording(small_recording: SmallRecording, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The small recording's 3 pairs re-encoded as JPEG, with the rig's calibration.yaml: what an
+    MJPEG camera records (corrupt and truncated frames mean what they mean on a UVC camera)."""
+    return jpeg_copy(small_recording.loop, tmp_path_factory.mktemp("jpeg-small") / "rec")
+
+
+@pytest.fixture(scope="session")
+def replayed_recording(small_recording: SmallRecording) -> Path:
+    """What :func:`start_server` replays (the reliability suite overrides it with the JPEG copy)."""
     return small_recording.loop
 
 
 @pytest.fixture
-def start_server(served_recording: Path, lut_cache: Path, tmp_path: Path) -> Iterator[StartServer]:
-    """Factory: a fresh server replaying :func:`served_recording` (keyword arguments as for
+def start_server(replayed_recording: Path, lut_cache: Path, tmp_path: Path) -> Iterator[StartServer]:
+    """Factory: a fresh server replaying :func:`replayed_recording` (keyword arguments as for
     ``service_settings``: ``server:`` fields, ``camera_faults``, ...), waited for until it serves
     depth unless ``ready=False``; stopped at teardown."""
     servers: list[LiveServer] = []
 
     def start(ready: bool = True, **kw: Any) -> LiveServer:
-        live = LiveServer(service_settings(served_recording, tmp_path, lut_cache, **kw)).start()
+        live = LiveServer(service_settings(replayed_recording, tmp_path, lut_cache, **kw)).start()
         servers.append(live)
         if ready:
             live.wait_ready()

@@ -8,7 +8,7 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import httpx
 import numpy as np
@@ -112,9 +112,13 @@ def write_serve_config(path: Path, recording: Path, tmp: Path, lut_cache: Path, 
 
 
 class LiveServer:
-    """``create_app(settings)`` under a real uvicorn server in a thread, on 127.0.0.1:<free port>."""
+    """``create_app(settings)`` under a real uvicorn server in a thread, on 127.0.0.1:<free port>.
+    ``lifespan="off"`` serves the app without ever building its runtime (routes may be added to
+    ``app`` before :meth:`start`)."""
 
-    def __init__(self, settings: Settings, runtime: Runtime | None = None) -> None:
+    def __init__(
+        self, settings: Settings, runtime: Runtime | None = None, *, lifespan: Literal["on", "off"] = "on"
+    ) -> None:
         self.settings = settings
         self.app = create_app(settings, runtime=runtime)
         # IPPROTO_TCP so asyncio sets TCP_NODELAY on accepted connections (as `rig serve` does).
@@ -122,7 +126,7 @@ class LiveServer:
         self.sock.bind(("127.0.0.1", 0))
         self.port = self.sock.getsockname()[1]
         self.base_url = f"http://127.0.0.1:{self.port}"
-        config = uvicorn.Config(self.app, log_level="warning", timeout_graceful_shutdown=2, lifespan="on")
+        config = uvicorn.Config(self.app, log_level="warning", timeout_graceful_shutdown=2, lifespan=lifespan)
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True)
 
