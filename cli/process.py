@@ -1,35 +1,38 @@
-"""`rig process RECORDING --calibration FILE --out DIR`: depth for every pair of a recording,
-headless (recording layout: see docs/cameras.md), or of a ROS bag's two image topics (see
-docs/ros.md).
+"""`rig process REC... --out DIR`: depth for every pair of one or many recordings, headless, on
+the staged pipeline the service runs, here or on a Dask cluster (see docs/offline.md).
 
-Output: ``DIR/depth/NNNNNN.png`` (uint16 mm, 0 = invalid, aligned with the left VPC image),
-``DIR/left/NNNNNN.png``, ``DIR/right/NNNNNN.png`` (the VPC images), ``DIR/vpc.json``
-(``width, height, fx, fy, cx, cy, baseline_m``); with ``--ply`` also ``DIR/cloud/NNNNNN.ply``
-(rig frame), with ``--preview`` ``DIR/preview/NNNNNN.png`` (left VPC beside colour depth).
+RECORDING is a recording directory (see docs/cameras.md) or a ROS bag with ``--left-topic`` and
+``--right-topic`` (see docs/ros.md); several may be given, or a quoted glob (``'recs/*'``). One
+recording's outputs go to DIR, those of several (or of a glob) to ``DIR/NAME/`` (NAME = the
+recording folder's name), each in the layout of :mod:`rig.outputs`: ``depth/``, ``left/``,
+``right/`` PNGs, ``vpc.json`` and ``run.json``; with ``--ply`` ``cloud/``, with ``--preview``
+``preview/``.
 
-A pair whose frame file is missing or not a readable image is reported on stderr by sequence
-number and skipped. Exit status: 0 when at least one pair was processed (a summary names how
-many were skipped), 2 when the calibration, recording or options are bad or no pair could be
-processed.
+``--scheduler``: ``none`` (this process, one recording after another; the default for one
+recording), ``local`` (a Dask LocalCluster on this machine; the default for several) or a Dask
+scheduler's address (``tcp://host:8786``; it must answer within ``--scheduler-timeout``).
+``--resume`` skips the pairs whose outputs are complete.
+
+A pair whose frame is missing or not a readable image is reported on stderr by sequence number
+and skipped; the summary names how many. Exit status: 0 when every recording gave at least one
+pair, 2 when a calibration, recording or option is bad, the scheduler does not answer, the output
+cannot be written (a full disk) or a recording gave no pair at all.
 """
 
 from __future__ import annotations
 
+import glob
+import hashlib
 import json
-import logging
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
-import cv2
-import numpy as np
 import typer
-import yaml
-from pydantic import ValidationError
-from rich.progress import TimeRemainingColumn
 
-from cli.console import console, one_line, progress_bar, warn
+from cli.console import RateColumn, console, err_console, one_line, progress_bar, warn
 from cli.errors import fail
-from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption, open_source
+from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption
 from cli.vpc_options import (
     CacheDirOption,
     CalibrationOption,
@@ -40,20 +43,27 @@ from cli.vpc_options import (
     load_calibration,
     make_vpc_config,
 )
-from rig.depth import depth_to_png_mm, write_ply
-from rig.errors import ConfigError, PipelineError, RecordingError
-from rig.lut import percent_valid
-from rig.pipeline import DepthPipeline
-from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
+from rig.errors import ConfigError
 
-__all__ = ["StereoOption", "build_pipeline", "depth_preview", "load_stereo_params", "register"]
+if TYPE_CHECKING:
+    from rig.pipeline import DepthPipeline
+    from rig.process import PairFailure, ProcessOptions, RecordingJob, RecordingSource, RecordingSummary
+    from rig.stereo import StereoParams
+    from rig.vpc import VpcConfig
 
-log = logging.getLogger(__name__)
+__all__ = ["StereoOption", "build_pipeline", "load_stereo_params", "register"]
+
+#: Failures listed per recording in the closing summary (all of them go to --summary FILE).
+SUMMARY_LINES = 20
 
 
 def load_stereo_params(path: Path) -> StereoParams:
     """StereoParams from a YAML/JSON mapping file; ConfigError naming file and field."""
+    import yaml
+    from pydantic import ValidationError
+
+    from rig.stereo import StereoParams
+
     try:
         doc = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
@@ -84,6 +94,9 @@ def build_pipeline(
 ) -> tuple[DepthPipeline, Path]:
     """The depth pipeline of the options (calibration, VPC, stereo file, cache), with a warning
     when the VPC leaves a camera's field; and the calibration file used."""
+    from rig.lut import percent_valid
+    from rig.pipeline import DepthPipeline
+
     rig, cal_path = load_calibration(calibration, fallback)
     params = load_stereo_params(stereo) if stereo is not None else None
     pipeline = DepthPipeline(rig, config, params, cache_dir=cache_dir)
@@ -93,20 +106,151 @@ def build_pipeline(
     return pipeline, cal_path
 
 
-def _write_png(path: Path, image: np.ndarray[Any, Any]) -> None:
-    if not cv2.imwrite(str(path), image):
-        raise RecordingError(f"{path}: could not write image")
+def expand_recordings(arguments: Sequence[Path]) -> tuple[list[Path], bool]:
+    """The recordings the arguments name (a quoted glob expanded, sorted), and whether they get
+    one output directory each (several, or a glob)."""
+    paths: list[Path] = []
+    globbed = False
+    for arg in arguments:
+        text = str(arg)
+        if glob.has_magic(text):
+            globbed = True
+            matches = sorted(glob.glob(text))
+            if not matches:
+                fail(f"RECORDING {text!r}: no file or directory matches")
+            paths += [Path(m) for m in matches]
+        else:
+            paths.append(arg)
+    return paths, globbed or len(paths) > 1
+
+
+def _output_dirs(sources: Sequence[RecordingSource], out: Path, per_recording: bool) -> list[Path]:
+    if not per_recording:
+        return [out]
+    seen: dict[str, Path] = {}
+    for source in sources:
+        if source.name in seen:
+            fail(f"{seen[source.name]} and {source.path} would both write to {out / source.name}")
+        seen[source.name] = source.path
+    return [out / s.name for s in sources]
+
+
+class _Pipelines:
+    """One pipeline per calibration (by its file's content): recordings with the same
+    calibration share its lookup tables."""
+
+    def __init__(self, calibration: Path | None, config: VpcConfig, stereo: Path | None, cache: Path | None):
+        self._options = (calibration, config, stereo, cache)
+        self._built: dict[str, tuple[DepthPipeline, Path]] = {}
+
+    def for_recording(self, fallback: Path | None) -> tuple[DepthPipeline, Path]:
+        calibration, config, stereo, cache = self._options
+        chosen = calibration or fallback
+        if chosen is None:
+            raise ConfigError("--calibration FILE is required (the recording carries no calibration.yaml)")
+        try:
+            key = hashlib.sha256(chosen.read_bytes()).hexdigest()
+        except OSError as err:
+            raise ConfigError(f"{chosen}: unreadable calibration ({err.strerror or err})") from err
+        if key not in self._built:
+            self._built[key] = build_pipeline(calibration, fallback, config, stereo, cache)
+        return self._built[key]
+
+
+def _describe(pipeline: DepthPipeline, cal_path: Path) -> str:
+    vpc = pipeline.vpc_config
+    return (
+        f"calibration {cal_path}, VPC {vpc.width}x{vpc.height} fx {pipeline.pair.fx:.1f}, "
+        f"B {pipeline.baseline_m:.4f} m"
+    )
+
+
+def _report(summary: RecordingSummary, described: str) -> None:
+    processed = summary.written + summary.resumed
+    notes = f", {summary.resumed} already complete" if summary.resumed else ""
+    if summary.failures:
+        notes += f", [yellow]{len(summary.failures)} skipped[/yellow]"
+    console.print(
+        f"processed {processed} of {summary.total} pairs{notes} -> {summary.out} ({described})",
+        highlight=False,
+        soft_wrap=True,
+    )
+    for failure in summary.failures[:SUMMARY_LINES]:
+        line = f"  failed seq {failure.seq}: {one_line(failure.reason)}"
+        err_console.print(line, highlight=False, soft_wrap=True)
+    if len(summary.failures) > SUMMARY_LINES:
+        err_console.print(f"  ... and {len(summary.failures) - SUMMARY_LINES} more", highlight=False)
+
+
+def _write_summary(path: Path, summaries: Sequence[RecordingSummary]) -> None:
+    from rig.atomic import write_atomic
+
+    doc = [
+        {
+            "recording": s.name,
+            "out": str(s.out),
+            "total": s.total,
+            "written": s.written,
+            "resumed": s.resumed,
+            "failed": [{"seq": f.seq, "reason": f.reason} for f in s.failures],
+        }
+        for s in summaries
+    ]
+    try:
+        write_atomic(path, json.dumps(doc, indent=2).encode() + b"\n")
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot write the summary ({err.strerror or err})") from err
+
+
+def _run(
+    jobs: list[RecordingJob],
+    options: ProcessOptions,
+    scheduler: str | None,
+    workers: int | None,
+    timeout_s: float,
+) -> list[RecordingSummary]:
+    """The jobs through :func:`rig.process.process_recordings` under a progress bar."""
+    from rig.process import process_recordings
+
+    several = len(jobs) > 1
+    from rich.progress import TimeRemainingColumn
+
+    with progress_bar(RateColumn("pairs"), TimeRemainingColumn()) as progress:
+        task = progress.add_task("depth" if scheduler is None else f"depth ({scheduler})", total=None)
+
+        def on_plan(planned: Sequence[RecordingJob]) -> None:
+            progress.update(task, total=sum(len(j.write) for j in planned))
+
+        def on_progress(name: str, pairs: int, failures: Sequence[PairFailure]) -> None:
+            for failure in failures:
+                where = f"{name} seq" if several else "seq"
+                progress.console.print(
+                    f"[yellow]skipped {where} {failure.seq}:[/yellow] {one_line(failure.reason)}",
+                    highlight=False,
+                    soft_wrap=True,
+                )
+            progress.advance(task, pairs)
+
+        return process_recordings(
+            jobs,
+            options,
+            scheduler=scheduler,
+            workers=workers,
+            connect_timeout_s=timeout_s,
+            on_plan=on_plan,
+            on_progress=on_progress,
+        )
 
 
 def register(app: typer.Typer) -> None:
     @app.command("process")
     def process(
-        recording: Annotated[
-            Path,
+        recordings: Annotated[
+            list[Path],
             typer.Argument(
-                metavar="RECORDING",
-                help="Recording directory (frames.csv, left/, right/), or a ROS bag (MCAP, .db3, bag dir) "
-                "with --left-topic and --right-topic.",
+                metavar="RECORDING...",
+                help="Recording directories (frames.csv, left/, right/) or a quoted glob of them, or ROS "
+                "bags (MCAP, .db3, bag dir) with --left-topic and --right-topic.",
             ),
         ],
         out: Annotated[Path, typer.Option("--out", "-o", metavar="DIR", help="Output directory.")],
@@ -127,76 +271,88 @@ def register(app: typer.Typer) -> None:
         left_topic: LeftTopicOption = None,
         right_topic: RightTopicOption = None,
         max_skew_ms: MaxSkewOption = None,
+        resume: Annotated[
+            bool, typer.Option("--resume", help="Skip the pairs whose outputs are complete in DIR.")
+        ] = False,
+        scheduler: Annotated[
+            str | None,
+            typer.Option(
+                "--scheduler",
+                metavar="WHERE",
+                help="none (this process), local (a Dask LocalCluster here) or a Dask scheduler address "
+                "(tcp://host:8786).",
+                show_default="none for one recording, local for several",
+            ),
+        ] = None,
+        workers: Annotated[
+            int | None,
+            typer.Option(
+                "--workers",
+                min=1,
+                metavar="N",
+                help="Worker processes of --scheduler local.",
+                show_default="one per two cores",
+            ),
+        ] = None,
+        chunk_size: Annotated[
+            int, typer.Option("--chunk-size", min=1, metavar="PAIRS", help="Pairs per Dask task.")
+        ] = 32,
+        scheduler_timeout: Annotated[
+            float,
+            typer.Option(
+                "--scheduler-timeout", min=0.1, metavar="S", help="How long a scheduler may take to answer."
+            ),
+        ] = 10.0,
+        summary: Annotated[
+            Path | None,
+            typer.Option("--summary", metavar="FILE", help="Also write the summary (every failure) as JSON."),
+        ] = None,
     ) -> None:
-        """Depth for every pair of RECORDING into --out: depth/, left/, right/ PNGs and vpc.json."""
-        rec = open_source(recording, left_topic, right_topic, max_skew_ms)
+        """Depth for every pair of each RECORDING into --out: depth/, left/, right/, vpc.json, run.json."""
+        from rig.process import ProcessOptions, RecordingSource
+
+        paths, per_recording = expand_recordings(recordings)
         config = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
-        pipeline, cal_path = build_pipeline(calibration, rec.calibration_path, config, stereo, cache_dir)
+        sources = [RecordingSource(p, left_topic, right_topic, max_skew_ms) for p in paths]
+        pipelines = _Pipelines(calibration, config, stereo, cache_dir)
+        jobs, described = _jobs(sources, _output_dirs(sources, out, per_recording), pipelines)
+        where = _scheduler(scheduler, len(jobs))
         extra = (("cloud",) if ply else ()) + (("preview",) if preview else ())
-        dirs = {k: out / k for k in ("depth", "left", "right", *extra)}
-        try:
-            for d in dirs.values():
-                d.mkdir(parents=True, exist_ok=True)
-            (out / "vpc.json").write_text(json.dumps(pipeline.pair.as_json(), indent=2) + "\n")
-        except OSError as err:
-            raise RecordingError(f"{out}: cannot write output ({err.strerror or err})") from err
-        done, skipped = 0, 0
-        with progress_bar(TimeRemainingColumn()) as progress:
-            task = progress.add_task("depth", total=len(rec.pairs))
-            for pair in rec.pairs:
-                try:
-                    left = rec.read_frame(pair, "left").pipeline_image()
-                    right = rec.read_frame(pair, "right").pipeline_image()
-                    frame = pipeline.process(left, right, pair.seq, pair.left_ts_ns)
-                except (RecordingError, PipelineError) as err:
-                    skipped += 1
-                    progress.console.print(
-                        f"[yellow]skipped seq {pair.seq}:[/yellow] {one_line(err)}",
-                        highlight=False,
-                        soft_wrap=True,
-                    )
-                    progress.advance(task)
-                    continue
-                stem = f"{pair.seq:06d}.png"
-                _write_png(dirs["depth"] / stem, depth_to_png_mm(frame.depth))
-                _write_png(dirs["left"] / stem, frame.left_vpc)
-                _write_png(dirs["right"] / stem, frame.right_vpc)
-                if preview:
-                    _write_png(dirs["preview"] / stem, depth_preview(frame.left_vpc, frame.depth))
-                if ply:
-                    pts, colors = pipeline.point_cloud(frame)
-                    write_ply(dirs["cloud"] / f"{pair.seq:06d}.ply", pts, colors)
-                done += 1
-                progress.advance(task)
-        total = len(rec.pairs)
-        if total and not done:
-            fail(f"no pair of {total} in {recording} could be processed ({skipped} skipped)")
-        note = f", [yellow]{skipped} skipped[/yellow]" if skipped else ""
-        console.print(
-            f"processed {done} of {total} pairs{note} -> {out} (calibration {cal_path}, "
-            f"VPC {config.width}x{config.height} fx {pipeline.pair.fx:.1f}, B {pipeline.baseline_m:.4f} m)",
-            highlight=False,
-            soft_wrap=True,
-        )
+        products = ("depth", "left", "right", *extra)
+        options = ProcessOptions(products=products, resume=resume, chunk_pairs=chunk_size)
+        summaries = _run(jobs, options, where, workers, scheduler_timeout)
+        for result, text in zip(summaries, described, strict=True):
+            _report(result, text)
+        if summary is not None:
+            _write_summary(summary, summaries)
+        empty = [s for s in summaries if s.total and not s.written + s.resumed]
+        if empty:
+            s = empty[0]
+            fail(f"no pair of {s.total} in {s.name} could be processed ({len(s.failures)} skipped)")
 
 
-def depth_preview(left_vpc: np.ndarray[Any, Any], depth: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
-    """Left VPC image beside its depth in colour (turbo on log depth between the 2nd and 98th
-    percentiles: near is red, far blue; black = invalid), with that range written on it.
-    (H, 2W, 3) uint8 BGR."""
-    ok = np.isfinite(depth) & (depth > 0)
-    vis = np.zeros((*depth.shape, 3), dtype=np.uint8)
-    label = "no depth"
-    if ok.any():
-        near, far = np.percentile(depth[ok], [2.0, 98.0])
-        far = max(far, near * 1.001)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            t = (np.log(far) - np.log(np.clip(depth, near, far))) / (np.log(far) - np.log(near))
-        scaled = np.clip(np.nan_to_num(t, nan=0.0) * 255.0, 0, 255).astype(np.uint8)
-        vis = cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO)
-        vis[~ok] = 0
-        label = f"{near:.2f}-{far:.2f} m"
-    left = left_vpc if left_vpc.ndim == 3 else cv2.cvtColor(left_vpc, cv2.COLOR_GRAY2BGR)
-    out = np.hstack([left, vis])
-    cv2.putText(out, label, (left.shape[1] + 8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 2)
-    return out
+def _jobs(
+    sources: Sequence[RecordingSource], outs: Sequence[Path], pipelines: _Pipelines
+) -> tuple[list[RecordingJob], list[str]]:
+    """One job per recording (each opened first: a bad one stops the command before any work),
+    and the line describing its calibration and VPC."""
+    from rig.process import RecordingJob
+
+    opened = [source.open() for source in sources]
+    jobs, described = [], []
+    for source, recording, out_dir in zip(sources, opened, outs, strict=True):
+        pipeline, cal_path = pipelines.for_recording(recording.calibration_path)
+        jobs.append(RecordingJob(source, recording, pipeline, out_dir))
+        described.append(_describe(pipeline, cal_path))
+    return jobs, described
+
+
+def _scheduler(option: str | None, recordings: int) -> str | None:
+    """None (this process), ``local`` or an address, from ``--scheduler``."""
+    if option is None:
+        return "local" if recordings > 1 else None
+    if option.lower() == "none":
+        return None
+    if option.lower() == "local" or "://" in option:
+        return option.lower() if option.lower() == "local" else option
+    raise ConfigError(f"--scheduler: expected none, local or an address like tcp://host:8786, got {option!r}")

@@ -21,6 +21,7 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -176,6 +177,7 @@ class DepthPipeline:
         cache_dir: str | Path | None = None,
         *,
         tune_malloc: bool = True,
+        luts: Mapping[str, CachedLut] | None = None,
     ) -> None:
         if tune_malloc:
             tune_allocator()
@@ -187,6 +189,9 @@ class DepthPipeline:
         self.names = (self.pair.left, self.pair.right)
         self.lut_info: dict[str, CachedLut] = {}
         for name in self.names:
+            if luts is not None:
+                self.lut_info[name] = self._shipped(name, luts)
+                continue
             self.lut_info[name] = self.cache.get(
                 rig.cameras[name], self.pair.R_cam_vpc[name], self.pair.camera
             )
@@ -219,6 +224,17 @@ class DepthPipeline:
         self._temporal = TemporalFilter(params.temporal_alpha, params.temporal_reset)
         self._temporal_owner: StereoMatcher | None = self._matcher
 
+    def _shipped(self, name: str, luts: Mapping[str, CachedLut]) -> CachedLut:
+        """Camera ``name``'s table as handed in (built once elsewhere for this calibration)."""
+        info = luts.get(name)
+        expected = (self.pair.camera.height, self.pair.camera.width)
+        if info is None or info.lut.shape != expected:
+            got = "none" if info is None else "x".join(map(str, info.lut.shape[::-1]))
+            raise ConfigError(
+                f"lookup table of camera {name!r}: {got} handed in for a {expected[1]}x{expected[0]} VPC"
+            )
+        return info
+
     # ----- configuration -----------------------------------------------------------------------
     @property
     def stereo(self) -> StereoParams:
@@ -238,6 +254,18 @@ class DepthPipeline:
         matcher = StereoMatcher(params)
         with self._swap_lock:
             self._matcher = matcher
+
+    def temporal_state(self) -> F32 | None:
+        """The temporal filter's history after the last finished frame (None: empty), to carry
+        into another pipeline of the same settings (the next chunk of a recording)."""
+        with self._finish_lock:
+            return self._temporal.state
+
+    def restore_temporal_state(self, state: F32 | None) -> None:
+        """Continue from ``state`` (:meth:`temporal_state` of another pipeline; None: start a
+        new history, as at the start of a recording)."""
+        with self._finish_lock:
+            self._temporal.state = state
 
     # ----- stages ------------------------------------------------------------------------------
     def _check_input(self, name: str, img: NDArray[np.generic]) -> None:

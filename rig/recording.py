@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from rig.atomic import write_atomic as _atomic_write
 from rig.errors import DiskFullError, RecordingError
 
 __all__ = [
@@ -404,12 +405,3 @@ class RecordingWriter:
         if err.errno in _NO_SPACE:
             return DiskFullError(f"{root}: disk full; recording stopped, everything indexed so far is intact")
         return RecordingError(f"{root}: cannot write recording ({err.strerror or err})")
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
