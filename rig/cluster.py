@@ -349,23 +349,20 @@ def _collect(pending: dict[Any, _Submitted], on_progress: OnProgress | None) -> 
 
 
 def process_on_cluster(
+    client: Any,
     jobs: Sequence[RecordingJob],
     options: ProcessOptions,
-    scheduler: str,
     *,
-    workers: int | None = None,
-    timeout_s: float = 10.0,
     on_progress: OnProgress | None = None,
 ) -> list[RecordingSummary]:
-    """Every planned job's chunks on the cluster (see the module doc); the summaries in the
-    order of ``jobs``."""
-    with connect(scheduler, workers=workers, timeout_s=timeout_s) as client:
-        _check_paths(client, jobs)
-        pending = _submit(client, jobs, options)
-        try:
-            tallies = _collect(pending, on_progress)
-        finally:
-            client.cancel(list(pending))
+    """Every planned job's chunks on the cluster of ``client`` (a ``distributed.Client``, see
+    the module doc); the summaries in the order of ``jobs``."""
+    _check_paths(client, jobs)
+    pending = _submit(client, jobs, options)
+    try:
+        tallies = _collect(pending, on_progress)
+    finally:
+        client.cancel(list(pending))
     summaries = []
     for job in jobs:
         assert job.layout is not None

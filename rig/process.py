@@ -49,6 +49,7 @@ __all__ = [
     "RecordingSource",
     "RecordingSummary",
     "plan_recording",
+    "plan_recordings",
     "process_pairs",
     "process_recordings",
 ]
@@ -318,6 +319,18 @@ def _process_here(
     return summaries
 
 
+def plan_recordings(
+    jobs: Sequence[RecordingJob],
+    options: ProcessOptions,
+    on_plan: Callable[[Sequence[RecordingJob]], None] | None = None,
+) -> None:
+    """:func:`plan_recording` for every job, then ``on_plan(jobs)``."""
+    for job in jobs:
+        plan_recording(job, options)
+    if on_plan is not None:
+        on_plan(jobs)
+
+
 def process_recordings(
     jobs: Sequence[RecordingJob],
     options: ProcessOptions | None = None,
@@ -330,17 +343,15 @@ def process_recordings(
 ) -> list[RecordingSummary]:
     """Process every job (see the module doc): here when ``scheduler`` is None, else on the Dask
     cluster it names (``"local"``: a LocalCluster of ``workers`` processes; or a scheduler's
-    address, which must answer within ``connect_timeout_s``). ``on_plan`` sees the jobs once
-    their output directories are ready and their pairs to write known (``len(job.write)``)."""
+    address, which must answer within ``connect_timeout_s``: nothing is written before it
+    does). ``on_plan`` sees the jobs once their output directories are ready and their pairs to
+    write known (``len(job.write)``)."""
     options = options or ProcessOptions()
-    for job in jobs:
-        plan_recording(job, options)
-    if on_plan is not None:
-        on_plan(jobs)
     if scheduler is None:
+        plan_recordings(jobs, options, on_plan)
         return _process_here(jobs, options, on_progress)
-    from rig.cluster import process_on_cluster  # Dask is imported only when a run uses it
+    from rig.cluster import connect, process_on_cluster  # Dask is imported only when a run uses it
 
-    return process_on_cluster(
-        jobs, options, scheduler, workers=workers, timeout_s=connect_timeout_s, on_progress=on_progress
-    )
+    with connect(scheduler, workers=workers, timeout_s=connect_timeout_s) as client:
+        plan_recordings(jobs, options, on_plan)
+        return process_on_cluster(client, jobs, options, on_progress=on_progress)
