@@ -5,36 +5,23 @@ summary file, and bad input (no recording, a scheduler that does not answer, a f
 from __future__ import annotations
 
 import json
-import os
 import socket
 import subprocess
-import sys
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
 import pytest
 
 from rig.atomic import is_temporary
-from tests.rig.offline_fixtures import VPC_ARGS, files_of, noisy_recording
-
-RIG = str(Path(sys.executable).with_name("rig"))
-
-
-def run(*args: str | Path, cache: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "RIG_CACHE_DIR": str(cache), "COLUMNS": "200"}
-    env.pop("RIG_DEBUG", None)
-    return subprocess.run([RIG, *map(str, args)], capture_output=True, text=True, env=env, timeout=timeout)
+from tests.helpers.command import assert_one_line_error, clean_env, run_rig
+from tests.helpers.disks import tmpfs_disk
+from tests.helpers.offline import VPC_ARGS, files_of, noisy_recording
 
 
-def one_error_line(res: subprocess.CompletedProcess[str]) -> str:
-    assert res.returncode == 2, (res.stdout, res.stderr)
-    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and lines[0].startswith("error:"), res.stderr
-    assert "Traceback" not in res.stderr
-    return lines[0]
+def run(*args: str | Path, cache: Path) -> subprocess.CompletedProcess[str]:
+    """``rig ARGS`` with its LUT cache under ``cache``."""
+    return run_rig(args, clean_env(cache))
 
 
 @pytest.fixture(scope="module")
@@ -87,7 +74,7 @@ def test_a_scheduler_that_does_not_answer_is_one_line_within_the_timeout(recs: P
     res = run("process", recs / "a", "--out", tmp_path / "out", *_options(recs), "--scheduler", address,
               "--scheduler-timeout", "2", cache=tmp_path / "c")  # fmt: skip
     elapsed = time.monotonic() - t0
-    line = one_error_line(res)
+    line = assert_one_line_error(res)
     assert f"{address}: no Dask scheduler answered within 2 s" in line
     assert not (tmp_path / "out").exists()  # nothing written before the scheduler answers
     print(f"\nunanswered scheduler: exit 2 after {elapsed:.1f} s (2 s timeout + start-up): {line}")
@@ -96,36 +83,15 @@ def test_a_scheduler_that_does_not_answer_is_one_line_within_the_timeout(recs: P
 def test_what_is_not_a_recording_stops_before_any_output(recs: Path, tmp_path: Path) -> None:
     empty = tmp_path / "empty"
     empty.mkdir()
-    line = one_error_line(
+    line = assert_one_line_error(
         run("process", recs / "a", empty, "--out", tmp_path / "out", *_options(recs), cache=tmp_path)
     )
     assert f"{empty / 'recording.json'}: missing (not a recording directory)" in line
     assert not (tmp_path / "out").exists()
-    line = one_error_line(run("process", tmp_path / "nothing*", "--out", tmp_path / "out", cache=tmp_path))
-    assert "no file or directory matches" in line and "nothing*" in line
-    twice = one_error_line(
-        run("process", recs / "a", tmp_path / "x" / "a", "--out", tmp_path / "o", cache=tmp_path)
-    )
-    assert "both write to" in twice
-
-
-@contextmanager
-def _tmpfs(where: Path, size: int) -> Iterator[None]:
-    where.mkdir(parents=True)
-    if os.geteuid() != 0:
-        pytest.skip("a real full disk needs a tmpfs, and mounting one needs root")
-    res = subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", f"size={size},mode=0755", "rig-test-full-disk", str(where)],
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
-    if res.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {res.stderr.strip()}")
-    try:
-        yield
-    finally:
-        subprocess.run(["umount", "-l", str(where)], capture_output=True, timeout=30)
+    nothing = run("process", tmp_path / "nothing*", "--out", tmp_path / "out", cache=tmp_path)
+    assert_one_line_error(nothing, "no file or directory matches", "nothing*")
+    twice = run("process", recs / "a", tmp_path / "x" / "a", "--out", tmp_path / "o", cache=tmp_path)
+    assert_one_line_error(twice, "both write to", str(tmp_path / "o" / "a"))
 
 
 def test_a_full_disk_stops_with_one_line_and_keeps_complete_pairs(tmp_path: Path) -> None:
@@ -135,9 +101,9 @@ def test_a_full_disk_stops_with_one_line_and_keeps_complete_pairs(tmp_path: Path
     assert run("process", rec, "--out", reference, *opts, cache=tmp_path / "c").returncode == 0
     pair_bytes = sum(len(v) for k, v in files_of(reference).items() if "/000000." in k)
     disk = tmp_path / "disk"
-    with _tmpfs(disk, 3 * pair_bytes + 8192):
+    with tmpfs_disk(disk, 3 * pair_bytes + 8192):
         res = run("process", rec, "--out", disk / "out", *opts, cache=tmp_path / "c")
-        line = one_error_line(res)
+        line = assert_one_line_error(res)
         assert f"{disk / 'out'}: disk full" in line and "--resume" in line
         got, want = files_of(disk / "out"), files_of(reference)
         assert not [k for k in got if is_temporary(Path(k).name)]

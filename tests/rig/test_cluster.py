@@ -19,7 +19,7 @@ from rig.atomic import is_temporary
 from rig.process import ProcessOptions, RecordingJob, RecordingSource, RecordingSummary, process_recordings
 from rig.recording import Recording
 from rig.stereo import StereoParams
-from tests.rig.offline_fixtures import STEREO, TEMPORAL, files_of, make_pipeline, noisy_recording
+from tests.helpers.offline import STEREO, TEMPORAL, files_of, make_pipeline, noisy_recording
 
 distributed = pytest.importorskip("distributed", reason="rig process --scheduler needs dask.distributed")
 
@@ -102,4 +102,5 @@ def test_a_killed_workers_chunk_is_retried_and_the_output_stays_bit_for_bit(
     assert (summary.written, summary.failures) == (12, [])  # the dead worker's chunk ran elsewhere
     assert files_of(out / "long") == files_of(tmp_path / "here" / "long")
     assert not [p for p in (out / "long").rglob("*") if is_temporary(p.name)]
-    print(f"\nkilled worker {killed['worker']} holding {killed['keys']} after {killed['pairs_done']} of 12 pairs")
+    worker, keys, done = killed["worker"], killed["keys"], killed["pairs_done"]
+    print(f"\nkilled worker {worker} holding {keys} after {done} of 12 pairs")

@@ -24,7 +24,7 @@ from rig.process import (
 )
 from rig.recording import Recording
 from rig.stereo import StereoParams
-from tests.rig.offline_fixtures import STEREO, TEMPORAL, files_of, make_pipeline, noisy_recording
+from tests.helpers.offline import STEREO, TEMPORAL, files_of, make_pipeline, noisy_recording
 
 N_PAIRS = 6
 

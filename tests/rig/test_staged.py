@@ -16,7 +16,7 @@ from rig.pipeline import DepthFrame
 from rig.recording import Recording
 from rig.staged import END, EndOfPairs, PairJob, StagedExecutor
 from rig.stereo import StereoParams
-from tests.rig.offline_fixtures import STEREO, TEMPORAL, make_pipeline, noisy_recording
+from tests.helpers.offline import STEREO, TEMPORAL, make_pipeline, noisy_recording
 
 N_PAIRS = 5
 

@@ -14,7 +14,7 @@ from rig.pipeline import DepthPipeline
 from rig.recording import RecordingWriter
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
-from tests.rig.stereo_renders import StereoShot, plane_shot
+from tests.helpers.shots import StereoShot, plane_shot
 
 __all__ = [
     "STEREO",
