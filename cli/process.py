@@ -248,7 +248,7 @@ def register(app: typer.Typer) -> None:
         recordings: Annotated[
             list[Path],
             typer.Argument(
-                metavar="RECORDING...",
+                metavar="RECORDING",
                 help="Recording directories (frames.csv, left/, right/) or a quoted glob of them, or ROS "
                 "bags (MCAP, .db3, bag dir) with --left-topic and --right-topic.",
             ),

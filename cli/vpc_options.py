@@ -4,15 +4,15 @@ calibration loading and the LUT cache directory."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from pydantic import ValidationError
 
-from calibration import load_rig
-from calibration.rig import Rig
 from rig.errors import ConfigError
-from rig.vpc import VpcConfig
+
+if TYPE_CHECKING:
+    from calibration.rig import Rig
+    from rig.vpc import VpcConfig
 
 __all__ = [
     "CacheDirOption",
@@ -70,6 +70,10 @@ def parse_size(text: str) -> tuple[int, int]:
 
 def make_vpc_config(size: str, hfov_deg: float, yaw_deg: float = 0.0, pitch_deg: float = 0.0) -> VpcConfig:
     """A validated :class:`VpcConfig`; ConfigError naming the offending option."""
+    from pydantic import ValidationError
+
+    from rig.vpc import VpcConfig
+
     w, h = parse_size(size)
     names = {"width": "--vpc-size", "height": "--vpc-size", "hfov_deg": "--vpc-hfov"}
     names |= {"yaw_deg": "--yaw", "pitch_deg": "--pitch"}
@@ -85,6 +89,8 @@ def make_vpc_config(size: str, hfov_deg: float, yaw_deg: float = 0.0, pitch_deg:
 
 def load_calibration(path: Path | None, fallback: Path | None = None) -> tuple[Rig, Path]:
     """The rig from ``path`` (or ``fallback`` when no path was given)."""
+    from calibration.formats import load_rig
+
     chosen = path or fallback
     if chosen is None:
         raise ConfigError("--calibration FILE is required (the recording carries no calibration.yaml)")
