@@ -6,7 +6,6 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal, Optional, get_args, g
 
 from annotated_types import MultipleOf
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model, field_validator
-from pydantic.json_schema import JsonDict
 
 from rig.capture.faults import Fault
 from rig.counters import CounterSpec, CounterValue, Group, Kind, counters_of
@@ -292,12 +291,16 @@ def _is_integer_field(annotation: Any) -> bool:
 
 
 # StereoParams checks these in a model validator; stated per field so the schema says it too.
-_ODD: JsonDict = {"not": {"multipleOf": 2}}
+def _odd() -> Any:
+    """A field's constraint, for its JSON schema: the value is odd."""
+    return Field(json_schema_extra={"not": {"multipleOf": 2}})
+
+
 _EXTRA_CONSTRAINTS: dict[str, list[Any]] = {
     "disparity_range": [MultipleOf(16)],
-    "correlation_window_size": [Field(json_schema_extra=_ODD)],
-    "prefilter_size": [Field(json_schema_extra=_ODD)],
-    "subpixel_window": [Field(json_schema_extra=_ODD)],
+    "correlation_window_size": [_odd()],
+    "prefilter_size": [_odd()],
+    "subpixel_window": [_odd()],
 }
 
 
