@@ -104,8 +104,10 @@ def _counter_field(spec: CounterSpec) -> tuple[Any, Any]:
     optional: Any = Optional
     annotation = optional[spec.value] if spec.optional else spec.value
     description = f"{spec.help} ({spec.kind}, {spec.unit})"
-    extra: JsonDict = {"x-kind": spec.kind, "x-unit": spec.unit, "x-metric": spec.metric_selector}
-    return annotation, Field(description=description, json_schema_extra=extra)
+    return annotation, Field(
+        description=description,
+        json_schema_extra={"x-kind": spec.kind, "x-unit": spec.unit, "x-metric": spec.metric_selector},
+    )
 
 
 def _with_counters(base: type[_CounterFields], group: Group, doc: str) -> Any:
