@@ -57,7 +57,7 @@ def _num(x: float | None) -> float | None:
 def _clean(obj: Any) -> Any:
     """JSON-safe: NaN/inf -> None, tuples -> lists, numpy scalars -> Python."""
     if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
+        return _clean_document(obj)
     if isinstance(obj, list | tuple):
         return [_clean(v) for v in obj]
     if isinstance(obj, np.generic):
@@ -65,6 +65,11 @@ def _clean(obj: Any) -> Any:
     if isinstance(obj, float):
         return _num(obj)
     return obj
+
+
+def _clean_document(doc: dict[Any, Any]) -> dict[str, Any]:
+    """A JSON-safe copy of ``doc`` (see :func:`_clean`), keys as strings."""
+    return {str(k): _clean(v) for k, v in doc.items()}
 
 
 def _params(params: dict[str, Any]) -> dict[str, Any]:
@@ -141,13 +146,12 @@ def results_document(run: EvaluationRun) -> dict[str, Any]:
         "depth": depth,
         "matchers": matchers,
     }
-    cleaned: dict[str, Any] = _clean(doc)
-    return cleaned
+    return _clean_document(doc)
 
 
 def _run_document(run: EvaluationRun) -> dict[str, Any]:
     cal = run.calibration
-    return _clean(
+    return _clean_document(
         {
             "settings": run.config.describe(),
             "preset_description": run.preset.description,

@@ -5,18 +5,22 @@ from __future__ import annotations
 
 import logging
 import threading
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from numpy.typing import NDArray
 
-import rig.pipeline as pipeline_module
+import rig.finish as finish_module
 from calibration.geometry import make_transform, rot_y
 from calibration.models import create
 from calibration.rig import Rig
 from rig.errors import ConfigError, LutError, PipelineError
+from rig.filters import TemporalFilter, median_filter
 from rig.pipeline import DepthPipeline
-from rig.stereo import StereoParams
+from rig.stereo import StereoParams, create_opencv_matcher
+from rig.subpixel import refine_disparity
 from rig.vpc import VpcConfig
 from tests.helpers.shots import StereoShot, central_box, plane_shot, prototype_rig
 
@@ -89,10 +93,10 @@ def test_finish_on_the_active_columns_is_exactly_the_whole_frame(
     its first disparity_range columns invalid): bit for bit what the whole frame gives."""
     pipe = DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=64, **stereo), cache_dir=lut_cache)  # type: ignore[arg-type]
     matched = pipe.match(pipe.rectify(shot.left, shot.right))
-    cols = pipeline_module._active_columns(pipe._disparity(matched).valid, 9)
+    cols = finish_module.active_columns(pipe._disparity(matched).valid, 9)
     assert cols.start >= 64 - 9, "nothing to leave out"
     window = [pipe.finish(matched, i) for i in range(2)]
-    monkeypatch.setattr(pipeline_module, "_active_columns", lambda valid, margin: slice(0, valid.shape[1]))
+    monkeypatch.setattr(finish_module, "active_columns", lambda valid, margin: slice(0, valid.shape[1]))
     pipe = DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=64, **stereo), cache_dir=lut_cache)  # type: ignore[arg-type]
     whole = [pipe.finish(matched, i) for i in range(2)]  # twice: the temporal filter's history
     for a, b in zip(window, whole, strict=True):
@@ -102,6 +106,66 @@ def test_finish_on_the_active_columns_is_exactly_the_whole_frame(
             assert (x is None) == (y is None)
             if x is not None:
                 assert np.array_equal(x, y, equal_nan=True), name
+
+
+def _finish_by_the_stage_functions(
+    left: NDArray[np.uint8], right: NDArray[np.uint8], p: StereoParams, temporal: TemporalFilter, fx_b: float
+) -> dict[str, NDArray[np.generic] | None]:
+    """The finish stage written out in one pass over the whole frame, from the references its
+    parts are tested against: the bare OpenCV matcher, the single-pass refinement, the median,
+    confidence exp(−σ/σ0) where valid, the temporal filter and depth fx·B/d."""
+    fixed = create_opencv_matcher(p).compute(left, right)
+    valid = fixed >= p.min_disparity * 16
+    disparity = np.where(valid, fixed / np.float32(16.0), np.float32(np.nan)).astype(np.float32)
+    sigma = None
+    if p.subpixel or p.confidence:
+        ref = refine_disparity(
+            left, right, disparity, valid, p.subpixel_window, apply=p.subpixel, want_sigma=p.confidence
+        )
+        disparity, sigma = ref.disparity, ref.sigma
+    if p.median:
+        disparity, valid = median_filter(disparity, valid, p.median)
+    disparity = temporal(disparity, valid)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = np.float32(fx_b) / disparity
+    depth[disparity <= 0] = np.nan
+    valid &= np.isfinite(depth)
+    confidence = None
+    if sigma is not None:
+        confidence = np.where(valid, np.exp(-sigma / np.float32(p.confidence_sigma)), np.float32(0.0))
+    return {"disparity": np.where(valid, disparity, np.float32(np.nan)), "valid": valid, "depth": depth,
+            "confidence": confidence}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "stereo",
+    [{}, {"subpixel": False}, {"confidence": False, "median": 0}, {"median": 3, "temporal_alpha": 0.5}],
+)
+def test_finish_is_the_stage_functions_in_one_pass(
+    shot: StereoShot, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, stereo: dict[str, object]
+) -> None:
+    """The finish stage (its sections, on the active columns, in one band) gives bit for bit
+    what its parts give in one pass over the whole frame. (More bands differ only in the box
+    filters' summation order: bench/test_fast_paths.py.)"""
+    monkeypatch.setattr(finish_module, "refine_pool", lambda: None)
+    params = StereoParams.model_validate({"disparity_range": 64, **stereo})
+    pipe = DepthPipeline(shot.rig, VPC, params, cache_dir=tmp_path)
+    assert pipe.valid_fraction == {"left": 1.0, "right": 1.0}, "no LUT masks to apply"
+    rect = pipe.rectify(shot.left, shot.right)
+    temporal = TemporalFilter(params.temporal_alpha, params.temporal_reset)
+    for seq, left in enumerate((rect.left_gray, np.roll(rect.left_gray, 1, axis=1))):
+        # Two frames, the second one a pixel nearer: the temporal filter's history and reset.
+        moved = replace(rect, left_gray=left)
+        got = pipe.finish(pipe.match(moved), seq)
+        want = _finish_by_the_stage_functions(
+            left, rect.right_gray, params, temporal, pipe.pair.fx * pipe.baseline_m
+        )
+        assert got.valid.mean() > 0.5
+        for name, expected in want.items():
+            value = getattr(got, name)
+            assert (value is None) == (expected is None), name
+            if expected is not None:
+                assert value.dtype == expected.dtype and np.array_equal(value, expected, equal_nan=True), name
 
 
 def test_colour_frames_give_colour_vpc_images_and_rgb_point_colours(
