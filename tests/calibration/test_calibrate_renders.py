@@ -1,4 +1,4 @@
-"""Issue #4 on renders of the virtual environment: every model, calibrated from rendered images
+"""Calibration on renders of the virtual environment: every model, calibrated from rendered images
 of its own true lens (render → ``findChessboardCornersSB`` → calibration from no guess → corner
 refinement → recalibration), recovers that lens to ≤ 0.1 px over its whole image circle,
 corners past 90° off axis included.

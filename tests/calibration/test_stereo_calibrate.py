@@ -199,7 +199,7 @@ OWN_INTRINSICS = {
 @pytest.mark.slow
 @pytest.mark.parametrize(("angle", "pitch"), MOUNTS)
 def test_divergent_pair_with_intrinsics_from_each_cameras_own_images(angle: float, pitch: float) -> None:
-    """Issue #4's 0.05° / 0.5 mm, as a user gets there: each camera's lens calibrated from its
+    """0.05° / 0.5 mm, as a user gets there: each camera's lens calibrated from its
     own images, then the pair from the wedge images (corners refined with those lenses), the
     lenses held fixed or refined jointly."""
     pair = rendered_pair(angle, pitch)

@@ -26,7 +26,7 @@ SMALL_STEREO = StereoParams(disparity_range=64)
 
 @pytest.mark.slow
 def test_done_when_prototype_plane_depth_within_2_percent(lut_cache: Path) -> None:
-    """Issue #3: prototype renders (full 1280×960 KB 190° lenses, the preset's 1.5 grey levels
+    """Prototype renders (full 1280×960 KB 190° lenses, the preset's 1.5 grey levels
     of noise and vignetting) of a textured plane at 3.7, 7.6 and 14.2 baselines; default VPC
     (640×480, 90°) and default stereo parameters; ≥ 95 % of the central 50 % × 50 % box has
     depth within 2 % of the truth."""

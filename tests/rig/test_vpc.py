@@ -76,7 +76,7 @@ def test_yaw_is_a_principal_point_shift_and_pitch_a_rotation_about_the_baseline(
     R = straight.T_rig_vpc["left"][:3, :3].T @ pitched.T_rig_vpc["left"][:3, :3]
     assert math.degrees(rotation_angle(R)) == pytest.approx(10.0)
     assert np.allclose(R[:, 0], [1.0, 0.0, 0.0]), "a rotation about the baseline (VPC x)"
-    # Pitch up: the optical axis tilts towards -y (y points down, DESIGN §3).
+    # Pitch up: the optical axis tilts towards -y (y points down, docs/design.md).
     z_straight, z_up = straight.T_rig_vpc["left"][:3, 2], pitched.T_rig_vpc["left"][:3, 2]
     y_straight = straight.T_rig_vpc["left"][:3, 1]
     assert z_up @ y_straight == pytest.approx(-math.sin(math.radians(10.0)))
