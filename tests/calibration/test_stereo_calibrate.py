@@ -188,7 +188,7 @@ def _stereo(pair: RenderedPair, refine: bool, **kw: object) -> tuple[float, floa
 
 
 MOUNTS = [(90, 0), (87, 2)]
-#: Measured (the README's corner refinement table), per mount: rotation error (°) and translation
+#: Measured (docs/calibration.md, corner refinement table), per mount: rotation error (°) and translation
 #: error (mm) from the detector's corners, refined with the lenses fixed, and refined jointly.
 OWN_INTRINSICS = {
     (90, 0): ((0.0287, 0.313), (0.0110, 0.170), (0.0044, 0.024)),

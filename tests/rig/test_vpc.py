@@ -125,7 +125,7 @@ def _vertical_disparity(shot: StereoShot, pair: VpcPair) -> tuple[NDArray[np.flo
 
 
 SMALL = VpcConfig(width=320, height=240)
-#: Measured |dy| median and 95th percentile (px) on the 87°/2° mount (3 B: the README's figure).
+#: Measured |dy| median and 95th percentile (px) on the 87°/2° mount (3 B: docs/stereo.md's figure).
 PLANE_DY = {3.0: (0.017, 0.053), 6.0: (0.018, 0.059)}
 
 
