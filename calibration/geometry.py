@@ -1,4 +1,5 @@
-"""Rigid transforms and rotations (DESIGN §3: ``T_a_b`` maps points in frame b into frame a)."""
+"""Rigid transforms and rotations: ``T_a_b`` maps points in frame b into frame a (docs/design.md,
+"Conventions")."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """Files of an evaluation run in its output directory.
 
-``results.json`` (issue #7's keys, exactly: preset, calibration, image_difference, depth,
+``results.json`` (keys, exactly: preset, calibration, image_difference, depth,
 matchers; NaN written as null), ``run.json`` (settings, σd of the theory, fits, failures,
 timings, the git commit of the code, versions), the tables as CSV, the figures as PNG,
 ``difference/`` (the VPC images and contrast-enhanced difference images) and ``report.md``
@@ -120,7 +120,7 @@ def _point(p: CurvePoint, theory: bool = False) -> dict[str, Any]:
 
 
 def results_document(run: EvaluationRun) -> dict[str, Any]:
-    """The content of results.json (issue #7's keys)."""
+    """The content of results.json."""
     depth = {name: [_point(p, name == THEORY) for p in pts] for name, pts in run.depth.items()}
     matchers = {
         name: {

@@ -1,4 +1,4 @@
-"""The speed work's fast paths give what the reference paths give (issue #8): component-wise
+"""The speed work's fast paths give what the reference paths give: component-wise
 projection against ``project``, Scaramuzza's table seed against its invpol seed, the cache's
 zero-copy load, the pipeline's stages against ``process``, and the pipelined worker."""
 

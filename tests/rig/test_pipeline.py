@@ -30,13 +30,13 @@ SMALL_STEREO = StereoParams(disparity_range=64)
 
 @pytest.mark.slow
 def test_done_when_prototype_plane_depth_within_2_percent(lut_cache: Path) -> None:
-    """Issue #3: prototype renders (full 1280×960 KB 190° lenses, the preset's 1.5 grey levels
+    """Prototype renders (full 1280×960 KB 190° lenses, the preset's 1.5 grey levels
     of noise and vignetting) of a textured plane at 3.7, 7.6 and 14.2 baselines; default VPC
     (640×480, 90°) and default stereo parameters; ≥ 95 % of the central 50 % × 50 % box has
     depth within 2 % of the truth."""
     pipe = DepthPipeline(prototype_rig(1.0), cache_dir=lut_cache)
     print("\nprototype plane, default VPC + stereo: fraction of central box within 2% of true depth")
-    # Measured (the README's figures): depth RMS (mm) and disparity RMS (px) at each distance.
+    # Measured (docs/stereo.md's figures): depth RMS (mm) and disparity RMS (px) at each distance.
     measured = {3.7: (0.095, 0.031), 7.6: (0.26, 0.020), 14.2: (1.45, 0.032)}
     for k in (3.7, 7.6, 14.2):
         shot = plane_shot(k, scale=1.0, noise_std=1.5, vignetting=0.35)
@@ -52,7 +52,7 @@ def test_done_when_prototype_plane_depth_within_2_percent(lut_cache: Path) -> No
             f"  {k:5.1f} B (Z = {truth.mean():.3f} m, d = {shot.disparity[box].mean():.2f} px): "
             f"{100 * within:.2f}% within 2%, depth RMS {1000 * rmse:.3f} mm, disparity RMS {d_rms:.3f} px"
         )
-        assert within >= 0.999  # the README's 100 %; the issue asked for 95 %
+        assert within >= 0.999  # docs/stereo.md's 100 %; 95 % was asked for
         assert (1000 * rmse, d_rms) == pytest.approx(measured[k], rel=0.3)
 
 
