@@ -12,7 +12,8 @@ from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from calibration.calibrate import CameraCalibration, DroppedView, calibrate_camera
+    from calibration.board_views import DroppedView
+    from calibration.calibrate import CameraCalibration, calibrate_camera
     from calibration.corner_refine import RefinementReport, refine_corners_local
     from calibration.errors import CalibrationError, CalibrationFailed, CalibrationFileError, ModelError
     from calibration.formats import detect_format, load_camera, load_rig, save_rig
@@ -60,7 +61,7 @@ __all__ = [
 
 _LAZY = {
     "CameraCalibration": "calibration.calibrate",
-    "DroppedView": "calibration.calibrate",
+    "DroppedView": "calibration.board_views",
     "calibrate_camera": "calibration.calibrate",
     "RefinementReport": "calibration.corner_refine",
     "refine_corners_local": "calibration.corner_refine",

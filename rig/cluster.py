@@ -237,14 +237,14 @@ def connect(scheduler: str, *, workers: int | None = None, timeout_s: float = 10
     except (OSError, TimeoutError, ValueError) as err:
         raise ClusterError(
             f"{scheduler}: no Dask scheduler answered within {timeout_s:g} s ({' '.join(str(err).split())})"
-        ) from None
+        ) from err
     with client:
         try:
             client.wait_for_workers(1, timeout=timeout_s)
-        except TimeoutError:
+        except TimeoutError as err:
             raise ClusterError(
                 f"{scheduler}: the scheduler answers but no worker joined within {timeout_s:g} s"
-            ) from None
+            ) from err
         yield client
 
 
