@@ -71,6 +71,7 @@ __all__ = [
     "PipelineSpec",
     "connect",
     "default_local_workers",
+    "local_cluster",
     "plan_chunks",
     "process_on_cluster",
     "run_chunk",
@@ -210,26 +211,34 @@ def _missing_paths(paths: Sequence[str]) -> list[str]:
 
 
 # ----- the client side ---------------------------------------------------------------------------
+def local_cluster(workers: int | None = None) -> Any:
+    """A new Dask LocalCluster on this machine: ``workers`` processes of one thread each
+    (:func:`default_local_workers` by default; the pipeline's stages bring their own threads),
+    no dashboard, only errors logged."""
+    from distributed import LocalCluster
+
+    return LocalCluster(
+        n_workers=workers or default_local_workers(),
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=None,
+        # The scheduler's HTTP routes on a free loopback port: not 8787, which another
+        # cluster on a shared machine may hold.
+        scheduler_kwargs={"dashboard": False, "dashboard_address": "127.0.0.1:0"},
+        silence_logs=logging.ERROR,
+    )
+
+
 @contextlib.contextmanager
 def connect(scheduler: str, *, workers: int | None = None, timeout_s: float = 10.0) -> Iterator[Any]:
     """A ``distributed.Client``: of a new LocalCluster (``scheduler == "local"``: ``workers``
     processes of one thread each, :func:`default_local_workers` by default) or of the scheduler
     at an address (``tcp://host:8786``), which must answer and have a worker within
     ``timeout_s``; ClusterError in one line otherwise."""
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     if scheduler == "local":
-        n = workers or default_local_workers()
-        with (
-            LocalCluster(
-                n_workers=n,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=None,
-                silence_logs=logging.ERROR,
-            ) as cluster,
-            Client(cluster) as client,
-        ):
+        with local_cluster(workers) as cluster, Client(cluster) as client:
             yield client
         return
     try:
