@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
+import pickle
 import shutil
 import tempfile
 import time
@@ -56,6 +58,10 @@ def _local_cluster(workers: int) -> tuple[Any, float]:
     return cluster, time.perf_counter() - t0
 
 
+def _bytes_under(path: Path) -> int:
+    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+
+
 def _close(cluster: Any) -> None:
     """Close ``cluster`` without its closing messages (workers retired, comms closed): the
     cluster restores the loggers' levels it silenced before it logs them."""
@@ -82,6 +88,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     info = machine_info()
     print_machine(info, "rig process over recordings: this process vs a Dask LocalCluster")
     runs: dict[str, list[float]] = {m: [] for m in MODES}
+    out_bytes = math.nan
     with tempfile.TemporaryDirectory(
         prefix="rig-bench-dask-", dir=os.environ.get("RIG_BENCH_SCRATCH")
     ) as tmp:
@@ -93,6 +100,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             (recs / f"rec{k}").symlink_to(data.recording, target_is_directory=True)
             recordings.append(recs / f"rec{k}")
         total = n_recordings * data.pairs
+        in_bytes = sum(_bytes_under(data.recording / cam) for cam in ("left", "right")) / data.pairs
+        lut_bytes = len(pickle.dumps(data.pipeline.lut_info))  # as scattered to the workers
         console.print(
             f"input: {n_recordings} × {data.recording} ({data.pairs} pairs each, {total} in all); "
             f"VPC {w}×{h}, {disp} disparities; {chunk} pairs per task; {rounds} round(s) of the modes, "
@@ -112,6 +121,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                             f"{mode}: {run.written} of {total} pairs written, {run.failures} failed"
                         )
                     runs[mode].append(run.written / run.wall_s)
+                    out_bytes = _bytes_under(out) / total
                     shutil.rmtree(out)
         finally:
             _close(c1)
@@ -125,6 +135,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         rr = ratios[mode]
         iqr = f"({percentile(rr, 25):.2f}–{percentile(rr, 75):.2f})"
         table.add_row(mode, f"{median(runs[mode]):.2f}", f"{median(rr):.2f} {iqr}", f"{start:.1f}")
+    console.print(
+        f"per pair: {in_bytes / 1e6:.2f} MB read (two JPEG frames), {out_bytes / 1e6:.2f} MB written; "
+        f"lookup tables shipped once per worker: {lut_bytes / 1e6:.1f} MB"
+    )
     console.print(
         "pairs/s = pairs written / wall time of a whole run (connecting, planning, shipping the tables, "
         "the tasks); × this process = against the in-process run of the same round"
@@ -143,6 +157,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "pairs_per_s": {m: median(v) for m, v in runs.items()},
             "ratio": {m: median(v) for m, v in ratios.items()},
             "cluster_start_s": {"1 worker": start1, "2 workers": start2},
+            "bytes_per_pair": {"read": in_bytes, "written": out_bytes},
+            "lut_bytes": lut_bytes,
             "runs": {"pairs_per_s": runs, "ratio": ratios},
         },
         args.json,

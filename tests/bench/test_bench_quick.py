@@ -75,6 +75,9 @@ def test_dask_bench_runs_each_mode_over_every_recording(bench_env: Path, tmp_pat
     for mode in ("1 worker", "2 workers"):
         assert doc["ratio"][mode] == pytest.approx(doc["pairs_per_s"][mode] / doc["pairs_per_s"]["here"])
         assert doc["cluster_start_s"][mode] > 0
+    # What bounds many machines: bytes per pair in and out, the tables shipped once per worker.
+    assert doc["bytes_per_pair"]["read"] > 0 and doc["bytes_per_pair"]["written"] > 0
+    assert doc["lut_bytes"] >= 2 * 160 * 120 * 15  # map_x, map_y, map1, map2, valid per camera
 
 
 def test_lut_bench_times_every_model_and_the_cache(bench_env: Path, tmp_path: Path) -> None:
