@@ -141,7 +141,7 @@ class _Pipelines:
 
     def __init__(self, calibration: Path | None, config: VpcConfig, stereo: Path | None, cache: Path | None):
         self._options = (calibration, config, stereo, cache)
-        self._built: dict[str, tuple[DepthPipeline, Path]] = {}
+        self._built: dict[str, DepthPipeline] = {}
 
     def for_recording(self, fallback: Path | None) -> tuple[DepthPipeline, Path]:
         calibration, config, stereo, cache = self._options
@@ -153,8 +153,8 @@ class _Pipelines:
         except OSError as err:
             raise ConfigError(f"{chosen}: unreadable calibration ({err.strerror or err})") from err
         if key not in self._built:
-            self._built[key] = build_pipeline(calibration, fallback, config, stereo, cache)
-        return self._built[key]
+            self._built[key] = build_pipeline(calibration, fallback, config, stereo, cache)[0]
+        return self._built[key], chosen  # the file this recording names, not the first alike
 
 
 def _describe(pipeline: DepthPipeline, cal_path: Path) -> str:
