@@ -325,10 +325,12 @@ def register(app: typer.Typer) -> None:
             _report(result, text)
         if summary is not None:
             _write_summary(summary, summaries)
-        empty = [s for s in summaries if s.total and not s.written + s.resumed]
+        empty = [
+            (s, j) for s, j in zip(summaries, jobs, strict=True) if s.total and not s.written + s.resumed
+        ]
         if empty:
-            s = empty[0]
-            fail(f"no pair of {s.total} in {s.name} could be processed ({len(s.failures)} skipped)")
+            s, job = empty[0]
+            fail(f"no pair of {s.total} in {job.source.path} could be processed ({len(s.failures)} skipped)")
 
 
 def _jobs(
