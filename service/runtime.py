@@ -134,6 +134,10 @@ class Runtime:
         self._running = False
         self._health_lock = threading.Lock()
         self._health_memo: tuple[float, object, Any] | None = None
+        # Configuration changes are serialised (read, validate, apply, answer as one step) and
+        # counted: the revision is /config's ETag.
+        self.config_lock = threading.Lock()
+        self.config_revision = 1
 
     @classmethod
     def build(cls, settings: Settings) -> Runtime:
