@@ -247,8 +247,11 @@ async def _health_doc(url: str) -> dict[str, Any]:
 
 
 def _closed_by_peer(sock: socket.socket) -> bool:
+    """Whether the server has closed ``sock`` (reads and drops whatever it sent first)."""
     try:
-        return sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+        while sock.recv(1 << 20, socket.MSG_DONTWAIT):
+            pass
+        return True
     except BlockingIOError:
         return False
     except OSError:

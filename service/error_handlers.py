@@ -29,10 +29,18 @@ from service.errors import (
     RecordingNameError,
     ServiceError,
     StereoParamsRefused,
+    TooManyStreams,
     Unauthorized,
 )
 
-__all__ = ["HEADERS_BY_ERROR", "STATUS_BY_ERROR", "error_detail", "install_error_handlers", "status_for"]
+__all__ = [
+    "HEADERS_BY_ERROR",
+    "STATUS_BY_ERROR",
+    "error_detail",
+    "error_response",
+    "install_error_handlers",
+    "status_for",
+]
 
 log = logging.getLogger("service.app")
 
@@ -45,6 +53,7 @@ STATUS_BY_ERROR: dict[type[Exception], int] = {
     ConfidenceOff: 409,
     StereoParamsRefused: 422,
     NotReady: 503,
+    TooManyStreams: 503,
     Unauthorized: 401,
     ServiceError: 500,
     # rig
@@ -76,12 +85,17 @@ def error_detail(err: BaseException) -> Any:
     return detail if detail is not None else str(err)
 
 
-async def project_error(request: Request, exc: Exception) -> JSONResponse:
-    status = status_for(exc)
-    if status >= 500:
-        log.error("%s %s: %s", request.method, request.url.path, exc)
+def error_response(exc: Exception) -> JSONResponse:
+    """The answer to a project exception (for a response that must refuse from inside itself)."""
     headers = next((h for cls, h in HEADERS_BY_ERROR.items() if isinstance(exc, cls)), None)
-    return JSONResponse({"detail": error_detail(exc)}, status_code=status, headers=headers)
+    return JSONResponse({"detail": error_detail(exc)}, status_code=status_for(exc), headers=headers)
+
+
+async def project_error(request: Request, exc: Exception) -> JSONResponse:
+    response = error_response(exc)
+    if response.status_code >= 500 and not isinstance(exc, TooManyStreams):  # a load, not a fault
+        log.error("%s %s: %s", request.method, request.url.path, exc)
+    return response
 
 
 async def internal_error(request: Request, exc: Exception) -> JSONResponse:

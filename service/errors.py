@@ -19,6 +19,7 @@ __all__ = [
     "ServiceError",
     "SettingsError",
     "StereoParamsRefused",
+    "TooManyStreams",
     "Unauthorized",
     "UnknownCamera",
 ]
@@ -74,6 +75,10 @@ class Unauthorized(ServiceError):
 
 class NotReady(ServiceError):
     """Nothing to answer with yet: the service is starting, or no pair has been processed."""
+
+
+class TooManyStreams(ServiceError):
+    """``server.max_streams`` clients are streaming already."""
 
 
 class StereoParamsRefused(ServiceError, ValueError):

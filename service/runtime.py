@@ -138,6 +138,7 @@ class Runtime:
         # counted: the revision is /config's ETag.
         self.config_lock = threading.Lock()
         self.config_revision = 1
+        self.streams_open = 0  # /stream.mjpg responses running (read and changed on the event loop)
 
     @classmethod
     def build(cls, settings: Settings) -> Runtime:

@@ -129,6 +129,34 @@ class ServerSettings(BaseModel):
         "(spares clients the inflate); 2-9 = libpng/zlib: 2 = ~230 KiB for ~11 ms, 6 = ~220 KiB for ~34 ms",
     )
     stream_fps: float = Field(10.0, gt=0.0, le=60.0, description="max parts per second of /stream.mjpg")
+    max_streams: int = Field(
+        16, ge=1, le=1000, description="concurrent /stream.mjpg clients; more are answered 503"
+    )
+    stream_stall_s: float = Field(
+        10.0,
+        gt=0.0,
+        le=600.0,
+        description="a /stream.mjpg client that has not taken a part within this is dropped",
+    )
+    max_connections: int = Field(
+        128,
+        ge=8,
+        le=100_000,
+        description="open HTTP connections; beyond, the one idle longest is closed, or the new one "
+        "answered 503 if all are busy",
+    )
+    max_header_bytes: int = Field(
+        16 * 1024, ge=1024, le=1024 * 1024, description="request line and headers; larger: 431"
+    )
+    max_headers: int = Field(100, ge=8, le=10_000, description="header lines of a request; more: 431")
+    request_timeout_s: float = Field(
+        10.0,
+        gt=0.0,
+        le=600.0,
+        description="a request's head and body must arrive within this of its first byte (of the "
+        "connection, for the first request): 408 otherwise",
+    )
+    keep_alive_s: int = Field(5, ge=1, le=600, description="idle keep-alive connections close after this")
     color_range_m: tuple[float, float] = Field(
         (0.3, 8.0), description="depth range spanned by the colour map (near, far), log scale"
     )
@@ -180,6 +208,15 @@ class ServerSettings(BaseModel):
         if not (0.0 < v[0] < v[1]):
             raise ValueError(f"must be (near, far) with 0 < near < far, got {v}")
         return v
+
+    @model_validator(mode="after")
+    def _streams_within_connections(self) -> ServerSettings:
+        if self.max_streams >= self.max_connections:
+            raise ValueError(
+                f"max_streams ({self.max_streams}) must be below max_connections ({self.max_connections}): "
+                "streams hold connections"
+            )
+        return self
 
     @model_validator(mode="after")
     def _loopback_or_token(self) -> ServerSettings:
