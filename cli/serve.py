@@ -119,7 +119,7 @@ def run_serve(
 ) -> None:
     # FastAPI and uvicorn are imported only when serving (the other commands start faster).
     from service.runtime import Runtime
-    from service.serve import LOG_LEVELS, bind_socket, run_server
+    from service.serve import LOG_LEVELS, bind_socket, ensure_fd_room, run_server
 
     if log_level not in LOG_LEVELS:
         fail(f"--log-level must be one of {', '.join(LOG_LEVELS)}, got {log_level!r}")
@@ -127,6 +127,7 @@ def run_serve(
     # The bind is validated (loopback or token) and taken before any slow work (demo render, LUTs).
     early: dict[str, Any] = {"server": {k: v for k, v in (("host", host), ("port", port)) if v is not None}}
     first = load_settings(config, early)
+    ensure_fd_room(first)
     sock = bind_socket(first.server.host, first.server.port)
     bound_port = sock.getsockname()[1]
     try:
