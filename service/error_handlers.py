@@ -10,11 +10,14 @@ in ``detail``, and the traceback in the log.
 from __future__ import annotations
 
 import logging
+import math
 import re
 from typing import Any
 
 from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
 from fastapi.exception_handlers import http_exception_handler
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import compile_path
@@ -27,6 +30,7 @@ from service.errors import (
     NotReady,
     RecordingConflict,
     RecordingNameError,
+    RecordingStorageError,
     ServiceError,
     StereoParamsRefused,
     TooManyStreams,
@@ -39,6 +43,7 @@ __all__ = [
     "error_detail",
     "error_response",
     "install_error_handlers",
+    "json_safe",
     "status_for",
 ]
 
@@ -53,6 +58,7 @@ STATUS_BY_ERROR: dict[type[Exception], int] = {
     ConfidenceOff: 409,
     StereoParamsRefused: 422,
     NotReady: 503,
+    RecordingStorageError: 500,  # server.recordings_dir unusable: the operator's to fix
     TooManyStreams: 503,
     Unauthorized: 401,
     ServiceError: 500,
@@ -85,10 +91,32 @@ def error_detail(err: BaseException) -> Any:
     return detail if detail is not None else str(err)
 
 
+def json_safe(value: Any) -> Any:
+    """``value`` with NaN and ±infinity as the strings ``"NaN"``, ``"Infinity"``, ``"-Infinity"``:
+    a refused request may have sent them (Python's JSON reads them, and ``1e400`` as infinity),
+    and an error that quotes its input must still be valid JSON."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "NaN" if math.isnan(value) else ("Infinity" if value > 0 else "-Infinity")
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    return value
+
+
 def error_response(exc: Exception) -> JSONResponse:
     """The answer to a project exception (for a response that must refuse from inside itself)."""
     headers = next((h for cls, h in HEADERS_BY_ERROR.items() if isinstance(exc, cls)), None)
-    return JSONResponse({"detail": error_detail(exc)}, status_code=status_for(exc), headers=headers)
+    return JSONResponse(
+        {"detail": json_safe(error_detail(exc))}, status_code=status_for(exc), headers=headers
+    )
+
+
+async def invalid_request(request: Request, exc: Exception) -> JSONResponse:
+    """FastAPI's 422 for a request that fails validation, with every field error listed."""
+    assert isinstance(exc, RequestValidationError)
+    detail = jsonable_encoder(exc.errors())
+    return JSONResponse({"detail": json_safe(detail)}, status_code=422)
 
 
 async def project_error(request: Request, exc: Exception) -> JSONResponse:
@@ -112,7 +140,8 @@ def _documented_methods(app: FastAPI, path: str) -> set[str]:
             for template, ops in app.openapi().get("paths", {}).items()
         ]
         app.state.allow_table = table
-    return {m for regex, methods in table if regex.match(path) for m in methods}
+    methods = {m for regex, methods in table if regex.match(path) for m in methods}
+    return methods | {"HEAD"} if "GET" in methods else methods  # HEAD: see service.app
 
 
 async def http_error(request: Request, exc: Exception) -> Response:
@@ -131,6 +160,7 @@ async def http_error(request: Request, exc: Exception) -> Response:
 def install_error_handlers(app: FastAPI) -> None:
     """Register the mapping on ``app``."""
     app.add_exception_handler(StarletteHTTPException, http_error)
+    app.add_exception_handler(RequestValidationError, invalid_request)
     for cls in (ServiceError, RigError, CalibrationError):
         app.add_exception_handler(cls, project_error)
     app.add_exception_handler(Exception, internal_error)

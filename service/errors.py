@@ -16,6 +16,7 @@ __all__ = [
     "RecordingConflict",
     "RecordingNameError",
     "RecordingNotFound",
+    "RecordingStorageError",
     "ServiceError",
     "SettingsError",
     "StereoParamsRefused",
@@ -55,6 +56,10 @@ class RecordingNameError(ServiceError, ValueError):
 
 class RecordingConflict(ServiceError):
     """The recording exists already, or another one is running."""
+
+
+class RecordingStorageError(ServiceError):
+    """``server.recordings_dir`` cannot hold recordings (not a directory, not writable)."""
 
 
 class NotFound(ServiceError, LookupError):

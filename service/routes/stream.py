@@ -68,7 +68,8 @@ class MjpegStream(Response):
         # Not Response.__init__: that would declare the empty body's Content-Length.
         self.status_code = 200
         self.background = None
-        self.init_headers({"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+        # A stream connection is not reused: its buffers are sized for one stream part.
+        self.init_headers({"Cache-Control": "no-store", "X-Accel-Buffering": "no", "Connection": "close"})
         self.runtime = runtime
         self.max_frames = max_frames
 
