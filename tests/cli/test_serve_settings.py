@@ -76,3 +76,18 @@ def test_replaced_values_are_still_validated(tmp_path: Path, demo_is: Path) -> N
     cfg.write_text(V4L2_CAMERAS.replace("/dev/rig-right}", "/dev/rig-right, fps: true}"))
     with pytest.raises(SettingsError, match=r"field 'cameras\.right\.fps': must be a number, not a boolean"):
         serve_settings(cfg, demo=True)
+
+
+def test_a_vpc_that_cannot_fit_in_memory_is_refused_at_start(tmp_path: Path, jpeg_recording: Path) -> None:
+    # SGBM's full mode keeps a 4-byte cost per pixel and disparity: 8192² × 1024 × 4 = 256 GiB.
+    env = clean_env(
+        tmp_path,
+        RIG_VPC__WIDTH="8192",
+        RIG_VPC__HEIGHT="8192",
+        RIG_STEREO__DISPARITY_RANGE="1024",
+        RIG_STEREO__SGBM_MODE="hh",
+        RIG_STEREO__FULL_DP="true",
+    )
+    result = run_rig(["serve", "--recording", str(jpeg_recording), "--port", "0"], env)
+    line = assert_one_line_error(result, "field 'vpc': a 8192x8192 VPC with 1024 disparities needs about")
+    assert "matcher" in line and "MiB this machine has left" in line
