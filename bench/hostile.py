@@ -41,7 +41,6 @@ import shutil
 import socket
 import time
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -50,22 +49,13 @@ from rich.table import Table
 
 from bench.common import add_common_arguments, bench_cache_dir, console, finish, machine_info, print_machine
 from bench.common import summary as stats_of
+from bench.hostile_clients import HealthProbe, flood_headers, read_stream_slowly
 from bench.service_proc import ServiceProcess, quick_serve_args
 
-__all__ = [
-    "ATTACKS",
-    "HealthProbe",
-    "flood_headers",
-    "main",
-    "parse_parts",
-    "raw_get",
-    "read_stream_slowly",
-]
+__all__ = ["ATTACKS", "FIELD_CHANGES", "main"]
 
 TOKEN = "hostile-bench-token-0123456789"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
-BOUNDARY = b"--frame\r\n"
-HEALTH_TIMEOUT_S = 5.0
 
 # Stereo fields and values a writer may set, each valid with any combination of the others.
 FIELD_CHANGES: tuple[tuple[str, Any], ...] = (
@@ -83,147 +73,6 @@ FIELD_CHANGES: tuple[tuple[str, Any], ...] = (
     ("subpixel_window", 13),
     ("lr_check", True),
 )
-
-
-# ----- clients -------------------------------------------------------------------------------------
-async def raw_get(host: str, port: int, path: str, timeout_s: float = HEALTH_TIMEOUT_S) -> tuple[int, float]:
-    """``GET path`` on a fresh connection: (status, seconds); status 0 when it failed or timed out."""
-    t0 = time.monotonic()
-    writer = None
-    try:
-        async with asyncio.timeout(timeout_s):
-            reader, writer = await asyncio.open_connection(host, port)
-            writer.write(f"GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n".encode())
-            await writer.drain()
-            head = await reader.readuntil(b"\r\n\r\n")
-            status = int(head.split(b" ", 2)[1])
-            await reader.read()  # to the close: the whole answer
-    except (OSError, TimeoutError, ValueError, IndexError, asyncio.IncompleteReadError):
-        status = 0
-    finally:
-        if writer is not None:
-            writer.close()
-    return status, time.monotonic() - t0
-
-
-@dataclass
-class HealthProbe:
-    """``GET /health`` on a fresh connection every ``period_s`` while running."""
-
-    host: str
-    port: int
-    period_s: float = 0.1
-    latencies_s: list[float] = field(default_factory=list)
-    failures: int = 0
-    _task: asyncio.Task[None] | None = None
-
-    async def _run(self) -> None:
-        while True:
-            status, seconds = await raw_get(self.host, self.port, "/health")
-            self.latencies_s.append(seconds)
-            self.failures += status != 200
-            await asyncio.sleep(max(0.0, self.period_s - seconds))
-
-    def start(self) -> HealthProbe:
-        self._task = asyncio.get_running_loop().create_task(self._run())
-        return self
-
-    async def stop(self) -> dict[str, Any]:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-        s = stats_of([x * 1e3 for x in self.latencies_s])
-        return {"probes": s["n"], "p50_ms": s["p50"], "max_ms": s["max"], "failures": self.failures}
-
-
-async def flood_headers(
-    host: str, port: int, mib: float, *, giant: bool = False, chunk: int = 64 * 1024, timeout_s: float = 120.0
-) -> dict[str, Any]:
-    """One ``GET /health`` whose head carries ``mib`` MiB of header lines (or one header of that
-    size): the status the server answered (0 = none), when, and how much it took."""
-    total = int(mib * 1024 * 1024)
-    line = b"X-Flood: " + b"a" * 90 + b"\r\n"
-    t0 = time.monotonic()
-    status, sent = 0, 0
-    writer = None
-    try:
-        reader, writer = await asyncio.open_connection(host, port)
-        writer.write(f"GET /health HTTP/1.1\r\nHost: {host}\r\n".encode())
-        if giant:
-            writer.write(b"X-Giant: ")
-        block = b"a" * chunk if giant else line * (chunk // len(line))
-        read = asyncio.ensure_future(reader.readuntil(b"\r\n\r\n"))
-        while sent < total and not read.done():
-            writer.write(block)
-            sent += len(block)
-            await writer.drain()
-        if not read.done():
-            writer.write(b"\r\n\r\n" if giant else b"\r\n")
-            await writer.drain()
-        async with asyncio.timeout(max(1.0, timeout_s - (time.monotonic() - t0))):
-            head = await read
-        status = int(head.split(b" ", 2)[1])
-    except (OSError, TimeoutError, ValueError, IndexError, asyncio.IncompleteReadError):
-        pass
-    finally:
-        if writer is not None:
-            writer.close()
-    return {"status": status, "answered_after_s": time.monotonic() - t0, "sent_mib": sent / 2**20}
-
-
-def parse_parts(data: bytes) -> tuple[list[dict[str, str]], bytes]:
-    """Whole multipart parts' headers in ``data`` (and the unparsed rest)."""
-    parts = []
-    while True:
-        start = data.find(BOUNDARY)
-        end_head = data.find(b"\r\n\r\n", start)
-        if start < 0 or end_head < 0:
-            return parts, data
-        head = data[start + len(BOUNDARY) : end_head].decode("latin-1")
-        headers = {}
-        for line in head.split("\r\n"):
-            name, _, value = line.partition(":")
-            headers[name.strip().lower()] = value.strip()
-        length = int(headers.get("content-length", "0"))
-        if len(data) < end_head + 4 + length:
-            return parts, data
-        parts.append(headers)
-        data = data[end_head + 4 + length :]
-
-
-async def read_stream_slowly(
-    host: str, port: int, kib_per_s: float, seconds: float, rcvbuf: int = 16 * 1024
-) -> list[float]:
-    """Read ``/stream.mjpg`` at ``kib_per_s`` through a ``rcvbuf``-byte receive buffer (a slow
-    link) for ``seconds``: the age in seconds of each part when its head was read."""
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rcvbuf)
-    sock.setblocking(False)
-    loop = asyncio.get_running_loop()
-    ages: list[float] = []
-    try:
-        await loop.sock_connect(sock, (host, port))
-        await loop.sock_sendall(sock, f"GET /stream.mjpg HTTP/1.1\r\nHost: {host}\r\n\r\n".encode())
-        buf = b""
-        step = 4096
-        until = time.monotonic() + seconds
-        while time.monotonic() < until:
-            try:
-                async with asyncio.timeout(max(0.1, until - time.monotonic())):
-                    chunk = await loop.sock_recv(sock, step)
-            except TimeoutError:
-                break
-            if not chunk:
-                break
-            buf += chunk
-            parts, buf = parse_parts(buf)
-            now = time.monotonic_ns()
-            ages += [(now - int(p["x-timestamp-ns"])) / 1e9 for p in parts if "x-timestamp-ns" in p]
-            await asyncio.sleep(len(chunk) / (kib_per_s * 1024))
-    finally:
-        sock.close()
-    return ages
 
 
 def fd_count(pid: int) -> int:
@@ -333,9 +182,19 @@ async def _open_streams(host: str, port: int, n: int) -> tuple[list[socket.socke
     return socks, statuses
 
 
+async def _in_use_mb(url: str) -> float | None:
+    """What malloc has handed out and not had back (RSS keeps freed memory for reuse)."""
+    async with httpx.AsyncClient(timeout=30.0) as c:
+        text = (await c.get(url + "/metrics")).text
+    for line in text.splitlines():
+        if line.startswith("rig_malloc_in_use_bytes "):
+            return float(line.split()[1]) / 2**20
+    return None
+
+
 async def attack_streams(svc: ServiceProcess, args: argparse.Namespace) -> dict[str, Any]:
     host, port = _host_port(svc)
-    rss0 = svc.rss_mb()
+    rss0, in_use0 = svc.rss_mb(), await _in_use_mb(svc.url)
     probe = HealthProbe(host, port).start()
     socks, statuses = await _open_streams(host, port, args.streams)
     peak = svc.rss_mb()
@@ -343,7 +202,7 @@ async def attack_streams(svc: ServiceProcess, args: argparse.Namespace) -> dict[
     while time.monotonic() < until:
         await asyncio.sleep(0.5)
         peak = max(peak, svc.rss_mb())
-    held = svc.rss_mb()
+    held, in_use_held = svc.rss_mb(), await _in_use_mb(svc.url)
     fds_held = fd_count(svc.pid)
     closed_by_server = sum(_closed_by_peer(s) for s in socks)
     health = await probe.stop()
@@ -357,6 +216,11 @@ async def attack_streams(svc: ServiceProcess, args: argparse.Namespace) -> dict[
         "rss_peak_mb": peak,
         "rss_held_mb": held,
         "rss_after_leave_mb": svc.rss_mb(),
+        "malloc_in_use_mb": {
+            "before": in_use0,
+            "held": in_use_held,
+            "after_leave": await _in_use_mb(svc.url),
+        },
         "server_fds_held": fds_held,
         "closed_by_server": closed_by_server,
         "health": health,
@@ -537,8 +401,17 @@ def _quick(args: argparse.Namespace) -> None:
     args.files, args.recording_s, args.poll_s = 300, 2.0, 3.0
 
 
-def _row(name: str, figures: dict[str, Any]) -> str:
-    return json.dumps(figures, default=str)
+def _row(figures: dict[str, Any]) -> str:
+    """The figures as ``name: value`` lines (floats to 3 significant digits)."""
+
+    def show(value: Any) -> str:
+        if isinstance(value, float):
+            return f"{value:.3g}"
+        if isinstance(value, dict):
+            return "{" + ", ".join(f"{k}: {show(v)}" for k, v in value.items()) + "}"
+        return json.dumps(value, default=str)
+
+    return "\n".join(f"{k}: {show(v)}" for k, v in figures.items())
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
@@ -581,8 +454,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             figures = asyncio.run(ATTACKS[name](svc, args))
             figures["service_alive"] = svc.proc.poll() is None
         results[name] = figures
-        table.add_row(name, _row(name, figures))
-        console.print(f"{name}: {_row(name, figures)}")
+        table.add_row(name, _row(figures))
+        console.print(f"{name} done", highlight=False)
     return finish("hostile", info, results, args.json, table)
 
 

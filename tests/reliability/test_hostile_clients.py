@@ -14,7 +14,7 @@ from collections.abc import Callable
 import httpx
 import pytest
 
-from bench.hostile import flood_headers, parse_parts, read_stream_slowly
+from bench.hostile_clients import flood_headers, parse_parts, read_stream_slowly
 from service.routes.stream import SEND_BUFFER_BYTES
 from tests.service.conftest import LiveServer, wait_for
 
