@@ -11,8 +11,8 @@ import pytest
 import cli.serve
 from cli.serve import serve_settings
 from service.errors import SettingsError
-from tests.reliability.common import assert_one_line_error, clean_env, run_rig
-from tests.service.conftest import SmallRecording
+from tests.helpers.command import assert_one_line_error, clean_env, run_rig
+from tests.helpers.service import SmallRecording
 
 V4L2_CAMERAS = """
 cameras:

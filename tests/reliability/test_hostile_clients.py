@@ -9,18 +9,16 @@ import asyncio
 import contextlib
 import socket
 import time
-from collections.abc import Callable
 
 import httpx
 import pytest
 
 from bench.hostile_clients import flood_headers, parse_parts, read_stream_slowly
 from service.routes.stream import SEND_BUFFER_BYTES
-from tests.service.conftest import LiveServer, wait_for
+from tests.helpers.service import LiveServer, StartServer
+from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.timeout(300)]
-
-StartServer = Callable[..., LiveServer]
 
 
 def _answer(sock: socket.socket, timeout_s: float) -> bytes:

@@ -10,7 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from tests.rig.capture_fixtures import write_recording
+from tests.helpers.recordings import write_recording
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -19,7 +19,7 @@ import json, os, resource, sys, time
 from rig.capture.config import FileCameraConfig
 from rig.capture.file_camera import FileCamera
 from rig.capture.supervisor import CameraSupervisor
-from tests.rig.capture_fixtures import FAST_SUPERVISOR
+from tests.helpers.recordings import FAST_SUPERVISOR
 
 camera = FileCamera(FileCameraConfig(recording=sys.argv[1], pace=30.0, loop=True, timestamps="live"), "left")
 frames = []

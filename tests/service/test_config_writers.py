@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import httpx
 
 from bench.hostile import FIELD_CHANGES
-from tests.service.conftest import TOKEN, LiveServer
-
-AUTH = {"Authorization": f"Bearer {TOKEN}"}
-StartServer = Callable[..., LiveServer]
+from tests.helpers.service import AUTH, StartServer
 
 
 def _patch_all(base: str, bodies: list[dict[str, Any]]) -> list[httpx.Response]:

@@ -4,16 +4,14 @@ wherever GET does, and a recordings directory that cannot hold recordings is nam
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.service.conftest import TOKEN, LiveServer
+from tests.helpers.service import TOKEN, LiveServer, StartServer
 
 AUTH = {"Authorization": f"Bearer {TOKEN}", "Content-Type": "application/json"}
-StartServer = Callable[..., LiveServer]
 
 # Python's JSON reader takes NaN, Infinity and -Infinity, and reads 1e400 as infinity.
 NON_FINITE = ("NaN", "Infinity", "-Infinity", "1e400")

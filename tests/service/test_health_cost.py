@@ -5,21 +5,19 @@ from __future__ import annotations
 
 import os
 import threading
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 
-from tests.service.conftest import TOKEN, LiveServer
+from tests.helpers.service import AUTH, StartServer
 
-AUTH = {"Authorization": f"Bearer {TOKEN}"}
 FS_CALLS = ("stat", "lstat", "scandir", "listdir", "walk", "statvfs", "open")
 
 
 def test_health_costs_the_same_with_3000_recorded_files(
-    start_server: Callable[..., LiveServer], monkeypatch: pytest.MonkeyPatch
+    start_server: StartServer, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     live = start_server()
     r = httpx.post(live.base_url + "/recordings", json={"name": "long"}, headers=AUTH, timeout=30)

@@ -14,14 +14,14 @@ from rig.memory_budget import MIB, available_memory
 from service.errors import SettingsError
 from service.memory import service_estimate
 from service.runtime import Runtime
-from tests.service.conftest import LiveServer, SmallRecording, small_settings
+from tests.helpers.service import LiveServer, SmallRecording, service_settings
 
 
 def test_a_vpc_that_cannot_fit_is_refused_before_any_table_is_built(
     small_recording: SmallRecording, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     cache = tmp_path / "lut-cache"
-    settings = small_settings(small_recording, tmp_path, cache)
+    settings = service_settings(small_recording.loop, tmp_path, cache)
     huge = settings.model_copy(
         update={"vpc": settings.vpc.model_copy(update={"width": 4096, "height": 3072})}
     )
@@ -37,7 +37,7 @@ def test_a_vpc_that_cannot_fit_is_refused_before_any_table_is_built(
 def test_a_tight_budget_is_warned_about(
     small_recording: SmallRecording, tmp_path: Path, lut_cache: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    settings = small_settings(small_recording, tmp_path, lut_cache)
+    settings = service_settings(small_recording.loop, tmp_path, lut_cache)
     runtime = Runtime.build(settings)
     estimate = runtime.memory_budget
     with caplog.at_level(logging.WARNING, logger="service.memory"):
@@ -49,7 +49,7 @@ def test_a_tight_budget_is_warned_about(
 
 
 def test_the_estimate_grows_with_what_it_estimates(small_recording: SmallRecording, tmp_path: Path) -> None:
-    base = small_settings(small_recording, tmp_path, tmp_path)
+    base = service_settings(small_recording.loop, tmp_path, tmp_path)
     rig = Runtime.build(base).rig
     small = service_estimate(base, rig)
     wide = base.model_copy(update={"vpc": base.vpc.model_copy(update={"width": 640, "height": 480})})
