@@ -40,7 +40,7 @@ import resource
 import shutil
 import socket
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable, Coroutine
 from pathlib import Path
 from typing import Any
 
@@ -382,7 +382,7 @@ async def attack_poll(svc: ServiceProcess, args: argparse.Namespace) -> dict[str
     }
 
 
-Attack = Callable[[ServiceProcess, argparse.Namespace], Awaitable[dict[str, Any]]]
+Attack = Callable[[ServiceProcess, argparse.Namespace], Coroutine[Any, Any, dict[str, Any]]]
 ATTACKS: dict[str, Attack] = {
     "patch": attack_patch,
     "headers": attack_headers,
@@ -451,7 +451,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         with ServiceProcess([*serve_args, "--log-level", "warning"], env) as svc:
             svc.wait_ready(600.0)
             time.sleep(1.0)
-            figures = asyncio.run(ATTACKS[name](svc, args))
+            figures: dict[str, Any] = asyncio.run(ATTACKS[name](svc, args))
             figures["service_alive"] = svc.proc.poll() is None
         results[name] = figures
         table.add_row(name, _row(figures))

@@ -108,7 +108,7 @@ async def flood_headers(
 
 def parse_parts(data: bytes) -> tuple[list[dict[str, str]], bytes]:
     """Whole multipart parts' headers in ``data`` (and the unparsed rest)."""
-    parts = []
+    parts: list[dict[str, str]] = []
     while True:
         start = data.find(BOUNDARY)
         end_head = data.find(b"\r\n\r\n", start)
