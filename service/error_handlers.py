@@ -26,6 +26,7 @@ from calibration.errors import CalibrationError
 from rig.errors import ConfigError, DiskFullError, FaultNotSupported, RigError
 from service.errors import (
     ConfidenceOff,
+    ConfigChanged,
     NotFound,
     NotReady,
     RecordingConflict,
@@ -56,6 +57,7 @@ STATUS_BY_ERROR: dict[type[Exception], int] = {
     RecordingNameError: 422,
     RecordingConflict: 409,
     ConfidenceOff: 409,
+    ConfigChanged: 412,
     StereoParamsRefused: 422,
     NotReady: 503,
     RecordingStorageError: 500,  # server.recordings_dir unusable: the operator's to fix

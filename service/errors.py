@@ -11,6 +11,7 @@ from typing import Any
 __all__ = [
     "ApiError",
     "ConfidenceOff",
+    "ConfigChanged",
     "NotFound",
     "NotReady",
     "RecordingConflict",
@@ -84,6 +85,10 @@ class NotReady(ServiceError):
 
 class TooManyStreams(ServiceError):
     """``server.max_streams`` clients are streaming already."""
+
+
+class ConfigChanged(ServiceError):
+    """A conditional change (``If-Match``) of a configuration revision that is no longer current."""
 
 
 class StereoParamsRefused(ServiceError, ValueError):

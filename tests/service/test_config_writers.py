@@ -54,3 +54,39 @@ def test_concurrent_writers_lose_no_update(start_server: StartServer) -> None:
     last = max(zip((_revision(r) for r in replies), values, strict=True))[1]
     assert httpx.get(base + "/config").json()["stereo"]["speckle_size"] == last
     assert live.runtime.pipeline.stereo.speckle_size == last
+
+
+def test_if_match_applies_a_change_only_to_the_revision_it_names(start_server: StartServer) -> None:
+    base = start_server().base_url
+    read = httpx.get(base + "/config")
+    size = read.json()["stereo"]["speckle_size"]
+
+    # Two clients read the same revision and both add 10 to speckle_size: one wins, one is told.
+    first = httpx.patch(
+        base + "/config",
+        json={"stereo": {"speckle_size": size + 10}},
+        headers={**AUTH, "If-Match": read.headers["etag"]},
+    )
+    second = httpx.patch(
+        base + "/config",
+        json={"stereo": {"speckle_size": size + 10}},
+        headers={**AUTH, "If-Match": read.headers["etag"]},
+    )
+    assert first.status_code == 200 and _revision(first) == _revision(read) + 1
+    assert second.status_code == 412, second.text
+    assert f"revision {first.headers['etag']}" in second.json()["detail"]
+    after = httpx.get(base + "/config")
+    assert after.json()["stereo"]["speckle_size"] == size + 10
+    assert after.headers["etag"] == first.headers["etag"]  # the refused change made no revision
+
+    # The current revision (or *) is accepted.
+    again = httpx.patch(
+        base + "/config",
+        json={"stereo": {"speckle_size": size + 20}},
+        headers={**AUTH, "If-Match": f'"0", {after.headers["etag"]}'},
+    )
+    assert again.status_code == 200 and again.json()["stereo"]["speckle_size"] == size + 20
+    star = httpx.patch(
+        base + "/config", json={"stereo": {"speckle_size": size}}, headers={**AUTH, "If-Match": "*"}
+    )
+    assert star.status_code == 200

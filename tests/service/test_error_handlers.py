@@ -34,6 +34,7 @@ EXPECTED: dict[str, int] = {
     "RecordingConflict": 409,
     "RecordingStorageError": 500,
     "ConfidenceOff": 409,
+    "ConfigChanged": 412,
     "StereoParamsRefused": 422,
     "NotReady": 503,
     "TooManyStreams": 503,
