@@ -224,7 +224,8 @@ class Runtime:
 
     def health(self) -> HealthReport:
         """``down``: no camera delivers, the worker or the capture is not running; ``degraded``:
-        one camera out, no depth yet, depth older than ``server.stale_after_s`` or the active
+        one camera out, a camera losing more frames than its limits allow over the rate window
+        (:mod:`rig.capture.rates`), no depth yet, depth older than ``server.stale_after_s`` or the active
         recording has stopped writing; else ``ok``."""
         cap = self.capture.health()
         worker = self.worker.stats()
@@ -233,6 +234,8 @@ class Runtime:
             if not cam.connected:
                 why = cam.reason or cam.last_error or "no frames yet"
                 reasons.append(f"camera {name} {cam.state}: {why}")
+            elif cam.degraded_reason is not None:
+                reasons.append(f"camera {name}: {cam.degraded_reason}")
         if not worker.alive:
             reasons.append("depth worker not running")
         stale_ms = self.settings.server.stale_after_s * 1e3

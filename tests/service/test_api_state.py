@@ -4,6 +4,9 @@ limit, faults → /health, readiness before the first frame, CORS on, 0.1 mm dep
 from __future__ import annotations
 
 import io
+import itertools
+import logging
+import re
 import threading
 from collections.abc import Iterator
 
@@ -217,6 +220,44 @@ def test_health_degraded_then_down_when_cameras_stop(start_server: StartServer) 
     assert httpx.get(base + "/livez").status_code == 200  # the process and worker still run
     r = httpx.post(base + "/cameras/middle/faults", json={"fault": {"kind": "drop"}}, headers=AUTH)
     assert r.status_code == 404
+
+
+def test_health_names_a_camera_with_a_third_of_its_frames_corrupt(
+    start_server: StartServer, caplog: pytest.LogCaptureFixture
+) -> None:
+    # Before: "ok" with no reason. Both replayed cameras corrupt frames 2, 5, 8, ... of their first
+    # 60 (6 s at 10 fps); the tests' supervisor judges over 2 s.
+    faults = [{"kind": "corrupt", "count": 1, "at_frame": k} for k in range(2, 62, 3)]
+    pattern = re.compile(r"camera (left|right): (\d+) % of frames corrupt over the last 2 s")
+    with caplog.at_level(logging.INFO, logger="rig.capture"):
+        live = start_server(ready=False, camera_faults=faults)
+        found: list[dict[str, object]] = []
+
+        def degraded() -> bool:
+            h = httpx.get(live.base_url + "/health").json()
+            found.append(h)
+            return h["status"] == "degraded" and any(pattern.fullmatch(r) for r in h["reasons"])
+
+        wait_for(degraded, 15, "health degraded by the corrupt frames")
+        h = found[-1]
+        shares = [int(m.group(2)) for r in h["reasons"] if (m := pattern.fullmatch(r))]
+        assert all(20 <= s <= 45 for s in shares), h["reasons"]
+        left = h["cameras"]["left"]
+        assert left["connected"] and left["degraded_reason"] and left["corrupt_per_s"] > 1.0
+        wait_for(lambda: httpx.get(live.base_url + "/health").json()["status"] == "ok", 20, "recovery")
+    messages = [r.getMessage() for r in caplog.records if r.name == "rig.capture"]
+    for cam in ("left", "right"):
+        said = [m for m in messages if m.startswith(f"camera {cam} degraded: ") and "corrupt" in m]
+        assert len(said) == 1, messages
+        # Once when an episode starts, once when it is over (a loaded machine may add one of
+        # dropped frames: a starved camera thread skips some).
+        episodes = [
+            m.split(":")[0]
+            for m in messages
+            if m.startswith((f"camera {cam} degraded", f"camera {cam} recovered"))
+        ]
+        assert episodes[-1] == f"camera {cam} recovered", messages
+        assert all(a != b for a, b in itertools.pairwise(episodes)), messages
 
 
 def test_not_ready_before_the_first_frame(start_server: StartServer) -> None:
