@@ -45,10 +45,13 @@ __all__ = [
 U8 = NDArray[np.uint8]
 F64 = NDArray[np.float64]
 
-#: Fewer matched features than this: the scene or the overlap says too little to judge rows.
-MIN_MATCHES = 25
-#: Lowe's ratio test for a match to count.
-RATIO = 0.75
+#: Fewer matched features than this: the scene or the overlap says too little to judge rows
+#: (the median of the rows' differences is robust to a few wrong matches).
+MIN_MATCHES = 20
+#: Lowe's ratio test for a match to count, and SIFT's contrast threshold (below OpenCV's 0.04:
+#: small, noisy views need the weaker features too).
+RATIO = 0.8
+CONTRAST = 0.02
 #: Median |vertical disparity| (px) above which rows do not line up (warning), and far off (error).
 VERTICAL_WARN_PX = 1.0
 VERTICAL_ERROR_PX = 4.0
@@ -114,7 +117,7 @@ def check_frame_sizes(
 def matched_disparities(left: U8, right: U8, mask: U8 | None = None) -> tuple[F64, F64]:
     """Horizontal (x_left - x_right) and vertical (y_left - y_right) disparities (N,) of the
     SIFT features the two gray images share (ratio test, one match per right feature)."""
-    sift = cv2.SIFT.create(nfeatures=2000)
+    sift = cv2.SIFT.create(nfeatures=2000, contrastThreshold=CONTRAST)
     kl, dl = sift.detectAndCompute(left, mask)
     kr, dr = sift.detectAndCompute(right, mask)
     if dl is None or dr is None or len(kl) < 2 or len(kr) < 2:
