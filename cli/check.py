@@ -1,9 +1,9 @@
 """``rig check --config rig.yaml [--seconds N]``: bring-up check of the rig's cameras.
 
 Opens both cameras of the config for N seconds through the service's capture path and prints a
-pass/fail table a technician can act on (:mod:`rig.bringup`; docs/bring-up.md). Exit status: 0
-when every check passes (warnings allowed), 1 when a check failed, 2 for bad input (config,
-calibration, option).
+pass/fail table a technician can act on (:mod:`rig.bringup`; docs/deployment.md, "Bring-up
+check"). Exit status: 0 when every check passes (warnings allowed), 1 when a check failed, 2 for
+bad input (config, calibration, option).
 """
 
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""The real V4L2 capture path against a real camera: opt-in, on the robot (docs/bring-up.md).
+"""The real V4L2 capture path against a real camera: opt-in, on the robot (docs/deployment.md,
+"Bring-up check").
 
 ``RIG_TEST_V4L2_DEVICE=/dev/videoN`` runs one camera through ``V4L2Camera`` and its supervisor
 (OpenCV's V4L2 backend, negotiation, buffer timestamps, read-back controls); two devices,
