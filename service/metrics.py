@@ -36,6 +36,7 @@ class MetricsSnapshot:
     encodes: dict[str, int]
     recording: RecordingStatus | None
     heap: HeapStats
+    memory_budget_bytes: int | None = None
 
 
 class _RuntimeCollector(Collector):
@@ -79,6 +80,12 @@ class _RuntimeCollector(Collector):
             "memory blocks held by Python's object allocator",
             value=h.python_blocks,
         )
+        if s.memory_budget_bytes is not None:
+            yield GaugeMetricFamily(
+                "rig_memory_budget_bytes",
+                "the resident size the service's settings allow (estimated at start-up; service.memory)",
+                value=s.memory_budget_bytes,
+            )
 
         r = s.recording
         yield GaugeMetricFamily(

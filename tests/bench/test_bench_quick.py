@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench import api_load, lut_build, memory, startup, worker
+from bench import api_load, hostile, lut_build, memory, startup, worker
 from calibration.models import MODELS, KannalaBrandtModel
 from rig.sim import get_preset
 
@@ -124,3 +124,15 @@ def test_window_minima_keep_each_windows_floor() -> None:
     points = [(0.0, 5.0), (10.0, 3.0), (59.0, 4.0), (61.0, 9.0), (130.0, 2.0), (170.0, 1.0)]
     assert memory.window_minima(points, 60.0) == [(30.0, 3.0), (90.0, 9.0), (150.0, 1.0)]
     assert memory.window_minima([], 60.0) == []
+
+
+def test_hostile_bench_runs_its_attacks(bench_env: Path, tmp_path: Path) -> None:
+    out = tmp_path / "h.json"
+    doc = _written(
+        out, hostile.main(["--quick", "--attack", "patch", "--attack", "headers", "--json", str(out)])
+    )
+    patch = doc["patch"]
+    assert patch["acknowledged"] == patch["different_fields"] > 0 and patch["lost_updates"] == 0
+    assert patch["same_field_last_wins"] is True
+    assert doc["headers"]["lines"]["status"] == doc["headers"]["giant"]["status"] == 431
+    assert doc["headers"]["lines"]["health"]["failures"] == 0
