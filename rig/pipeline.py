@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from calibration.models import PinholeModel
 from calibration.rig import Rig
 from rig import priority
 from rig.bands import run_in_bands
@@ -428,7 +429,10 @@ class DepthPipeline:
         """Points (N, 3) float32 in the rig frame and their colours (N, 3) uint8 RGB (gray
         images give gray colours), every ``stride``-th pixel of each axis. Colours come from
         ``image`` (the left VPC image, (H, W[, 3]) uint8) or else ``frame.left_vpc``."""
-        pts, idx = depth_points(frame.depth, self.pair.camera, self.pair.T_rig_vpc[self.pair.left], stride)
+        camera = self.pair.camera
+        if not isinstance(camera, PinholeModel):
+            raise PipelineError("point clouds of a lat-lon pair come from its range")
+        pts, idx = depth_points(frame.depth, camera, self.pair.T_rig_vpc[self.pair.left], stride)
         img = frame.left_vpc if image is None else image
         if img.shape[:2] != frame.depth.shape:
             raise PipelineError(

@@ -91,7 +91,8 @@ def test_yaw_is_a_principal_point_shift_and_pitch_a_rotation_about_the_baseline(
 def test_vpc_json_has_exactly_the_contract_keys() -> None:
     pair = design_vpc_pair(prototype_rig(1.0), VpcConfig(width=800, height=600, hfov_deg=100))
     doc = pair.as_json()
-    assert list(doc) == ["width", "height", "fx", "fy", "cx", "cy", "baseline_m"]
+    assert list(doc) == ["projection", "width", "height", "fx", "fy", "cx", "cy", "baseline_m", "R_rig_vpc"]
+    assert doc["projection"] == "pinhole" and np.allclose(doc["R_rig_vpc"], pair.T_rig_vpc["left"][:3, :3])
     assert doc["width"] == 800 and doc["height"] == 600
     assert doc["fx"] == pytest.approx(400 / math.tan(math.radians(50)))
     assert doc["baseline_m"] == pytest.approx(0.072)

@@ -1,0 +1,96 @@
+"""The directions both lenses of a pair see, in azimuth and elevation of the rectified frame.
+
+In the rectified frame (x along the baseline, z forward, y = z × x) a direction has azimuth
+``asin(x)`` (the lat-lon image's column) and elevation ``atan2(y, z)`` (its row, the epipolar
+plane), the angles of :class:`calibration.models.LatLonModel`. The overlap is sampled on an even
+grid of both angles: a direction is in it when each fisheye model projects it into its image
+(within the lens's field, e.g. 95° off its axis for a 190° lens). Directions, not points: the
+baseline's parallax moves the edge of what both see by less than ``B / range`` radians.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from calibration.rig import Rig
+from rig.errors import ConfigError
+
+__all__ = ["DEFAULT_STEP_DEG", "Overlap", "overlap"]
+
+F64 = NDArray[np.float64]
+
+#: Grid step for the lat-lon field's bounds: the bounds are one step wider than the last direction
+#: found inside, so that the field holds the whole overlap (a few more pixels at 5 px/deg).
+DEFAULT_STEP_DEG = 0.5
+# The poles (looking along the baseline) have no epipolar plane.
+_POLE_MARGIN_DEG = 1.0
+
+
+@dataclass(frozen=True)
+class Overlap:
+    """Directions both lenses see, on a grid of ``step`` radians: ``inside`` (n_el, n_az) over
+    azimuths ``az`` (n_az,) and elevations ``el`` (n_el,) (radians, cell centres), and its
+    bounds and solid angle."""
+
+    az: F64
+    el: F64
+    inside: NDArray[np.bool_]
+    step: float
+
+    @property
+    def solid_angle_sr(self) -> float:
+        """Steradians of the overlap: each cell is ``cos(az)·step²`` of the sphere."""
+        weights = np.cos(self.az)[None, :] * self.step**2
+        return float((self.inside * weights).sum())
+
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(az_lo, az_hi, el_lo, el_hi) radians: the cells inside, widened by one step each way
+        (clipped to the grid)."""
+        cols = np.flatnonzero(self.inside.any(axis=0))
+        rows = np.flatnonzero(self.inside.any(axis=1))
+        half = self.step / 2.0
+        return (
+            max(self.az[0] - half, self.az[cols[0]] - half - self.step),
+            min(self.az[-1] + half, self.az[cols[-1]] + half + self.step),
+            max(self.el[0] - half, self.el[rows[0]] - half - self.step),
+            min(self.el[-1] + half, self.el[rows[-1]] + half + self.step),
+        )
+
+    def fraction_inside(self, az_lo: float, az_hi: float, el_lo: float, el_hi: float) -> float:
+        """Fraction of the solid angle of the box ``[az_lo, az_hi] × [el_lo, el_hi]`` (radians)
+        that the overlap covers."""
+        in_az = (self.az >= az_lo) & (self.az <= az_hi)
+        in_el = (self.el >= el_lo) & (self.el <= el_hi)
+        weights = np.cos(self.az) * in_az
+        box = float(weights.sum() * in_el.sum())
+        covered = float((self.inside[in_el] * weights[None, :]).sum())
+        return covered / box if box > 0 else 0.0
+
+
+def overlap(rig: Rig, R_rig_rect: F64, left: str, right: str, step_deg: float = DEFAULT_STEP_DEG) -> Overlap:
+    """The overlap of cameras ``left`` and ``right`` of ``rig`` in the rectified frame
+    ``R_rig_rect`` (3, 3), on a grid of ``step_deg``. Raises :class:`ConfigError` when the two
+    lenses see no common direction."""
+    step = math.radians(step_deg)
+    pole = math.pi / 2.0 - math.radians(_POLE_MARGIN_DEG)
+    az = np.arange(-pole + step / 2.0, pole, step)
+    el = np.arange(-math.pi + step / 2.0, math.pi, step)
+    cos_az = np.cos(az)[None, :]
+    x = np.broadcast_to(np.sin(az)[None, :], (el.size, az.size))
+    y = cos_az * np.sin(el)[:, None]
+    z = cos_az * np.cos(el)[:, None]
+    inside = np.ones((el.size, az.size), dtype=bool)
+    for name in (left, right):
+        R = rig.T_rig_cam[name][:3, :3].T @ R_rig_rect  # rectified -> camera
+        X, Y, Z = (R[i, 0] * x + R[i, 1] * y + R[i, 2] * z for i in range(3))
+        inside &= rig.cameras[name].project_xyz(X, Y, Z)[2]
+    if not inside.any():
+        raise ConfigError(
+            f"vpc: cameras '{left}' and '{right}' see no common direction: there is no stereo overlap "
+            "(check the calibration's poses and the lenses' fields of view)"
+        )
+    return Overlap(az, el, inside, step)
