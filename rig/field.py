@@ -16,10 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from calibration.models import CameraModel
 from calibration.rig import Rig
 from rig.errors import ConfigError
 
-__all__ = ["DEFAULT_STEP_DEG", "Overlap", "overlap"]
+__all__ = ["DEFAULT_STEP_DEG", "Overlap", "overlap", "pixel_solid_angles"]
 
 F64 = NDArray[np.float64]
 
@@ -94,3 +95,23 @@ def overlap(rig: Rig, R_rig_rect: F64, left: str, right: str, step_deg: float = 
             "(check the calibration's poses and the lenses' fields of view)"
         )
     return Overlap(az, el, inside, step)
+
+
+def pixel_solid_angles(camera: CameraModel) -> F64:
+    """Solid angle (H, W) in steradians that each pixel of ``camera`` (any model with a ray for
+    every pixel, e.g. a rectified view) spans: ``|∂r/∂u × ∂r/∂v|`` of its unit ray ``r``, the
+    derivatives as differences across the pixel (half a pixel either side). Closed forms:
+    ``cos(azimuth)/(fx·fy)`` for a lat-lon view, ``(1 + x_n² + y_n²)^(−3/2)/(fx·fy)`` for a
+    pinhole."""
+    h, w = camera.height, camera.width
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+
+    def rays(du: float, dv: float) -> F64:
+        pix = np.stack([(u + du).ravel(), (v + dv).ravel()], axis=1)
+        r, _ = camera.unproject(pix, in_image=False)
+        return r.reshape(h, w, 3)
+
+    along_u = rays(0.5, 0.0) - rays(-0.5, 0.0)
+    along_v = rays(0.0, 0.5) - rays(0.0, -0.5)
+    out: F64 = np.linalg.norm(np.cross(along_u, along_v), axis=2)
+    return out

@@ -182,7 +182,9 @@ class DepthPipeline:
             tune_allocator()
         self.rig = rig
         self.vpc_config = vpc or VpcConfig()
-        self.pair: VpcPair = design_vpc_pair(rig, self.vpc_config)
+        params = stereo or StereoParams()
+        # A lat-lon field's default leaves room for the matcher's unmatched columns.
+        self.pair: VpcPair = design_vpc_pair(rig, self.vpc_config, blind_band_px=params.blind_band_px)
         self.baseline_m = self.pair.baseline_m
         self.cache = LutCache(cache_dir)
         self.names = (self.pair.left, self.pair.right)
@@ -214,7 +216,6 @@ class DepthPipeline:
         self._process_lock = threading.Lock()
         self._match_lock = threading.Lock()
         self._finish_lock = threading.Lock()
-        params = stereo or StereoParams()
         self._check_params(params)
         self._matcher = StereoMatcher(params)
         self._temporal = TemporalFilter(params.temporal_alpha, params.temporal_reset)

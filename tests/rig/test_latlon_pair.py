@@ -15,7 +15,7 @@ from calibration.geometry import invert_transform, make_transform, rot_y, transf
 from calibration.models import LatLonModel, create
 from calibration.rig import Rig
 from rig.errors import ConfigError
-from rig.field import overlap
+from rig.field import overlap, pixel_solid_angles
 from rig.lut import build_vpc_lut
 from rig.lut_cache import lut_key
 from rig.sim import divergent_rig
@@ -179,3 +179,30 @@ def test_latlon_and_pinhole_tables_of_the_same_numbers_have_different_keys() -> 
     a = create("pinhole", 100, 80, fx=60.0, fy=60.0, cx=49.5, cy=39.5)
     b = LatLonModel(100, 80, fx=60.0, fy=60.0, cx=49.5, cy=39.5)
     assert lut_key(lens, np.eye(3), a) != lut_key(lens, np.eye(3), b)
+
+
+@pytest.mark.parametrize(
+    "camera",
+    [
+        LatLonModel(90, 120, fx=40.0, fy=45.0, cx=44.5, cy=50.0),
+        create("pinhole", 80, 60, fx=40.0, fy=41.0, cx=39.5, cy=29.5),
+    ],
+    ids=["latlon", "pinhole"],
+)
+def test_pixel_solid_angles_match_the_closed_forms_and_add_up(camera) -> None:  # type: ignore[no-untyped-def]
+    got = pixel_solid_angles(camera)
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width].astype(np.float64)
+    if isinstance(camera, LatLonModel):
+        expected = np.cos((u - camera.cx) / camera.fx) / (camera.fx * camera.fy)
+        az = (np.array([-0.5, camera.width - 0.5]) - camera.cx) / camera.fx
+        el = (np.array([-0.5, camera.height - 0.5]) - camera.cy) / camera.fy
+        total = (math.sin(az[1]) - math.sin(az[0])) * (el[1] - el[0])  # ∫∫ cos(az) daz del
+    else:
+        expected = (1 + ((u - camera.cx) / camera.fx) ** 2 + ((v - camera.cy) / camera.fy) ** 2) ** -1.5
+        expected /= camera.fx * camera.fy
+        # The pyramid over a rectangle centred on the axis, half-sides ta, tb at z = 1:
+        # 4·atan(ta·tb / sqrt(1 + ta² + tb²)).
+        ta, tb = camera.width / 2 / camera.fx, camera.height / 2 / camera.fy
+        total = 4 * math.atan(ta * tb / math.sqrt(1 + ta**2 + tb**2))
+    assert np.allclose(got, expected, rtol=2e-4)
+    assert got.sum() == pytest.approx(total, rel=1e-4)
