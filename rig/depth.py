@@ -4,7 +4,8 @@ Depth is z in the left VPC frame, metres, float32, NaN invalid; ``Z = fx·B/d``,
 d ≤ 0 (the pinhole pair). Range is the distance along each pixel's ray from the left view's
 centre, metres, float32, NaN invalid, for either rectified projection (one function each):
 
-* pinhole: ``range = Z·|(x_n, y_n, 1)|`` with ``x_n = (u − cx)/fx``, ``y_n = (v − cy)/fy``;
+* pinhole: ``range = Z·|(x_n, y_n, 1)|`` with ``x_n = (u − cx)/fx``, ``y_n = (v − cy)/fy``
+  (:func:`depth_to_range`);
 * lat-lon: a disparity is an azimuth difference ``δ = d/fx`` (radians) within the row's epipolar
   plane; the triangle left centre, right centre, point has the angle ``δ`` at the point and
   ``90° + α_R`` at the right centre (``α_R = α − δ``, ``α = (u − cx)/fx`` the left ray's
@@ -42,7 +43,6 @@ __all__ = [
     "latlon_range",
     "pack_xyzrgb",
     "pixel_ray_norms",
-    "range_from_depth",
     "range_points",
     "read_ply",
     "write_ply",
@@ -60,23 +60,6 @@ def disparity_to_depth(disparity: F32, fx: float, baseline_m: float, *, out: F32
         np.divide(np.float32(fx * baseline_m), d, out=depth)
     depth[d <= 0] = np.nan  # (few; NaN d already gave NaN)
     return depth
-
-
-def pinhole_ray_lengths(camera: PinholeModel, first_row: int = 0, rows: int | None = None) -> F32:
-    """``|(x_n, y_n, 1)|`` (rows, W) float32 of rows ``first_row``.. (default: to the bottom) of
-    a distortion-free pinhole: a pixel's range per metre of depth."""
-    n = camera.height - first_row if rows is None else rows
-    xn = (np.arange(camera.width, dtype=np.float64) - camera.cx) / camera.fx
-    yn = (np.arange(first_row, first_row + n, dtype=np.float64) - camera.cy) / camera.fy
-    return np.sqrt(1.0 + xn[None, :] ** 2 + yn[:, None] ** 2).astype(np.float32)
-
-
-def range_from_depth(depth: F32, camera: PinholeModel, *, first_row: int = 0, out: F32 | None = None) -> F32:
-    """Range (n, W) float32 m along each pixel's ray from depth (n, W) (z, m; NaN invalid) of
-    rows ``first_row``.. of the pinhole ``camera``: ``Z·|(x_n, y_n, 1)|``. ``out``: where to
-    write it (may be ``depth`` itself)."""
-    scale = pinhole_ray_lengths(camera, first_row, depth.shape[0])
-    return np.multiply(depth, scale, out=out, dtype=np.float32)
 
 
 def latlon_range(disparity: F32, camera: LatLonModel, baseline_m: float, *, out: F32 | None = None) -> F32:
@@ -102,15 +85,15 @@ def latlon_range(disparity: F32, camera: LatLonModel, baseline_m: float, *, out:
 
 
 def disparity_to_range(
-    disparity: F32, camera: CameraModel, baseline_m: float, *, first_row: int = 0, out: F32 | None = None
+    disparity: F32, camera: CameraModel, baseline_m: float, *, ray_norms: F32 | None = None
 ) -> F32:
-    """Range (n, W) float32 m along each pixel's ray from disparity (n, W) px (NaN invalid) of
-    rows ``first_row``.. of the rectified view ``camera`` (a pinhole or a lat-lon view)."""
+    """Range (H, W) float32 m along each pixel's ray from disparity (H, W) px (NaN invalid) of
+    the rectified view ``camera``: a pinhole (``ray_norms`` as :func:`depth_to_range`: rows of
+    them for rows of disparity) or a lat-lon view (:func:`latlon_range`, any rows)."""
     if isinstance(camera, LatLonModel):
-        return latlon_range(disparity, camera, baseline_m, out=out)
+        return latlon_range(disparity, camera, baseline_m)
     if isinstance(camera, PinholeModel):
-        depth = disparity_to_depth(disparity, camera.fx, baseline_m, out=out)
-        return range_from_depth(depth, camera, first_row=first_row, out=depth)
+        return depth_to_range(disparity_to_depth(disparity, camera.fx, baseline_m), camera, ray_norms)
     raise PipelineError(f"no disparity-to-range formula for a {camera.name} view")
 
 
@@ -190,7 +173,8 @@ def pixel_ray_norms(camera: PinholeModel) -> F32:
 def depth_to_range(depth: F32, camera: PinholeModel, ray_norms: F32 | None = None) -> F32:
     """Range (H, W) float32 m: distance from the camera centre along each pixel's ray,
     ``depth · |ray|`` (:func:`pixel_ray_norms`); NaN where depth is. ``ray_norms`` may be
-    passed in when the caller keeps them (they depend on the camera only)."""
+    passed in when the caller keeps them (they depend on the camera only), or rows of them for
+    rows of depth."""
     norms = pixel_ray_norms(camera) if ray_norms is None else ray_norms
     d = np.asarray(depth, dtype=np.float32)
     if d.shape != norms.shape:

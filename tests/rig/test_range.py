@@ -14,10 +14,11 @@ from calibration.geometry import make_transform, rot_y
 from calibration.models import CameraModel, LatLonModel, PinholeModel, create
 from rig.depth import (
     depth_points,
+    depth_to_range,
     disparity_to_depth,
     disparity_to_range,
     latlon_range,
-    range_from_depth,
+    pixel_ray_norms,
     range_points,
 )
 from rig.errors import PipelineError
@@ -77,13 +78,15 @@ def test_pinhole_range_is_depth_times_ray_length() -> None:
     rng = np.random.default_rng(2)
     d = rng.uniform(0.5, 60.0, (PINHOLE.height, PINHOLE.width)).astype(np.float32)
     depth = disparity_to_depth(d, PINHOLE.fx, B)
-    rng_m = range_from_depth(depth, PINHOLE)
+    rng_m = depth_to_range(depth, PINHOLE)
     pts, idx = depth_points(depth, PINHOLE)
     assert np.allclose(np.linalg.norm(pts, axis=1), rng_m.reshape(-1)[idx], rtol=1e-6)
-    # Rows from the middle of the image: the same numbers as the whole image's rows.
-    part = range_from_depth(depth[40:60], PINHOLE, first_row=40)
-    assert np.array_equal(part, rng_m[40:60])
-    assert np.array_equal(disparity_to_range(d[40:60], PINHOLE, B, first_row=40), rng_m[40:60])
+    # Rows from the middle of the image with their rows of ray norms: the whole image's numbers.
+    norms = pixel_ray_norms(PINHOLE)
+    assert np.array_equal(depth_to_range(depth[40:60], PINHOLE, norms[40:60]), rng_m[40:60])
+    assert np.array_equal(disparity_to_range(d[40:60], PINHOLE, B, ray_norms=norms[40:60]), rng_m[40:60])
+    with pytest.raises(PipelineError, match="range: depth is 200x20"):
+        depth_to_range(depth[40:60], PINHOLE)
 
 
 def test_invalid_disparities_give_no_range() -> None:
