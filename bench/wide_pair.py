@@ -99,7 +99,8 @@ def measure_variant(
         raise SystemExit("the floor's matcher differs from the pipeline's: not the same parameters")
     floor(0)
     ours(0)
-    f_runs, o_runs = [], []
+    f_runs: list[tuple[float, float]] = []
+    o_runs: list[tuple[float, float]] = []
     for k in range(rounds):
         first, second = (floor, ours) if k % 2 == 0 else (ours, floor)
         a, b = _timed(first, per_round), _timed(second, per_round)
