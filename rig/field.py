@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -20,7 +21,7 @@ from calibration.models import CameraModel
 from calibration.rig import Rig
 from rig.errors import ConfigError
 
-__all__ = ["DEFAULT_STEP_DEG", "Overlap", "overlap", "pixel_solid_angles"]
+__all__ = ["DEFAULT_STEP_DEG", "Overlap", "image_border", "overlap", "pixel_solid_angles", "region_outline"]
 
 F64 = NDArray[np.float64]
 
@@ -115,3 +116,31 @@ def pixel_solid_angles(camera: CameraModel) -> F64:
     along_v = rays(0.0, 0.5) - rays(0.0, -0.5)
     out: F64 = np.linalg.norm(np.cross(along_u, along_v), axis=2)
     return out
+
+
+def image_border(width: int, height: int, samples: int) -> F64:
+    """Pixel centres (4·samples, 2) along an image's border: the top edge left to right, the
+    right edge top to bottom, the bottom edge right to left, the left edge bottom to top."""
+    u = np.linspace(0.0, width - 1.0, samples)
+    v = np.linspace(0.0, height - 1.0, samples)
+    return np.concatenate(
+        [
+            np.stack([u, np.zeros_like(u)], 1),
+            np.stack([np.full_like(v, width - 1.0), v], 1),
+            np.stack([u[::-1], np.full_like(u, height - 1.0)], 1),
+            np.stack([np.zeros_like(v), v[::-1]], 1),
+        ]
+    )
+
+
+def region_outline(mask: NDArray[np.bool_], points: int) -> F64:
+    """Pixel centres (points, 2) evenly spaced along the outer border of the largest region of
+    ``mask`` (H, W) (empty (0, 2) when nothing is set)."""
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return np.zeros((0, 2))
+    outline = max(contours, key=cv2.contourArea).reshape(-1, 2).astype(np.float64)
+    closed = np.vstack([outline, outline[:1]])
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(closed, axis=0).T))])
+    at = np.linspace(0.0, along[-1], points, endpoint=False)
+    return np.stack([np.interp(at, along, closed[:, 0]), np.interp(at, along, closed[:, 1])], axis=1)

@@ -29,12 +29,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from calibration.models import PinholeModel
+from calibration.models import LatLonModel, PinholeModel
 from calibration.rig import Rig
 from rig import priority
 from rig.bands import run_in_bands
-from rig.depth import depth_points, disparity_to_depth
+from rig.depth import disparity_to_depth, latlon_range, pixel_ray_norms, range_points
 from rig.errors import ConfigError, PipelineError
+from rig.field import image_border, region_outline
 from rig.filters import TemporalFilter, fill_where, median_filter, visible_in_right
 from rig.heap import tune_allocator
 from rig.lut import Lut, percent_valid
@@ -78,9 +79,11 @@ def refine_pool() -> ThreadPoolExecutor | None:
 
 @dataclass
 class DepthFrame:
-    """One processed pair. Arrays are (H, W) at the VPC size.
+    """One processed pair. Arrays are (H, W) at the rectified view's size.
 
-    ``depth`` float32 m along the left VPC's z, NaN invalid; ``disparity`` float32 px, NaN
+    ``range`` float32 m along each left rectified pixel's ray, NaN invalid; ``depth`` float32 m:
+    z in the left VPC frame for the pinhole pair, the range itself (the same array) for the
+    lat-lon pair, whose rays reach past 90° off its z axis; ``disparity`` float32 px, NaN
     invalid; ``valid`` bool; ``confidence`` float32 in [0, 1] (0 where invalid) or None;
     ``left_vpc``/``right_vpc`` uint8, gray or BGR like the input; ``timings_ms`` per stage
     (remap, match, refine, filters, depth, total).
@@ -89,6 +92,7 @@ class DepthFrame:
     seq: int
     ts_ns: int
     depth: F32
+    range: F32
     disparity: F32
     valid: NDArray[np.bool_]
     confidence: F32 | None
@@ -129,15 +133,26 @@ class _FinishOutputs:
     valid: NDArray[np.bool_]
     confidence: F32 | None
     depth: F32
+    range: F32
 
     @classmethod
-    def empty(cls, shape: tuple[int, ...], *, with_confidence: bool, cols: slice) -> _FinishOutputs:
-        """Arrays to fill in columns ``cols`` (step 1; depth everywhere), invalid outside them."""
+    def empty(
+        cls, shape: tuple[int, ...], *, with_confidence: bool, cols: slice, range_is_depth: bool
+    ) -> _FinishOutputs:
+        """Arrays to fill in columns ``cols`` (step 1; depth and range everywhere), invalid
+        outside them. ``range_is_depth``: one array for both (the lat-lon pair)."""
 
         def f32() -> F32:
             return np.empty(shape, dtype=np.float32)
 
-        out = cls(f32(), np.empty(shape, dtype=bool), f32() if with_confidence else None, f32())
+        depth = f32()
+        out = cls(
+            f32(),
+            np.empty(shape, dtype=bool),
+            f32() if with_confidence else None,
+            depth,
+            depth if range_is_depth else f32(),
+        )
         for outside in (slice(0, cols.start), slice(cols.stop, None)):
             out.disparity[:, outside] = np.nan
             out.valid[:, outside] = False
@@ -195,19 +210,14 @@ class DepthPipeline:
             )
         self.luts: dict[str, Lut] = {n: info.lut for n, info in self.lut_info.items()}
         self.valid_fraction = {n: lut.valid_fraction for n, lut in self.luts.items()}
-        for name, frac in self.valid_fraction.items():
-            if frac < 1.0:
-                log.warning(
-                    "VPC (%dx%d, hfov %.1f°, yaw %.1f°, pitch %.1f°) leaves camera '%s''s field: "
-                    "only %s of its pixels are valid",
-                    self.vpc_config.width,
-                    self.vpc_config.height,
-                    self.vpc_config.hfov_deg,
-                    self.vpc_config.yaw_deg,
-                    self.vpc_config.pitch_deg,
-                    name,
-                    percent_valid(frac),
-                )
+        camera = self.pair.camera
+        self._latlon = isinstance(camera, LatLonModel)
+        # Range per metre of depth of every pixel (the pinhole pair; unused by the lat-lon one).
+        self._ray_norms = (
+            pixel_ray_norms(camera) if isinstance(camera, PinholeModel) else np.ones((0, 0), np.float32)
+        )
+        self._blind_band_px = params.blind_band_px
+        self._report_field()
         left_lut, right_lut = self.luts[self.pair.left], self.luts[self.pair.right]
         # Masks are only applied when they exclude something (the usual VPC sees all valid).
         self._left_mask = None if left_lut.valid_fraction == 1.0 else left_lut.valid
@@ -226,6 +236,36 @@ class DepthPipeline:
     def stereo(self) -> StereoParams:
         return self._matcher.params
 
+    def _report_field(self) -> None:
+        """Log what the rectified view leaves out: for the pinhole pair the share of its pixels a
+        lens does not see (an unusual VPC); the lat-lon field is the lenses' overlap by design
+        (its clipping, if any, was logged when it was designed)."""
+        c = self.pair.camera
+        if self._latlon:
+            log.info(
+                "lat-lon pair %dx%d, %.3f px/deg, %d unmatched columns on the left; the lenses see "
+                "%s / %s of its pixels",
+                c.width,
+                c.height,
+                np.radians(c.fx),
+                self._blind_band_px,
+                *(percent_valid(self.valid_fraction[n]) for n in self.names),
+            )
+            return
+        for name, frac in self.valid_fraction.items():
+            if frac < 1.0:
+                log.warning(
+                    "VPC (%dx%d, hfov %.1f°, yaw %.1f°, pitch %.1f°) leaves camera '%s''s field: "
+                    "only %s of its pixels are valid",
+                    self.vpc_config.width,
+                    self.vpc_config.height,
+                    self.vpc_config.hfov_deg,
+                    self.vpc_config.yaw_deg,
+                    self.vpc_config.pitch_deg,
+                    name,
+                    percent_valid(frac),
+                )
+
     def _check_params(self, params: StereoParams) -> None:
         width = self.pair.camera.width
         if params.disparity_range + max(params.min_disparity, 0) >= width:
@@ -238,6 +278,14 @@ class DepthPipeline:
         """Swap in new stereo parameters (thread-safe; takes effect at the next frame)."""
         self._check_params(params)
         matcher = StereoMatcher(params)
+        if self._latlon and params.blind_band_px > self._blind_band_px:
+            log.warning(
+                "stereo: the lat-lon field leaves room for %d unmatched columns, the new settings "
+                "leave %d: the overlap's leftmost %d columns get no range until the service restarts",
+                self._blind_band_px,
+                params.blind_band_px,
+                params.blind_band_px - self._blind_band_px,
+            )
         with self._swap_lock:
             self._matcher = matcher
 
@@ -339,7 +387,9 @@ class DepthPipeline:
                 # New parameters: history made under the old ones is not averaged in.
                 self._temporal = TemporalFilter(p.temporal_alpha, p.temporal_reset)
                 self._temporal_owner = matched.matcher
-            out = _FinishOutputs.empty(disparity.shape, with_confidence=p.confidence, cols=cols)
+            out = _FinishOutputs.empty(
+                disparity.shape, with_confidence=p.confidence, cols=cols, range_is_depth=self._latlon
+            )
             band_ms: list[dict[str, float]] = []
 
             def band(a: int, b: int, r0: int, r1: int) -> None:
@@ -393,6 +443,7 @@ class DepthPipeline:
             seq,
             ts_ns,
             out.depth,
+            out.range,
             out.disparity,
             out.valid,
             out.confidence,
@@ -402,12 +453,18 @@ class DepthPipeline:
         )
 
     def _depth_rows(self, out: _FinishOutputs, r0: int, r1: int) -> dict[str, float]:
-        """Depth of rows ``[r0, r1)`` of ``out`` (in place; whole rows: numpy is 2-3× slower on
-        a column window than on contiguous rows); its time."""
+        """Depth and range of rows ``[r0, r1)`` of ``out`` (in place; whole rows: numpy is 2-3×
+        slower on a column window than on contiguous rows); its time."""
         t0 = time.perf_counter()
         disparity, valid = out.disparity[r0:r1], out.valid[r0:r1]
-        depth = disparity_to_depth(disparity, self.pair.fx, self.baseline_m, out=out.depth[r0:r1])
-        # d <= 0 has no depth: invalid everywhere, so the arrays agree pixel for pixel.
+        camera = self.pair.camera
+        if isinstance(camera, LatLonModel):
+            depth = latlon_range(disparity, camera, self.baseline_m, out=out.range[r0:r1])
+        else:
+            depth = disparity_to_depth(disparity, self.pair.fx, self.baseline_m, out=out.depth[r0:r1])
+            np.multiply(depth, self._ray_norms[r0:r1], out=out.range[r0:r1])
+        # d <= 0 (and a lat-lon triangle that does not close) has no depth: invalid everywhere,
+        # so the arrays agree pixel for pixel.
         gone = ~np.isfinite(depth)
         gone &= valid
         if gone.any():
@@ -430,10 +487,7 @@ class DepthPipeline:
         """Points (N, 3) float32 in the rig frame and their colours (N, 3) uint8 RGB (gray
         images give gray colours), every ``stride``-th pixel of each axis. Colours come from
         ``image`` (the left VPC image, (H, W[, 3]) uint8) or else ``frame.left_vpc``."""
-        camera = self.pair.camera
-        if not isinstance(camera, PinholeModel):
-            raise PipelineError("point clouds of a lat-lon pair come from its range")
-        pts, idx = depth_points(frame.depth, camera, self.pair.T_rig_vpc[self.pair.left], stride)
+        pts, idx = range_points(frame.range, self.pair.camera, self.pair.T_rig_vpc[self.pair.left], stride)
         img = frame.left_vpc if image is None else image
         if img.shape[:2] != frame.depth.shape:
             raise PipelineError(
@@ -447,27 +501,21 @@ class DepthPipeline:
         return pts, np.ascontiguousarray(colors)
 
     def footprint(self, camera: str, samples: int = 64) -> NDArray[np.float64]:
-        """The VPC image border traced in ``camera``'s fisheye image: (M, 2) pixels, a closed
-        polyline (top, right, bottom, left edges, ``samples`` points each) of the border
-        points the lens sees. For the dashboard overlay."""
+        """The rectified view's outline traced in ``camera``'s fisheye image: (M, 2) pixels, a
+        closed polyline of the outline points the lens sees. The pinhole pair's outline is its
+        image border (top, right, bottom, left edges, ``samples`` points each); the lat-lon
+        pair's, whose image corners no lens sees, the border of the overlap (where both lenses
+        see, ``4·samples`` points). For the dashboard overlay."""
         if camera not in self.luts:
             raise ConfigError(f"footprint: no camera {camera!r} in the VPC pair ({', '.join(self.names)})")
         if samples < 2:
             raise ConfigError(f"footprint: samples must be >= 2, got {samples}")
         c = self.pair.camera
-        u = np.linspace(0.0, c.width - 1.0, samples)
-        v = np.linspace(0.0, c.height - 1.0, samples)
-        border = np.concatenate(
-            [
-                np.stack([u, np.zeros_like(u)], 1),
-                np.stack([np.full_like(v, c.width - 1.0), v], 1),
-                np.stack([u[::-1], np.full_like(u, c.height - 1.0)], 1),
-                np.stack([np.zeros_like(v), v[::-1]], 1),
-            ]
-        )
-        rays = np.stack(
-            [(border[:, 0] - c.cx) / c.fx, (border[:, 1] - c.cy) / c.fy, np.ones(len(border))], axis=1
-        )
-        cam_rays = rays @ self.pair.R_cam_vpc[camera].T
-        pix, ok = self.rig.cameras[camera].project(cam_rays, in_image=False)
+        if self._latlon:
+            both = self.luts[self.pair.left].valid & self.luts[self.pair.right].valid
+            outline = region_outline(both, 4 * samples)
+        else:
+            outline = image_border(c.width, c.height, samples)
+        rays, _ = c.unproject(outline, in_image=False)
+        pix, ok = self.rig.cameras[camera].project(rays @ self.pair.R_cam_vpc[camera].T, in_image=False)
         return pix[ok]
