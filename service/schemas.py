@@ -222,6 +222,10 @@ class HealthModel(BaseModel):
 
 
 class VpcModel(BaseModel):
+    projection: Literal["pinhole", "latlon"] = Field(
+        description="pinhole: u = cx + fx·x/z, v = cy + fy·y/z; latlon: u = cx + fx·asin(x/|p|), "
+        "v = cy + fy·atan2(y, z) (fx, fy in px per radian), in the left rectified frame"
+    )
     width: int
     height: int
     fx: float
@@ -229,9 +233,11 @@ class VpcModel(BaseModel):
     cx: float
     cy: float
     baseline_m: float
-    hfov_deg: float
+    hfov_deg: float | None = Field(description="the pinhole pair's horizontal field of view (None: lat-lon)")
+    px_per_deg: float | None = Field(description="the lat-lon pair's resolution (None: pinhole)")
     yaw_deg: float
     pitch_deg: float
+    R_rig_vpc: list[list[float]] = Field(description="the left rectified frame's axes in the rig frame")
     T_rig_vpc: dict[str, list[list[float]]]
 
 
