@@ -238,9 +238,11 @@ class DepthPipeline:
 
     def _report_field(self) -> None:
         """Log what the rectified view leaves out: for the pinhole pair the share of its pixels a
-        lens does not see (an unusual VPC); the lat-lon field is the lenses' overlap by design
-        (its clipping, if any, was logged when it was designed)."""
+        lens does not see (an unusual VPC); the lat-lon field is the lenses' overlap by design,
+        an explicit field wider than it is clipped (:attr:`VpcPair.field_note`)."""
         c = self.pair.camera
+        if self.pair.field_note:
+            log.warning("%s", self.pair.field_note)
         if self._latlon:
             log.info(
                 "lat-lon pair %dx%d, %.3f px/deg, %d unmatched columns on the left; the lenses see "

@@ -18,11 +18,10 @@ Two projections (``VpcConfig.projection``), both with rows that are epipolar pla
 
 from __future__ import annotations
 
-import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,6 +34,7 @@ from rig.errors import ConfigError
 from rig.field import overlap
 
 __all__ = [
+    "DEFAULT_PROJECTION",
     "DEFAULT_PX_PER_DEG",
     "PROJECTIONS",
     "Projection",
@@ -44,12 +44,12 @@ __all__ = [
     "design_vpc_pair",
 ]
 
-log = logging.getLogger(__name__)
-
 F64 = NDArray[np.float64]
 
 Projection = Literal["pinhole", "latlon"]
 PROJECTIONS: tuple[Projection, ...] = ("pinhole", "latlon")
+#: The projection of a configuration that names none and sets none of the pinhole's own fields.
+DEFAULT_PROJECTION: Projection = "pinhole"
 #: The rectified projections' models: the same ``project``/``unproject`` surface.
 RectifiedCamera = PinholeModel | LatLonModel
 
@@ -63,11 +63,13 @@ _LATLON_ONLY = ("px_per_deg", "az_span_deg", "el_span_deg")
 class VpcConfig(BaseModel):
     """Projection, size, field of view and look direction of the rectified pair (degrees in
     config, DESIGN §3). ``width``, ``height`` and ``hfov_deg`` are the pinhole's; ``px_per_deg``
-    and the spans the lat-lon's (setting one for the other projection is an error)."""
+    and the spans the lat-lon's (setting one for the other projection is an error). Without a
+    ``projection``, one of the pinhole's fields selects the pinhole (so a configuration written
+    before the lat-lon pair keeps its meaning), else :data:`DEFAULT_PROJECTION`."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    projection: Projection = Field("pinhole", description="rectified projection: pinhole or latlon")
+    projection: Projection = Field(DEFAULT_PROJECTION, description="rectified projection: pinhole or latlon")
     width: int = Field(640, ge=16, le=8192, description="VPC image width (px)")
     height: int = Field(480, ge=16, le=8192, description="VPC image height (px)")
     hfov_deg: float = Field(90.0, gt=1.0, lt=179.0, description="horizontal field of view")
@@ -91,12 +93,25 @@ class VpcConfig(BaseModel):
     left: str = Field("left", description="rig camera that forms the left image")
     right: str = Field("right", description="rig camera that forms the right image")
 
+    @model_validator(mode="before")
+    @classmethod
+    def _pinhole_settings_mean_the_pinhole(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "projection" not in data and any(k in data for k in _PINHOLE_ONLY):
+            return {**data, "projection": "pinhole"}
+        return data
+
     @model_validator(mode="after")
     def _one_projection(self) -> VpcConfig:
         other = _PINHOLE_ONLY if self.projection == "latlon" else _LATLON_ONLY
         for name in other:
             if getattr(self, name) != type(self).model_fields[name].default:
                 raise ValueError(f"{name} does not apply to the {self.projection} projection")
+        spans = self.az_span_deg is not None or self.el_span_deg is not None
+        if self.projection == "latlon" and not spans and (self.yaw_deg or self.pitch_deg):
+            raise ValueError(
+                "yaw_deg and pitch_deg centre an explicit lat-lon field (az_span_deg, el_span_deg); "
+                "the default field is the whole overlap"
+            )
         return self
 
     @property
@@ -265,8 +280,6 @@ def design_vpc_pair(rig: Rig, config: VpcConfig | None = None, *, blind_band_px:
     if config.projection == "latlon":
         R_rig_vpc = R_rect
         camera, note = latlon_intrinsics(rig, R_rig_vpc, config, blind_band_px)
-        if note:
-            log.warning("%s", note)
     else:
         # Pitch up (+) turns z towards -y (y points down): rot_x(+pitch) maps z to (0, -sin, cos).
         R_rig_vpc = R_rect @ rot_x(math.radians(config.pitch_deg))

@@ -58,6 +58,7 @@ __all__ = [
     "latlon_for_budget",
     "make_wide_config",
     "run_wide_study",
+    "study_steps",
 ]
 
 F32 = NDArray[np.float32]
@@ -244,6 +245,11 @@ def _angles(camera: CameraModel, R_fwd_vpc: F64) -> F64:
 def _bin_of(angle: F64) -> NDArray[np.intp]:
     edges = np.asarray(ANGLE_BINS_DEG[1:-1])
     return np.searchsorted(edges, angle, side="right")
+
+
+def study_steps(config: WideConfig) -> int:
+    """How many times :func:`run_wide_study` calls its ``step``."""
+    return len(config.variants) + len(config.poses) * (1 + len(config.variants))
 
 
 def run_wide_study(
