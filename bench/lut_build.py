@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     info = machine_info()
     print_machine(info, "VPC LUT build per model vs cv2.fisheye.initUndistortRectifyMap")
     preset = get_preset("prototype")
-    vpc_cfg = VpcConfig(width=160, height=120) if args.quick else VpcConfig()
+    vpc_cfg = VpcConfig(width=160, height=120) if args.quick else VpcConfig(projection="pinhole")
     pair = design_vpc_pair(preset.rig, vpc_cfg)
     lens = preset.rig.cameras[pair.left]
     if not isinstance(lens, KannalaBrandtModel):

@@ -180,7 +180,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     frames = _decode(load_jpeg_pairs(recording))
     rig = load_rig(recording / "calibration.yaml")
     stereo = StereoParams(disparity_range=32) if quick else StereoParams()
-    pinhole = VpcConfig(width=160, height=120) if quick else VpcConfig()
+    pinhole = VpcConfig(width=160, height=120) if quick else VpcConfig(projection="pinhole")
     variants = default_variants(rig, stereo, pinhole, ())
     console.print(
         f"input: {recording} ({len(frames)} pairs decoded to gray up front); {rounds} alternating "

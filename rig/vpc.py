@@ -49,7 +49,7 @@ F64 = NDArray[np.float64]
 Projection = Literal["pinhole", "latlon"]
 PROJECTIONS: tuple[Projection, ...] = ("pinhole", "latlon")
 #: The projection of a configuration that names none and sets none of the pinhole's own fields.
-DEFAULT_PROJECTION: Projection = "pinhole"
+DEFAULT_PROJECTION: Projection = "latlon"
 #: The rectified projections' models: the same ``project``/``unproject`` surface.
 RectifiedCamera = PinholeModel | LatLonModel
 

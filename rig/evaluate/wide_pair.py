@@ -161,7 +161,7 @@ def make_wide_config(preset: str = "prototype", *, quick: bool = False, seed: in
     and a quarter of the disparities."""
     scale = 0.25 if quick else 1.0
     stereo = StereoParams(disparity_range=32) if quick else StereoParams()
-    pinhole = VpcConfig(width=160, height=120) if quick else VpcConfig()
+    pinhole = VpcConfig(width=160, height=120) if quick else VpcConfig(projection="pinhole")
     rig = get_preset(preset).scaled(scale).rig
     resolutions = () if quick else (4.5, 7.0)
     return WideConfig(

@@ -36,6 +36,7 @@ __all__ = [
 U8 = NDArray[np.uint8]
 F32 = NDArray[np.float32]
 _MARGIN = 3  # px around the sampled region: bilinear neighbours and supersample footprint
+PINHOLE = VpcConfig(projection="pinhole")  # the shots' default pair: the paper's 640x480, 90°
 
 
 @dataclass(frozen=True)
@@ -126,7 +127,7 @@ def plane_shot(
         if (angle_deg, pitch_deg) == (90.0, 0.0)
         else mount_rig(scale, angle_deg, pitch_deg)
     )
-    pair = design_vpc_pair(rig, vpc or VpcConfig())
+    pair = design_vpc_pair(rig, vpc or PINHOLE)
     scene = plane_scene(k_baselines * rig.baseline(), texture=texture, seed=seed)
     eye = np.eye(4)
     left, right = (
@@ -154,7 +155,7 @@ def room_shot(
         if (angle_deg, pitch_deg) == (90.0, 0.0)
         else mount_rig(scale, angle_deg, pitch_deg)
     )
-    pair = design_vpc_pair(rig, vpc or VpcConfig())
+    pair = design_vpc_pair(rig, vpc or PINHOLE)
     scene = room_scene(seed)
     T = make_transform(np.eye(3), [x_m, 0.0, -0.5])
     left, right = (render_for_vpc(scene, rig, n, pair, T, supersample) for n in ("left", "right"))

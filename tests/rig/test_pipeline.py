@@ -157,7 +157,9 @@ def test_lut_comes_from_the_cache_the_second_time(shot: StereoShot, tmp_path: Pa
 
 
 @pytest.mark.parametrize(
-    "config", [VpcConfig(hfov_deg=150.0), VpcConfig(yaw_deg=60.0)], ids=["hfov150", "yaw60"]
+    "config",
+    [VpcConfig(hfov_deg=150.0), VpcConfig(projection="pinhole", yaw_deg=60.0)],
+    ids=["hfov150", "yaw60"],
 )
 def test_vpc_leaving_the_lens_reports_its_valid_fraction(
     config: VpcConfig, tmp_path: Path, caplog: pytest.LogCaptureFixture
