@@ -19,7 +19,7 @@ from rig.field import overlap, pixel_solid_angles
 from rig.lut import build_vpc_lut
 from rig.lut_cache import lut_key
 from rig.sim import divergent_rig
-from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
+from rig.vpc import DEFAULT_PROJECTION, VpcConfig, VpcPair, design_vpc_pair
 from tests.calibration.model_cases import model_cases
 from tests.rig.stereo_renders import prototype_rig
 
@@ -143,7 +143,16 @@ def test_config_keeps_each_projection_to_its_own_settings() -> None:
     with pytest.raises(ValueError, match="width does not apply to the latlon"):
         VpcConfig(projection="latlon", width=800)
     with pytest.raises(ValueError, match="px_per_deg does not apply to the pinhole"):
-        VpcConfig(px_per_deg=4.0)
+        VpcConfig(projection="pinhole", px_per_deg=4.0)
+    with pytest.raises(ValueError, match="px_per_deg does not apply to the pinhole"):
+        VpcConfig(width=800, px_per_deg=4.0)  # the pinhole's own field selects the pinhole
+    # The default is the lat-lon pair; a configuration with the pinhole's fields keeps meaning it.
+    assert VpcConfig().projection == DEFAULT_PROJECTION == "latlon"
+    assert VpcConfig(width=320, height=240).projection == "pinhole"
+    assert VpcConfig(hfov_deg=100).projection == "pinhole"
+    with pytest.raises(ValueError, match="yaw_deg and pitch_deg centre an explicit lat-lon field"):
+        VpcConfig(yaw_deg=10.0)
+    assert VpcConfig(yaw_deg=10.0, az_span_deg=40.0).yaw_deg == 10.0
     with pytest.raises(ValueError, match="projection"):
         VpcConfig(projection="fisheye")  # type: ignore[arg-type]
     # A dumped config validates again (defaults of the other projection are not "set").
