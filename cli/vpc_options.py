@@ -90,30 +90,27 @@ CacheDirOption = Annotated[
 ]
 
 
-def parse_size(text: str, option: str = "--vpc-size") -> tuple[int, int]:
-    """``"640x480"`` -> (640, 480); ConfigError naming the option otherwise."""
+def _two_numbers(text: str, kind: type[int] | type[float], option: str, example: str) -> tuple[Any, Any]:
+    """``"AxB"`` (or ``A×B``) as two numbers of ``kind``; ConfigError naming ``option`` otherwise."""
     parts = text.lower().replace("×", "x").split("x")
     try:
         if len(parts) != 2:
             raise ValueError
-        w, h = int(parts[0]), int(parts[1])
+        return kind(parts[0]), kind(parts[1])
     except ValueError:
-        raise ConfigError(f"{option} must look like 640x480, got {text!r}") from None
-    return w, h
+        raise ConfigError(f"{option} must look like {example}, got {text!r}") from None
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"640x480"`` -> (640, 480); ConfigError naming --vpc-size otherwise."""
+    w, h = _two_numbers(text, int, "--vpc-size", "640x480")
+    return int(w), int(h)
 
 
 def _parse_field(text: str) -> tuple[float, float]:
     """``"100x180"`` -> (100.0, 180.0) degrees; ConfigError naming --field otherwise."""
-    parts = text.lower().replace("×", "x").split("x")
-    try:
-        if len(parts) != 2:
-            raise ValueError
-        az, el = float(parts[0]), float(parts[1])
-    except ValueError:
-        raise ConfigError(
-            f"--field must look like 100x180 (azimuth x elevation, degrees), got {text!r}"
-        ) from None
-    return az, el
+    az, el = _two_numbers(text, float, "--field", "100x180 (azimuth x elevation, degrees)")
+    return float(az), float(el)
 
 
 _OPTION_OF = {
