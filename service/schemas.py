@@ -78,7 +78,10 @@ class CameraInfoModel(BaseModel):
     header: RosHeader
     height: int
     width: int
-    distortion_model: str = Field(description="equidistant (Kannala-Brandt), plumb_bob, or our model's name")
+    distortion_model: str = Field(
+        description="equidistant (Kannala-Brandt), plumb_bob, latlon (the lat-lon rectified pair), "
+        "or our model's name"
+    )
     d: list[float]
     k: list[float] = Field(min_length=9, max_length=9)
     r: list[float] = Field(min_length=9, max_length=9)

@@ -87,6 +87,11 @@ def test_lat_lon_calibration_point_cloud_client_and_openapi(wide_server: LiveSer
     assert np.allclose(vpc["R_rig_vpc"], pair.R_rig_vpc)
     for name in ("left", "right"):
         assert len(cal["cameras"][name]["footprint"]) > 100  # the overlap outlined in each fisheye
+    # ROS's CameraInfo of the rectified view names the projection (no pinhole tool misprojects it).
+    info = httpx.get(base + "/camera_info/rectified").json()
+    c = pair.camera
+    assert info["distortion_model"] == "latlon" and info["d"] == []
+    assert info["k"] == [c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0]
     with RigClient(base) as client:
         r = client.range()
         png = client.range(format="png")
