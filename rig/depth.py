@@ -1,4 +1,5 @@
-"""Disparity to depth and range, point clouds and their file formats (DESIGN §3, §6, §7).
+"""Disparity to depth and range, point clouds and their file formats (docs/design.md, "Depth and
+point clouds"; docs/wide-pair.md).
 
 Depth is z in the left VPC frame, metres, float32, NaN invalid; ``Z = fx·B/d``, invalid where
 d ≤ 0 (the pinhole pair). Range is the distance along each pixel's ray from the left view's

@@ -1,4 +1,5 @@
-"""Lookup tables from a rectified view into a fisheye image (DESIGN §5, paper eq. 10).
+"""Lookup tables from a rectified view into a fisheye image (docs/design.md, "Lookup tables";
+paper eq. 10).
 
 For every pixel ``p`` of the rectified view (a virtual pinhole camera, "VPC", or a lat-lon view):
 ``p_fisheye = π_f(R_cam_vpc · π_rect⁻¹(p))``. Unlike OpenCV's

@@ -1,4 +1,5 @@
-"""The rectified pair cut out of the overlap of two fisheye cameras (the "VPC" pair, DESIGN §5).
+"""The rectified pair cut out of the overlap of two fisheye cameras (the "VPC" pair,
+docs/design.md, "The VPC pair"; docs/wide-pair.md).
 
 The pair is derived from the calibrated extrinsics, not from the mount's nominal angles: x of the
 rectified frame is the baseline direction, so rows align exactly even on a mount that is 87°
@@ -62,7 +63,7 @@ _LATLON_ONLY = ("px_per_deg", "az_span_deg", "el_span_deg")
 
 class VpcConfig(BaseModel):
     """Projection, size, field of view and look direction of the rectified pair (degrees in
-    config, DESIGN §3). ``width``, ``height`` and ``hfov_deg`` are the pinhole's; ``px_per_deg``
+    config, docs/design.md). ``width``, ``height`` and ``hfov_deg`` are the pinhole's; ``px_per_deg``
     and the spans the lat-lon's (setting one for the other projection is an error). Without a
     ``projection``, one of the pinhole's fields selects the pinhole (so a configuration written
     before the lat-lon pair keeps its meaning), else :data:`DEFAULT_PROJECTION`."""
@@ -154,7 +155,7 @@ class VpcPair:
         return self.T_rig_vpc[self.left][:3, :3]
 
     def as_json(self) -> dict[str, object]:
-        """``vpc.json`` of ``rig process`` (DESIGN §7): the projection, its intrinsics, the
+        """``vpc.json`` of ``rig process`` (docs/design.md): the projection, its intrinsics, the
         baseline and the left rectified frame in the rig frame."""
         c = self.camera
         return {
@@ -270,9 +271,10 @@ def _describe(b: tuple[float, float, float, float]) -> str:
 
 
 def design_vpc_pair(rig: Rig, config: VpcConfig | None = None, *, blind_band_px: int = 0) -> VpcPair:
-    """Rectified pair for ``rig`` (DESIGN §5): the frame of :func:`rectified_frame`, pitched about
-    x for the pinhole; the lat-lon field of :func:`latlon_intrinsics` (``blind_band_px``: the
-    matcher's unmatched columns, added to the default field)."""
+    """Rectified pair for ``rig`` (docs/design.md, "The VPC pair"): the frame of
+    :func:`rectified_frame`, pitched about x for the pinhole; the lat-lon field of
+    :func:`latlon_intrinsics` (``blind_band_px``: the matcher's unmatched columns, added to the
+    default field)."""
     config = config or VpcConfig()
     R_rect, baseline = rectified_frame(rig, config.left, config.right)
     note = None

@@ -26,6 +26,7 @@ from service.routes import (
     counters,
     dashboard,
     depth,
+    docs,
     faults,
     frames,
     health,
@@ -92,6 +93,8 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
         description="Depth from an orthogonally divergent fisheye stereo rig: depth maps, frames, "
         "point clouds, health and metrics. State-changing endpoints need `Authorization: Bearer <token>`.",
         lifespan=lifespan,
+        docs_url=None,  # served from the package instead of a CDN: routes.docs
+        redoc_url=None,
     )
     app.state.settings = settings
     app.state.runtime = None
@@ -113,6 +116,7 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
         app.include_router(module.router)
     if settings.server.fault_injection:
         app.include_router(faults.router)
+    docs.add_api_docs(app)
 
     install_error_handlers(app)
 

@@ -1,10 +1,11 @@
 """Files of an evaluation run in its output directory.
 
-``results.json`` (issue #7's keys, exactly: preset, calibration, image_difference, depth,
+``results.json`` (keys, exactly: preset, calibration, image_difference, depth,
 matchers; NaN written as null), ``run.json`` (settings, σd of the theory, fits, failures,
-timings, versions), the tables as CSV, the figures as PNG, ``difference/`` (the VPC images and
-contrast-enhanced difference images) and ``report.md`` (tables, figures, agreement with the
-paper). ``results.json`` is written last, atomically: its presence marks a complete run.
+timings, the git commit of the code, versions), the tables as CSV, the figures as PNG,
+``difference/`` (the VPC images and contrast-enhanced difference images) and ``report.md``
+(tables, figures, agreement with the paper). ``results.json`` is written last, atomically: its
+presence marks a complete run.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ def _num(x: float | None) -> float | None:
 def _clean(obj: Any) -> Any:
     """JSON-safe: NaN/inf -> None, tuples -> lists, numpy scalars -> Python."""
     if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
+        return _clean_document(obj)
     if isinstance(obj, list | tuple):
         return [_clean(v) for v in obj]
     if isinstance(obj, np.generic):
@@ -64,6 +65,11 @@ def _clean(obj: Any) -> Any:
     if isinstance(obj, float):
         return _num(obj)
     return obj
+
+
+def _clean_document(doc: dict[Any, Any]) -> dict[str, Any]:
+    """A JSON-safe copy of ``doc`` (see :func:`_clean`), keys as strings."""
+    return {str(k): _clean(v) for k, v in doc.items()}
 
 
 def _params(params: dict[str, Any]) -> dict[str, Any]:
@@ -114,7 +120,7 @@ def _point(p: CurvePoint, theory: bool = False) -> dict[str, Any]:
 
 
 def results_document(run: EvaluationRun) -> dict[str, Any]:
-    """The content of results.json (issue #7's keys)."""
+    """The content of results.json."""
     depth = {name: [_point(p, name == THEORY) for p in pts] for name, pts in run.depth.items()}
     matchers = {
         name: {
@@ -140,13 +146,12 @@ def results_document(run: EvaluationRun) -> dict[str, Any]:
         "depth": depth,
         "matchers": matchers,
     }
-    cleaned: dict[str, Any] = _clean(doc)
-    return cleaned
+    return _clean_document(doc)
 
 
 def _run_document(run: EvaluationRun) -> dict[str, Any]:
     cal = run.calibration
-    return _clean(
+    return _clean_document(
         {
             "settings": run.config.describe(),
             "preset_description": run.preset.description,
@@ -170,6 +175,7 @@ def _run_document(run: EvaluationRun) -> dict[str, Any]:
                 for lens, v in cal.views.items()
             },
             "timings_s": run.timings_s,
+            "source": run.source.as_json() if run.source else None,
             "versions": {
                 "python": platform.python_version(),
                 "numpy": np.__version__,

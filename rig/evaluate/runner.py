@@ -38,6 +38,7 @@ from rig.evaluate.matchers import (
     build_matchers,
     measure_matchers,
 )
+from rig.evaluate.provenance import SourceRevision, source_revision
 from rig.evaluate.renders import Box, lut_box, render_plane_shot, union_box
 from rig.pipeline import DepthPipeline
 from rig.sim.presets import Preset, get_preset
@@ -77,6 +78,7 @@ class EvaluationRun:
     theory_sigma_d_px: float
     matchers: dict[str, tuple[list[MatcherPoint], float]]
     timings_s: dict[str, float] = field(default_factory=dict)
+    source: SourceRevision | None = None  # the code that ran (None: not a git checkout)
 
 
 def run_evaluation(
@@ -84,6 +86,7 @@ def run_evaluation(
 ) -> EvaluationRun:
     """Run every part of the evaluation of ``config`` (see the package doc)."""
     sink = progress or _Silent()
+    source = source_revision()  # before the run: the code it starts with
     preset = get_preset(config.preset).scaled(config.scale)
     rig = preset.rig
     pair = design_vpc_pair(rig, config.vpc)
@@ -161,6 +164,7 @@ def run_evaluation(
         theory_sigma_d_px=sigma_d,
         matchers=average_matchers(matcher_samples),
         timings_s=timings,
+        source=source,
     )
 
 

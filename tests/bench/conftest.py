@@ -16,8 +16,8 @@ def bench_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture()
-def bench_env(bench_cache: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
-    """Bench cache in the session directory; the LUT cache of child services in ``tmp_path``."""
+def bench_env(bench_cache: Path, lut_cache: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
+    """Bench inputs in the session's bench cache; child services' LUTs in the session's LUT cache."""
     monkeypatch.setenv(BENCH_CACHE_ENV, str(bench_cache))
-    monkeypatch.setenv("RIG_CACHE_DIR", str(tmp_path / "lut"))
+    monkeypatch.setenv("RIG_CACHE_DIR", str(lut_cache))
     yield bench_cache

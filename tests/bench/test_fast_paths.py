@@ -1,4 +1,4 @@
-"""The speed work's fast paths give what the reference paths give (issue #8): component-wise
+"""The speed work's fast paths give what the reference paths give: component-wise
 projection against ``project``, Scaramuzza's table seed against its invpol seed, the cache's
 zero-copy load, the pipeline's stages against ``process``, and the pipelined worker."""
 
@@ -7,15 +7,14 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+import rig.finish as finish_module
 import rig.lut_cache as lut_cache
-import rig.pipeline as pipeline_module
 from calibration.geometry import rot_x, rot_y
 from calibration.models import ScaramuzzaModel, create
 from rig.capture.frame import Frame, FramePair
@@ -26,7 +25,9 @@ from rig.vpc import VpcConfig
 from service.store import ResultStore
 from service.worker import DepthWorker
 from tests.calibration.model_cases import ModelCase, model_cases
-from tests.rig.stereo_renders import StereoShot, plane_shot
+from tests.helpers.recordings import encode
+from tests.helpers.shots import StereoShot, plane_shot
+from tests.helpers.waiting import wait_for
 
 CASES = model_cases()
 
@@ -138,11 +139,10 @@ def shot() -> StereoShot:
 
 
 @pytest.fixture(scope="module")
-def pipe(shot: StereoShot, tmp_path_factory: pytest.TempPathFactory) -> DepthPipeline:
+def pipe(shot: StereoShot, lut_cache: Path) -> DepthPipeline:
     return DepthPipeline(
-        shot.rig, VpcConfig(width=320, height=240), StereoParams(disparity_range=64),
-        cache_dir=tmp_path_factory.mktemp("lut"),
-    )  # fmt: skip
+        shot.rig, VpcConfig(width=320, height=240), StereoParams(disparity_range=64), cache_dir=lut_cache
+    )
 
 
 def test_pipeline_stages_are_process(pipe: DepthPipeline, shot: StereoShot) -> None:
@@ -160,7 +160,7 @@ def test_pipeline_stages_are_process(pipe: DepthPipeline, shot: StereoShot) -> N
 
 @pytest.mark.parametrize("stereo", [{}, {"temporal_alpha": 0.5}, {"subpixel": False, "median": 3}])
 def test_banded_finish_is_one_pass(
-    shot: StereoShot, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, stereo: dict[str, float]
+    shot: StereoShot, lut_cache: Path, monkeypatch: pytest.MonkeyPatch, stereo: dict[str, float]
 ) -> None:
     """The finish stage in row bands across threads (refinement, median, confidence and depth
     with margins) gives what one pass over the whole frame gives, up to the box filters'
@@ -169,14 +169,14 @@ def test_banded_finish_is_one_pass(
 
     def finish(pool: bool) -> list[DepthFrame]:
         if not pool:
-            monkeypatch.setattr(pipeline_module, "refine_pool", lambda: None)
-        pipe = DepthPipeline(shot.rig, VpcConfig(width=320, height=240), params, cache_dir=tmp_path)
+            monkeypatch.setattr(finish_module, "refine_pool", lambda: None)
+        pipe = DepthPipeline(shot.rig, VpcConfig(width=320, height=240), params, cache_dir=lut_cache)
         rect = pipe.rectify(shot.left, shot.right)
         # Two frames: the second one through the temporal filter's history when it is on.
         return [pipe.finish(pipe.match(rect), i, 0) for i in range(2)]
 
     banded, whole = finish(True), finish(False)
-    assert pipeline_module._REFINE_THREADS >= 2, "this machine has one core: nothing is banded"
+    assert finish_module._REFINE_THREADS >= 2, "this machine has one core: nothing is banded"
     for b, w in zip(banded, whole, strict=True):
         assert np.array_equal(b.valid, w.valid)
         assert b.valid.mean() > 0.5
@@ -215,7 +215,7 @@ class _ListSource:
 def _jpeg_pair(shot: StereoShot, seq: int, corrupt: bool = False) -> FramePair:
     frames = []
     for cam, img in (("left", shot.left), ("right", shot.right)):
-        data = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes()
+        data = encode(img, ".jpg", 95)
         if corrupt and cam == "right":
             data = data[: len(data) // 3]
         frames.append(Frame(cam, seq, seq * 1000, "jpeg", time.monotonic_ns(), raw=data))
@@ -232,9 +232,7 @@ def test_pipelined_worker_publishes_every_pair_in_order_and_survives_a_bad_one(
     worker = DepthWorker(source, pipe, store, on_result=lambda r, t: seen.append(r.seq), poll_s=0.02)
     worker.start()
     try:
-        deadline = time.monotonic() + 60.0
-        while len(seen) < 5 and time.monotonic() < deadline:
-            time.sleep(0.02)
+        wait_for(lambda: len(seen) >= 5, 60.0, "five published pairs")
         stats = worker.stats()
         assert worker.is_alive()
     finally:
@@ -252,13 +250,6 @@ def test_pipelined_worker_publishes_every_pair_in_order_and_survives_a_bad_one(
     # The worker's result is the pipeline's result for that pair.
     direct = pipe.process(pairs[5].left.image, pairs[5].right.image)
     assert np.array_equal(latest.frame.depth, direct.depth, equal_nan=True)
-
-
-def _eventually(condition: Callable[[], bool], timeout_s: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        assert time.monotonic() < deadline, "condition not met in time"
-        time.sleep(0.01)
 
 
 class _GatedSource(_ListSource):
@@ -310,11 +301,13 @@ def test_worker_prefetches_only_the_encodings_clients_asked_for(
         publish_next(2)
         second = store.latest
         assert second is not None and second.index == 2
-        _eventually(lambda: second.cache.peek("asked") is not None)  # follows the publication
+        wait_for(
+            lambda: second.cache.peek("asked") is not None, 30, "the prefetch"
+        )  # follows the publication
         assert second.cache.peek("asked") == b"asked:2"
         assert second.cache.peek("never") is None
         publish_next(3)
-        _eventually(lambda: len(made) == 2)
+        wait_for(lambda: len(made) == 2, 30, "the second prefetch")
         assert made == [("asked", 2), ("asked", 3)]
     finally:
         worker.stop()

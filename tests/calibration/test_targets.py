@@ -20,8 +20,8 @@ from calibration.targets import (
     read_omnidir_corners,
 )
 from rig.sim import chessboard_corners
-from tests.calibration.calibration_renders import BOARD, board_pose, render_board, true_corners
 from tests.conftest import shared_file
+from tests.helpers.boards import BOARD, board_pose, render_board, true_corners
 
 JY = "opencv_fisheye_calib3_stereo_JY"
 

@@ -22,9 +22,9 @@ from calibration.formats import dump_rig_yaml
 from rig.errors import RecordingError
 from rig.recording import Recording
 from tests.calibration.test_formats_samples import rig_doc
-from tests.reliability.common import assert_one_line_error, clean_env, run_rig
+from tests.helpers.command import assert_one_line_error, clean_env, run_rig
+from tests.helpers.recordings import write_recording
 from tests.reliability.malformed import CALIBRATION_SAMPLES, malformed_calibration, malformed_recording
-from tests.rig.capture_fixtures import write_recording
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 

@@ -8,7 +8,6 @@ import math
 import re
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -18,21 +17,21 @@ import pytest
 from calibration.formats import load_camera, load_rig
 from calibration.geometry import invert_transform, rotation_angle
 from rig.sim import divergent_rig
-from tests.calibration.calibration_renders import (
+from tests.helpers.boards import (
     board_pose,
     circle_views,
     image_difference,
     render_board,
     true_lenses,
 )
+from tests.helpers.command import run_rig
 
-RIG = Path(sys.executable).with_name("rig")
 LENS = true_lenses(480)["kannala_brandt"]
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
 def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([str(RIG), *map(str, args)], capture_output=True, text=True, timeout=300)
+    return run_rig(args)
 
 
 @pytest.fixture(scope="module")

@@ -4,7 +4,6 @@ RIG_DEBUG=1."""
 
 from __future__ import annotations
 
-import subprocess
 import sys
 from pathlib import Path
 
@@ -18,8 +17,7 @@ from cli.errors import CommandError, MappedErrorsGroup, fail
 from cli.main import build_app
 from rig.errors import ConfigError, DiskFullError, RigError
 from service.errors import RecordingConflict, ServiceError, SettingsError
-
-RIG = str(Path(sys.executable).with_name("rig"))
+from tests.helpers.command import assert_one_line_error, run_rig
 
 CASES: list[tuple[BaseException, int, str]] = [
     (CommandError("give exactly one of --a and --b"), 2, "error: give exactly one of --a and --b"),
@@ -108,17 +106,8 @@ def test_an_internal_error_in_process_is_one_line_exit_1(
 
 
 def test_bad_input_through_the_console_script_is_exit_2_one_line(tmp_path: Path) -> None:
-    res = subprocess.run(
-        [RIG, "process", str(tmp_path / "missing"), "--out", str(tmp_path / "out")],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env={"COLUMNS": "200"},
-    )
-    lines = [x for x in res.stderr.splitlines() if x.strip()]
-    assert res.returncode == 2, res.stderr
-    assert len(lines) == 1 and lines[0].startswith("error:") and "missing" in lines[0], res.stderr
-    assert "Traceback" not in res.stderr
+    res = run_rig(["process", tmp_path / "missing", "--out", tmp_path / "out"], timeout=60)
+    assert_one_line_error(res, "missing")
 
 
 def test_the_real_app_maps_errors_in_process(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

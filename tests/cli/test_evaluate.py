@@ -5,7 +5,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 import re
 import subprocess
 import sys
@@ -15,14 +14,14 @@ from typing import Any
 import cv2
 import pytest
 
-RIG = str(Path(sys.executable).with_name("rig"))
+from rig.evaluate.provenance import source_revision
+from tests.helpers.command import run_rig
+
 MODELS = ["kannala_brandt", "mei", "scaramuzza", "equidistant", "double_sphere", "eucm"]
 
 
 def run(*args: str | Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "COLUMNS": "200"}
-    env.pop("RIG_DEBUG", None)
-    return subprocess.run([RIG, *map(str, args)], capture_output=True, text=True, env=env, timeout=timeout)
+    return run_rig(args, timeout=timeout)
 
 
 @pytest.fixture(scope="module")
@@ -136,6 +135,11 @@ def test_csv_png_and_report_files_are_written_and_valid(quick: Path) -> None:
     run_doc = json.loads((quick / "run.json").read_text())
     assert run_doc["settings"]["quick"] is True and run_doc["timings_s"]["calibration"] > 0
     assert run_doc["calibration_views"]["left"]["detected"] >= 10
+    # The code it was made with (this checkout; see test_evaluate_provenance for the rest).
+    source = source_revision()
+    assert run_doc["source"] == (source.as_json() if source else None)
+    if source is not None:
+        assert f"`{source.commit[:12]}`" in (quick / "report.md").read_text()
 
 
 def test_refuses_a_non_empty_out_directory(tmp_path: Path) -> None:

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -12,17 +10,13 @@ import pytest
 from calibration import save_rig
 from rig.lut_cache import LutCache, lut_key
 from rig.vpc import VpcConfig, design_vpc_pair
-from tests.rig.stereo_renders import prototype_rig
-
-RIG = str(Path(sys.executable).with_name("rig"))
+from tests.helpers.command import clean_env, run_rig
+from tests.helpers.shots import prototype_rig
 
 
 def run(*args: str | Path, env_cache: Path | None = None) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "COLUMNS": "250"}
-    env.pop("RIG_DEBUG", None)
-    if env_cache is not None:
-        env["RIG_CACHE_DIR"] = str(env_cache)
-    return subprocess.run([RIG, *map(str, args)], capture_output=True, text=True, env=env, timeout=120)
+    env = clean_env() if env_cache is None else clean_env(RIG_CACHE_DIR=env_cache)
+    return run_rig(args, env, timeout=120)
 
 
 @pytest.fixture(scope="module")

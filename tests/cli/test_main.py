@@ -4,11 +4,8 @@ style (uppercase metavars, defaults only as ``[default: ...]``)."""
 from __future__ import annotations
 
 import re
-import subprocess
-import sys
 from collections.abc import Iterator
 from importlib.metadata import version
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -16,8 +13,7 @@ from typer.main import get_command
 from typer.testing import CliRunner
 
 from cli.main import DISTRIBUTION, build_app
-
-RIG = str(Path(sys.executable).with_name("rig"))
+from tests.helpers.command import run_rig
 
 # Metavars name what a value is: FILE, DIR, WxH, COLSxROWS, DEG, N, ... (the "x" of a size aside,
 # upper case).
@@ -35,20 +31,18 @@ ALL = [path for path, _ in _commands(get_command(build_app()))]
 
 
 def test_version_prints_the_installed_package_version() -> None:
-    res = subprocess.run([RIG, "--version"], capture_output=True, text=True, timeout=60)
+    res = run_rig(["--version"], timeout=60)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == f"rig ({DISTRIBUTION}) {version(DISTRIBUTION)}"
 
 
 def test_short_help_on_the_root_and_process_from_the_console_script() -> None:
-    root = subprocess.run([RIG, "-h"], capture_output=True, text=True, timeout=60, env={"COLUMNS": "200"})
+    root = run_rig(["-h"], timeout=60)
     assert root.returncode == 0, root.stderr
     for command in ("serve", "process", "record", "devices", "calibrate", "lut", "sim", "evaluate"):
         assert re.search(rf"│ {command} ", root.stdout), command
     assert "--version" in root.stdout
-    process = subprocess.run(
-        [RIG, "process", "-h"], capture_output=True, text=True, timeout=60, env={"COLUMNS": "200"}
-    )
+    process = run_rig(["process", "-h"], timeout=60)
     assert process.returncode == 0, process.stderr
     assert "Usage: rig process [OPTIONS] {RECORDING}" in process.stdout
     assert "--vpc-size" in process.stdout and "WxH" in process.stdout

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -19,18 +17,17 @@ from calibration.rig import Rig
 from rig.depth import depth_from_png_mm
 from rig.recording import RecordingWriter
 from rig.vpc import VpcConfig
-from tests.rig.stereo_renders import StereoShot, central_box, plane_shot
+from tests.helpers.command import clean_env, run_rig
+from tests.helpers.shots import StereoShot, central_box, plane_shot
 
-RIG = str(Path(sys.executable).with_name("rig"))
 VPC = VpcConfig(width=320, height=240)
 VPC_ARGS = ["--vpc-size", "320x240", "--vpc-hfov", "90"]
 STEREO_64 = "disparity_range: 64\n"
 
 
-def run(*args: str | Path, cache: Path) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "RIG_CACHE_DIR": str(cache), "COLUMNS": "200"}
-    env.pop("RIG_DEBUG", None)
-    return subprocess.run([RIG, *map(str, args)], capture_output=True, text=True, env=env, timeout=300)
+def run(*args: str | Path, tmp: Path) -> subprocess.CompletedProcess[str]:
+    """``rig ARGS`` with its LUT cache under ``tmp``."""
+    return run_rig(args, clean_env(tmp))
 
 
 def within_2_percent(depth_png: Path, truth: np.ndarray) -> float:
@@ -87,17 +84,17 @@ def small(rec: Path) -> list[str | Path]:
 
 @pytest.mark.slow
 def test_process_a_rig_sim_recording(tmp_path: Path) -> None:
-    rec, cache = tmp_path / "rec", tmp_path / "c"
+    rec = tmp_path / "rec"
     sim_args = ["--preset", "prototype", "--scale", "0.5", "--scene", "plane", "--distances", "4.5,9"]
     sim_args += ["--supersample", "2", "--noise", "1", "--vignetting", "0"]
-    sim = run("sim", *sim_args, "--out", rec, *VPC_ARGS, cache=cache)
+    sim = run("sim", *sim_args, "--out", rec, *VPC_ARGS, tmp=tmp_path)
     assert sim.returncode == 0, sim.stderr
     # At 320 px wide, 64 disparities (Z > 2.5 B at fx = 160) keep the left band of unmatched
     # columns out of the central box.
     (tmp_path / "stereo.yaml").write_text(STEREO_64)
     out = tmp_path / "out"
     # No --calibration: the recording's own calibration.yaml is used.
-    res = run("process", rec, "--out", out, *VPC_ARGS, "--stereo", tmp_path / "stereo.yaml", cache=cache)
+    res = run("process", rec, "--out", out, *VPC_ARGS, "--stereo", tmp_path / "stereo.yaml", tmp=tmp_path)
     assert res.returncode == 0, res.stderr
     assert "processed 2 of 2 pairs" in res.stdout and "calibration.yaml" in res.stdout
     for seq in (0, 1):
@@ -111,7 +108,7 @@ def test_output_layout_vpc_json_and_depth(tmp_path: Path, shot: StereoShot) -> N
     out = tmp_path / "out"
     res = run(
         "process", rec, "--calibration", rec / "rig.yaml", "--out", out, *VPC_ARGS,
-        "--stereo", tmp_path / "stereo.yaml", "--ply", "--preview", cache=tmp_path / "c",
+        "--stereo", tmp_path / "stereo.yaml", "--ply", "--preview", tmp=tmp_path,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
     assert sorted(p.name for p in out.iterdir()) == [
@@ -140,9 +137,7 @@ def test_missing_and_corrupt_frames_are_reported_by_seq_and_skipped(tmp_path: Pa
     (rec / "right" / "000005.png").unlink()
     (rec / "left" / "000007.png").write_bytes(b"\x89PNG\r\n\x1a\n this is not an image")
     out = tmp_path / "out"
-    res = run(
-        "process", rec, "--calibration", rec / "rig.yaml", "--out", out, *VPC_ARGS, cache=tmp_path / "c"
-    )
+    res = run("process", rec, "--calibration", rec / "rig.yaml", "--out", out, *VPC_ARGS, tmp=tmp_path)
     assert res.returncode == 0, res.stderr
     assert "skipped seq 5" in res.stderr and "000005.png" in res.stderr
     assert "skipped seq 7" in res.stderr and "not a readable image" in res.stderr
@@ -157,7 +152,7 @@ def test_kalibr_camchain_gives_the_same_depth(tmp_path: Path, shot: StereoShot) 
     outs = {}
     for name, cal in (("yaml", rec / "rig.yaml"), ("kalibr", tmp_path / "camchain.yaml")):
         outs[name] = tmp_path / name
-        res = run("process", rec, "-c", cal, "-o", outs[name], *small(rec), cache=tmp_path / "c")
+        res = run("process", rec, "-c", cal, "-o", outs[name], *small(rec), tmp=tmp_path)
         assert res.returncode == 0, res.stderr
     a = np.asarray(cv2.imread(str(outs["yaml"] / "depth" / "000000.png"), cv2.IMREAD_UNCHANGED), dtype=int)
     b = np.asarray(cv2.imread(str(outs["kalibr"] / "depth" / "000000.png"), cv2.IMREAD_UNCHANGED), dtype=int)
@@ -173,7 +168,7 @@ def test_kalibr_camchain_gives_the_same_depth(tmp_path: Path, shot: StereoShot) 
 def test_colour_recording(tmp_path: Path, shot: StereoShot) -> None:
     rec = write_recording(tmp_path / "rec", shot, [0], colour=True)
     out = tmp_path / "out"
-    res = run("process", rec, "-c", rec / "rig.yaml", "-o", out, *small(rec), cache=tmp_path / "c")
+    res = run("process", rec, "-c", rec / "rig.yaml", "-o", out, *small(rec), tmp=tmp_path)
     assert res.returncode == 0, res.stderr
     left = np.asarray(cv2.imread(str(out / "left" / "000000.png"), cv2.IMREAD_UNCHANGED))
     assert left.shape == (240, 320, 3)
@@ -191,12 +186,12 @@ def test_bad_calibration_and_options_exit_2_with_one_line(tmp_path: Path, shot: 
         (["-c", rec / "rig.yaml", "--vpc-hfov", "200"], "--vpc-hfov"),
     ]
     for extra, needle in cases:
-        res = run("process", rec, "-o", tmp_path / "out", *extra, cache=tmp_path / "c")
+        res = run("process", rec, "-o", tmp_path / "out", *extra, tmp=tmp_path)
         assert res.returncode == 2, (extra, res.stdout, res.stderr)
         lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
         assert len(lines) == 1 and lines[0].startswith("error:") and needle in lines[0], res.stderr
     # A recording without calibration.yaml needs --calibration.
-    res = run("process", rec, "-o", tmp_path / "out2", cache=tmp_path / "c")
+    res = run("process", rec, "-o", tmp_path / "out2", tmp=tmp_path)
     assert res.returncode == 2 and "--calibration" in res.stderr
 
 
@@ -204,7 +199,7 @@ def test_no_processable_pair_is_an_error(tmp_path: Path, shot: StereoShot) -> No
     rec = write_recording(tmp_path / "rec", shot, [0, 1])
     for p in (rec / "left").iterdir():
         p.write_bytes(b"garbage")
-    res = run("process", rec, "-c", rec / "rig.yaml", "-o", tmp_path / "out", *VPC_ARGS, cache=tmp_path / "c")
+    res = run("process", rec, "-c", rec / "rig.yaml", "-o", tmp_path / "out", *VPC_ARGS, tmp=tmp_path)
     assert res.returncode == 2
     assert "skipped seq 0" in res.stderr and "skipped seq 1" in res.stderr
     assert "no pair of 2" in res.stderr

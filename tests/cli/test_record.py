@@ -7,7 +7,6 @@ import filecmp
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import cv2
@@ -17,15 +16,15 @@ from typer.testing import CliRunner
 
 from cli.main import build_app
 from rig.recording import Recording
+from tests.helpers.command import RIG, run_rig
+from tests.helpers.recordings import write_recording
+from tests.helpers.waiting import wait_for
 from tests.reliability.fake_disk import Budget
-from tests.rig.capture_fixtures import write_recording
 from tests.rig.test_recording_writer import disk  # noqa: F401 - fixture
 
-RIG = str(Path(sys.executable).parent / "rig")
 
-
-def rig(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([RIG, *args], capture_output=True, text=True, timeout=timeout)
+def rig(*args: str) -> subprocess.CompletedProcess[str]:
+    return run_rig(args, timeout=60)
 
 
 def tree(root: Path) -> list[str]:
@@ -69,20 +68,18 @@ def live_config(tmp_path: Path, src: Path, fps: float = 30.0) -> Path:
 
 
 def wait_rows(index: Path, n: int, proc: subprocess.Popen[str], timeout_s: float = 30.0) -> None:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end:
-        if index.exists() and index.read_text().count("\n") > n:
-            return
+    def written() -> bool:
         assert proc.poll() is None, proc.communicate()
-        time.sleep(0.05)
-    raise AssertionError(f"{index}: fewer than {n} rows")
+        return index.exists() and index.read_text().count("\n") > n
+
+    wait_for(written, timeout_s, f"{n} rows in {index}", poll_s=0.05)
 
 
 def test_kill_9_loses_at_most_the_pair_in_flight(tmp_path: Path) -> None:
     src = write_recording(tmp_path / "src", 10)
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [RIG, "record", "--config", str(live_config(tmp_path, src, 60.0)), "--out", str(out)],
+        [str(RIG), "record", "--config", str(live_config(tmp_path, src, 60.0)), "--out", str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
@@ -110,7 +107,7 @@ def test_sigterm_stops_cleanly_with_a_summary(tmp_path: Path) -> None:
     src = write_recording(tmp_path / "src", 10)
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [RIG, "record", "--config", str(live_config(tmp_path, src)), "--out", str(out)],
+        [str(RIG), "record", "--config", str(live_config(tmp_path, src)), "--out", str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     wait_rows(out / "frames.csv", 5, proc)
@@ -197,9 +194,7 @@ def test_bad_input_is_one_line_and_exit_2(
 
 
 def test_bad_input_from_the_console_script(tmp_path: Path) -> None:
-    res = subprocess.run(
-        [RIG, "record", "--out", "x"], capture_output=True, text=True, timeout=60, cwd=tmp_path
-    )
+    res = run_rig(["record", "--out", "x"], timeout=60, cwd=tmp_path)
     assert (
         res.returncode == 2
         and res.stderr.strip() == "error: give exactly one of --config FILE or --replay RECORDING"

@@ -21,12 +21,17 @@ from rosbags.rosbag2 import StoragePlugin
 from calibration import save_rig
 from rig.depth import depth_to_png_mm
 from rig.ros.names import RosNames
-from tests.cli.test_process import RIG, run
+from tests.helpers.command import RIG, clean_env, run_rig
 from tests.rig.ros_fixtures import PAIRS, shot, write_jpeg_recording
 from tests.rig.test_capture_bag import LEFT, RIGHT, STAMPS, write_bag
 
 N = RosNames()
 SMALL = ["--vpc-size", "160x120", "--vpc-hfov", "90"]
+
+
+def run(*args: str | Path, cache: Path) -> subprocess.CompletedProcess[str]:
+    """``rig ARGS`` with its LUT cache in ``cache``."""
+    return run_rig(args, clean_env(RIG_CACHE_DIR=cache))
 
 
 def prepared(root: Path) -> tuple[Any, list[str | Path]]:

@@ -5,29 +5,30 @@ from __future__ import annotations
 
 import signal
 import socket
-import subprocess
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 import pytest
 
-import tests.reliability.common as reliability
-from tests.reliability.common import Served, assert_one_line_error, start_serve
-from tests.service.conftest import SmallRecording
+from tests.helpers.command import (
+    Served,
+    assert_one_line_error,
+    clean_env,
+    run_rig,
+    start_serve,
+    wait_healthy,
+)
+from tests.helpers.service import SmallRecording
 
 
-def clean_env(tmp: Path, **extra: str) -> dict[str, str]:
-    return reliability.clean_env(tmp, RIG_SERVER__RECORDINGS_DIR=str(tmp / "recordings"), **extra)
-
-
-def run_rig(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess[str]:
-    return reliability.run_rig(args, env, timeout=60)
+def serve_env(tmp: Path, **extra: str) -> dict[str, str]:
+    """Caches, data and recordings under ``tmp``."""
+    return clean_env(tmp, RIG_SERVER__RECORDINGS_DIR=str(tmp / "recordings"), **extra)
 
 
 def test_non_loopback_without_token_refused(tmp_path: Path) -> None:
-    result = run_rig(["serve", "--host", "0.0.0.0"], clean_env(tmp_path))
+    result = run_rig(["serve", "--host", "0.0.0.0"], serve_env(tmp_path))
     assert_one_line_error(result, "0.0.0.0", "RIG_API_TOKEN")
 
 
@@ -35,12 +36,12 @@ def test_bad_config_names_file_and_field(tmp_path: Path) -> None:
     cfg = tmp_path / "rig.yaml"
     cfg.write_text("server: {port: 99999}\n")
     assert_one_line_error(
-        run_rig(["serve", "--config", str(cfg)], clean_env(tmp_path)), str(cfg), "server.port"
+        run_rig(["serve", "--config", str(cfg)], serve_env(tmp_path)), str(cfg), "server.port"
     )
 
 
 def test_missing_recording_and_calibration(tmp_path: Path, small_recording: SmallRecording) -> None:
-    env = clean_env(tmp_path)
+    env = serve_env(tmp_path)
     assert_one_line_error(
         run_rig(["serve", "--recording", str(tmp_path / "nope")], env), "--recording", "nope"
     )
@@ -59,7 +60,7 @@ def test_busy_port_is_one_line(tmp_path: Path) -> None:
         s.listen()
         port = s.getsockname()[1]
         result = run_rig(
-            ["serve", "--port", str(port), "--config", str(_empty_config(tmp_path))], clean_env(tmp_path)
+            ["serve", "--port", str(port), "--config", str(_empty_config(tmp_path))], serve_env(tmp_path)
         )
     assert_one_line_error(result, f"127.0.0.1:{port}")
 
@@ -74,24 +75,9 @@ def _empty_config(tmp: Path) -> Path:
     return cfg
 
 
-def wait_healthy(url: str, timeout: float) -> dict[str, object]:
-    deadline = time.monotonic() + timeout
-    last: object = None
-    while time.monotonic() < deadline:
-        try:
-            r = httpx.get(url + "health", timeout=5)
-            last = r.json()
-            if r.status_code == 200 and r.json()["status"] == "ok":
-                return r.json()
-        except httpx.HTTPError as err:
-            last = err
-        time.sleep(0.2)
-    raise AssertionError(f"no healthy service at {url}: {last}")
-
-
 @pytest.fixture
 def served_recording(tmp_path: Path, small_recording: SmallRecording) -> Iterator[Served]:
-    env = clean_env(tmp_path, RIG_VPC__WIDTH="320", RIG_VPC__HEIGHT="240", RIG_STEREO__DISPARITY_RANGE="64")
+    env = serve_env(tmp_path, RIG_VPC__WIDTH="320", RIG_VPC__HEIGHT="240", RIG_STEREO__DISPARITY_RANGE="64")
     served = start_serve(
         ["--port", "0", "--recording", str(small_recording.loop), "--log-level", "warning"], env, timeout=90
     )
@@ -126,7 +112,7 @@ def test_serve_recording_then_graceful_stop(served_recording: Served, stop_signa
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_serve_demo_from_an_empty_cache(tmp_path: Path) -> None:
-    env = clean_env(tmp_path)
+    env = serve_env(tmp_path)
     served = start_serve(["--port", "0", "--demo", "--log-level", "warning"], env, timeout=800)
     assert served.host == "127.0.0.1"  # loopback unless configured
     try:

@@ -9,7 +9,7 @@ The server is a dedicated one (recordings and faults that schemathesis creates s
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -23,15 +23,9 @@ from schemathesis.checks import positive_data_acceptance
 from service.app import create_app
 from service.client import RigClient
 from service.errors import ApiError
-from tests.reliability.common import (
-    AUTH,
-    TOKEN,
-    clean_env,
-    service_settings,
-    start_serve,
-    write_serve_config,
-)
-from tests.service.conftest import LiveServer, wait_for
+from tests.helpers.command import clean_env, start_serve
+from tests.helpers.service import AUTH, TOKEN, LiveServer, StartServer, service_settings, write_serve_config
+from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.timeout(900)]
 
@@ -115,7 +109,7 @@ def test_schemathesis_saw_every_operation(api_server: LiveServer) -> None:
 
 
 def test_a_patch_opencv_refuses_only_when_matching_is_refused_up_front(
-    start_server: Callable[..., LiveServer],
+    start_server: StartServer,
 ) -> None:
     """Found by the generated PATCHes: full SGBM with 304 disparities from 10 and a 19 px window
     passes every static check on a 320 px VPC, then OpenCV refused every frame in the worker."""

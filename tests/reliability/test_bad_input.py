@@ -20,8 +20,8 @@ from rig.capture.file_camera import FileCamera
 from rig.capture.recorder import replay_capture_config
 from rig.errors import ConfigError, CorruptFrameError, EndOfStream, RecordingError
 from rig.recording import Recording
+from tests.helpers.recordings import file_camera_config, write_recording
 from tests.reliability.malformed import CALIBRATION_SAMPLES, malformed_calibration, malformed_recording
-from tests.rig.capture_fixtures import file_camera_config, write_recording
 
 pytestmark = [pytest.mark.timeout(600)]
 

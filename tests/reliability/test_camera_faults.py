@@ -1,7 +1,7 @@
 """Camera faults injected at runtime into a RUNNING service (real uvicorn on loopback, file cameras
 replaying a JPEG recording at 10 fps), watched through the API the way a robot would watch it.
 
-For every fault of issue #9 (stall 3 s, disconnect and reappear, corrupt JPEG, truncated frame,
+For every fault (stall 3 s, disconnect and reappear, corrupt JPEG, truncated frame,
 timestamp jump forward and back, one camera at half rate):
 
 - the service never goes down: every ``/livez`` answers 200 and the worker keeps running;
@@ -32,8 +32,8 @@ import pytest
 from rig.capture.file_camera import FileCamera
 from service.client import RigClient
 from service.schemas import CameraHealthModel, HealthModel
-from tests.reliability.common import AUTH, REPLAY_FPS, TOKEN, metric_values, service_settings
-from tests.service.conftest import LiveServer
+from tests.helpers.service import AUTH, REPLAY_FPS, TOKEN, LiveServer, metric_values, service_settings
+from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
@@ -109,13 +109,8 @@ class Watch:
 
     def until(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> float:
         """Poll at 20 Hz until ``predicate()``; returns time.monotonic() of the first success."""
-        deadline = time.monotonic() + timeout_s
-        while True:
-            if predicate():
-                return time.monotonic()
-            if time.monotonic() > deadline:
-                raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-            time.sleep(POLL_S)
+        wait_for(predicate, timeout_s, what, POLL_S)
+        return time.monotonic()
 
     def steady(self) -> Counters:
         """Wait for status ok with both cameras delivering and no counter moving for 0.5 s."""

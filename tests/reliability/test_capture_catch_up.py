@@ -11,7 +11,7 @@ import pytest
 from rig.capture.config import SupervisorConfig
 from rig.capture.file_camera import FileCamera
 from rig.capture.protocol import TimeBase
-from tests.rig.capture_fixtures import file_camera_config, write_recording
+from tests.helpers.recordings import file_camera_config, write_recording
 
 FPS = 10.0
 PERIOD_NS = 100_000_000

@@ -19,8 +19,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.reliability.common import Served, clean_env, start_serve, write_serve_config
-from tests.service.conftest import wait_for
+from tests.helpers.command import Served, clean_env, start_serve, wait_healthy
+from tests.helpers.service import write_serve_config
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
@@ -118,15 +118,8 @@ def served(jpeg_recording: Path, lut_cache: Path, tmp_path: Path) -> Served:
         tmp_path / "serve.yaml", jpeg_recording, tmp_path, lut_cache, port=0, supervisor={}
     )
     s = start_serve(["--config", str(cfg), "--log-level", "warning"], clean_env(tmp_path))
-
-    def healthy() -> bool:
-        try:
-            return httpx.get(s.url + "health", timeout=5).json()["status"] == "ok"
-        except (httpx.HTTPError, ValueError, KeyError):
-            return False
-
     try:
-        wait_for(healthy, 60, "a healthy service", poll_s=0.2)
+        wait_healthy(s.url, 60)
     except AssertionError:
         s.stop()
         raise

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import socket
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -14,20 +14,11 @@ import httpx
 import pytest
 
 from service.settings import ServerSettings, Settings, is_loopback
-from tests.reliability.common import (
-    AUTH,
-    TOKEN,
-    assert_one_line_error,
-    clean_env,
-    run_rig,
-    start_serve,
-    write_serve_config,
-)
-from tests.service.conftest import LiveServer, wait_for
+from tests.helpers.command import assert_one_line_error, clean_env, run_rig, start_serve, wait_answering
+from tests.helpers.service import AUTH, TOKEN, LiveServer, StartServer, write_serve_config
+from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.timeout(300)]
-
-StartServer = Callable[..., LiveServer]
 
 
 # ----- bind address ------------------------------------------------------------------------------
@@ -52,18 +43,6 @@ def listening_addresses(port: int) -> set[str]:
     return found
 
 
-def wait_until_listening(url: str) -> None:
-    """The URL line comes when the socket is bound; uvicorn listens once the app has started."""
-
-    def up() -> bool:
-        try:
-            return httpx.get(url + "livez", timeout=5).status_code == 200
-        except httpx.TransportError:
-            return False
-
-    wait_for(up, 60, f"{url} to answer", poll_s=0.1)
-
-
 def test_default_bind_is_loopback_in_settings() -> None:
     assert ServerSettings().host == "127.0.0.1" and is_loopback(ServerSettings().host)
     assert Settings().server.host == "127.0.0.1"
@@ -75,7 +54,7 @@ def test_rig_serve_listens_on_loopback_only_by_default(jpeg_recording: Path, tmp
     served = start_serve(["--recording", str(jpeg_recording), "--port", "0", "--log-level", "warning"], env)
     try:
         assert served.host == "127.0.0.1" and served.url == f"http://127.0.0.1:{served.port}/"
-        wait_until_listening(served.url)
+        wait_answering(served.url)
         assert listening_addresses(served.port) == {"127.0.0.1"}
     finally:
         text = served.stop()
@@ -127,7 +106,7 @@ def test_non_loopback_with_a_token_starts(jpeg_recording: Path, lut_cache: Path,
     served = start_serve(["--config", str(cfg), "--log-level", "warning"], clean_env(tmp_path))
     try:
         base = f"http://127.0.0.1:{served.port}"
-        wait_until_listening(base + "/")
+        wait_answering(base + "/")
         assert served.host == "0.0.0.0" and listening_addresses(served.port) == {"0.0.0.0"}
         assert httpx.patch(base + "/config", json={"stereo": {"median": 3}}, timeout=10).status_code == 401
     finally:

@@ -13,7 +13,7 @@ from rig.pipeline import DepthPipeline
 from rig.recording import RecordingWriter
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
-from tests.rig.stereo_renders import StereoShot, plane_shot
+from tests.helpers.shots import StereoShot, plane_shot
 
 VPC = VpcConfig(width=160, height=120)
 STEREO = StereoParams(disparity_range=32)

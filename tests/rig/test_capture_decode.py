@@ -13,7 +13,7 @@ import pytest
 from rig.capture.capture import StereoCapture
 from rig.capture.config import CaptureConfig
 from rig.capture.frame import FramePair
-from tests.rig.capture_fixtures import FAST_SUPERVISOR, replay_config, write_recording
+from tests.helpers.recordings import FAST_SUPERVISOR, replay_config, write_recording
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,7 @@ from rig.capture.file_camera import FileCamera
 from rig.capture.health import CameraHealth, CaptureHealth
 from rig.capture.v4l2 import V4L2Camera
 from rig.errors import ConfigError
-from tests.rig.capture_fixtures import replay_config, write_recording
+from tests.helpers.recordings import replay_config, write_recording
 
 FPS = 50.0
 PERIOD_S = 1 / FPS
@@ -28,14 +28,6 @@ PERIOD_S = 1 / FPS
 @pytest.fixture(scope="module")
 def rec(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_recording(tmp_path_factory.mktemp("faults") / "rec", 30)
-
-
-def wait_for(pred: Callable[[], bool], timeout_s: float = 15.0) -> None:
-    end = time.monotonic() + timeout_s
-    while not pred():
-        if time.monotonic() > end:
-            raise AssertionError("condition not reached")
-        time.sleep(0.01)
 
 
 def run_until(

@@ -17,7 +17,7 @@ from rig.capture.frame import Frame, encoded_problem
 from rig.capture.protocol import TimeBase
 from rig.errors import CameraUnavailable, ConfigError, EndOfStream, RecordingError
 from rig.recording import Recording
-from tests.rig.capture_fixtures import PERIOD_NS, T0_NS, file_camera_config, write_recording
+from tests.helpers.recordings import PERIOD_NS, T0_NS, file_camera_config, write_recording
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ import pytest
 from rig.capture.faults import FaultPlan, parse_fault
 from rig.capture.frame import Frame, FramePair, encoded_problem, format_of_path
 from rig.errors import CorruptFrameError
-from tests.rig.capture_fixtures import encode, frame_image
+from tests.helpers.recordings import encode, frame_image
 
 
 def decodes(data: bytes) -> bool:

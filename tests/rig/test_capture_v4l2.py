@@ -18,7 +18,8 @@ from rig.capture.config import V4L2CameraConfig
 from rig.capture.supervisor import CameraSupervisor
 from rig.capture.v4l2 import V4L2Camera, fourcc_code, fourcc_text, resolve_device
 from rig.errors import CameraFormatError, CameraUnavailable, CorruptFrameError
-from tests.rig.capture_fixtures import FAST_SUPERVISOR, encode, frame_image
+from tests.helpers.recordings import FAST_SUPERVISOR, encode, frame_image
+from tests.helpers.waiting import wait_for
 
 _CONTROLS = (cv2.CAP_PROP_AUTO_EXPOSURE, cv2.CAP_PROP_EXPOSURE, cv2.CAP_PROP_GAIN, cv2.CAP_PROP_AUTO_WB,
              cv2.CAP_PROP_WB_TEMPERATURE)  # fmt: skip
@@ -293,14 +294,6 @@ def test_supervisor_resets_usb_once_after_repeated_failures_then_recovers() -> N
         assert sup.counters["reconnects"] == 1
     finally:
         sup.stop()
-
-
-def wait_for(pred: Callable[[], bool], timeout_s: float = 10.0) -> None:
-    end = time.monotonic() + timeout_s
-    while not pred():
-        if time.monotonic() > end:
-            raise AssertionError("condition not reached")
-        time.sleep(0.01)
 
 
 def test_real_opencv_reports_a_missing_device_clearly(tmp_path: Path) -> None:

@@ -22,7 +22,7 @@ from rig.filters import (
 from rig.pipeline import DepthFrame, DepthPipeline
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
-from tests.rig.stereo_renders import StereoShot, add_noise, central_box, plane_shot, room_shot
+from tests.helpers.shots import StereoShot, add_noise, central_box, plane_shot, room_shot
 
 F32 = NDArray[np.float32]
 VPC = VpcConfig(width=320, height=240)
@@ -150,13 +150,22 @@ def room() -> StereoShot:
 
 
 @pytest.fixture(scope="module")
-def pipe(tmp_path_factory: pytest.TempPathFactory) -> DepthPipeline:
-    return DepthPipeline(room_shot(0, scale=0.5, vpc=VPC).rig, VPC, cache_dir=tmp_path_factory.mktemp("lut"))
+def pipe(lut_cache: Path) -> DepthPipeline:
+    return DepthPipeline(room_shot(0, scale=0.5, vpc=VPC).rig, VPC, cache_dir=lut_cache)
 
 
 def _measure(pipe: DepthPipeline, shot: StereoShot, noise_seed: int = 1, **params: Any) -> DepthFrame:
     pipe.update_stereo(StereoParams(**(BASE | params)))
     return pipe.process(add_noise(shot.left, 1.5, noise_seed), add_noise(shot.right, 1.5, noise_seed + 1))
+
+
+#: Measured (docs/stereo.md, post-filter table): valid fraction, RMS of errors < 3 px, median error,
+#: fractions of errors > 1 px and > 3 px.
+ROOM_FIGURES = {
+    "all filters off": (0.782, 0.346, 0.194, 0.0190, 0.00363),
+    "defaults": (0.780, 0.222, 0.085, 0.0104, 0.00160),
+    "+ LR check": (0.770, 0.210, 0.085, 0.0070, 0.0),
+}
 
 
 def test_each_filter_measured_in_the_room(pipe: DepthPipeline, room: StereoShot) -> None:
@@ -179,6 +188,10 @@ def test_each_filter_measured_in_the_room(pipe: DepthPipeline, room: StereoShot)
             f"{name:20s} valid {st['valid']:.3f}  RMS<3 {st['rms3']:.3f} px  median {st['median']:.3f} px  "
             f">1px {100 * st['bad1']:.2f}%  >3px {100 * st['bad3']:.3f}%"
         )
+    for name, want in ROOM_FIGURES.items():
+        st = stats[name]
+        got = (st["valid"], st["rms3"], st["median"], st["bad1"], st["bad3"])
+        assert got == pytest.approx(want, rel=0.15, abs=3e-4), name
     d, df = stats["defaults"], frames["defaults"]
     # Speckle removal: the pixels it removes are mostly gross errors; it costs < 1 % of pixels.
     nosp = frames["no speckle removal"]
@@ -236,12 +249,13 @@ def test_confidence_ranks_errors_in_the_room(pipe: DepthPipeline, room: StereoSh
     assert all(a > b for a, b in itertools.pairwise(med))
     assert all(a > b for a, b in itertools.pairwise(rms3))
     assert bad1[0] > 5 * bad1[-1] and med[0] > 1.5 * med[-1]
+    assert (med[0], med[-1]) == pytest.approx((0.154, 0.058), rel=0.15)  # measured, in docs/stereo.md
 
 
-def test_temporal_filter_measured_on_noisy_frames(tmp_path: Path) -> None:
+def test_temporal_filter_measured_on_noisy_frames(lut_cache: Path) -> None:
     """A static plane under heavy sensor noise (6 grey levels), 8 frames."""
     shot = plane_shot(7.6, scale=0.5, vpc=VPC)
-    pipe = DepthPipeline(shot.rig, VPC, cache_dir=tmp_path)
+    pipe = DepthPipeline(shot.rig, VPC, cache_dir=lut_cache)
     box = central_box(shot.depth.shape)
     last = {}
     for alpha in (0.0, 0.8):
@@ -255,4 +269,5 @@ def test_temporal_filter_measured_on_noisy_frames(tmp_path: Path) -> None:
         f"alpha 0.8 RMS {last[0.8][1]:.3f} px (valid {last[0.0][0]:.3f} / {last[0.8][0]:.3f})"
     )
     assert last[0.8][1] < 0.85 * last[0.0][1]
+    assert (last[0.0][1], last[0.8][1]) == pytest.approx((0.036, 0.024), rel=0.15)  # measured
     assert last[0.8][0] >= last[0.0][0] - 0.01

@@ -11,6 +11,9 @@ import rig.pipeline
 from rig.heap import heap_stats, tune_allocator
 
 MIB = 1 << 20
+# mallinfo2 counts the whole process: what other threads of the test process (pools and servers
+# of earlier tests) free meanwhile may offset a reading by that much (seen: 272 bytes).
+CHURN = 64 << 10
 
 
 def _malloc_in_use() -> int:
@@ -28,8 +31,8 @@ def test_malloc_in_use_follows_an_allocation_and_its_release(mib: int) -> None:
     held = _malloc_in_use()
     del block
     after = _malloc_in_use()
-    assert held - before >= mib * MIB
-    assert held - after >= mib * MIB
+    assert held - before >= mib * MIB - CHURN
+    assert held - after >= mib * MIB - CHURN
     free = heap_stats().malloc_free_bytes
     assert free is not None and free >= 0
 

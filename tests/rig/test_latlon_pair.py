@@ -21,7 +21,7 @@ from rig.lut_cache import lut_key
 from rig.sim import divergent_rig
 from rig.vpc import DEFAULT_PROJECTION, VpcConfig, VpcPair, design_vpc_pair
 from tests.calibration.model_cases import model_cases
-from tests.rig.stereo_renders import prototype_rig
+from tests.helpers.shots import prototype_rig
 
 F64 = NDArray[np.float64]
 

@@ -17,7 +17,7 @@ from rig.sim import room_scene
 from rig.sim.render import render_range
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
-from tests.rig.stereo_renders import StereoShot, prototype_rig, render_for_vpc
+from tests.helpers.shots import StereoShot, prototype_rig, render_for_vpc
 
 STEREO = StereoParams(disparity_range=64)
 LATLON = VpcConfig(projection="latlon", px_per_deg=2.8)  # half the default, for the half-size rig
@@ -82,7 +82,7 @@ def test_latlon_point_cloud_and_footprint(room: tuple[DepthPipeline, DepthFrame,
 
 
 def test_pinhole_range_is_depth_along_the_ray(tmp_path: Path) -> None:
-    from tests.rig.stereo_renders import plane_shot
+    from tests.helpers.shots import plane_shot
 
     shot = plane_shot(5.0, scale=0.25, vpc=VpcConfig(width=160, height=120), supersample=1)
     pipe = DepthPipeline(

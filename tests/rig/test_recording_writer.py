@@ -10,8 +10,8 @@ import pytest
 import rig.recording
 from rig.errors import DiskFullError, RecordingError
 from rig.recording import Recording, RecordingWriter
+from tests.helpers.recordings import encode, frame_image
 from tests.reliability.fake_disk import Budget, limited_open
-from tests.rig.capture_fixtures import encode, frame_image
 
 
 @pytest.fixture

@@ -1,11 +1,9 @@
-"""``simulate_recording`` and ``rig sim``: DESIGN §7 layout, calibration, exact ground truth,
+"""``simulate_recording`` and ``rig sim``: the recording layout, calibration, exact ground truth,
 and one-line errors from the real console script."""
 
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -17,9 +15,9 @@ from rig.errors import ConfigError, RecordingError
 from rig.recording import FRAMES_HEADER, Recording
 from rig.sim import Preset, get_preset, simulate_recording
 from rig.vpc import VpcConfig
+from tests.helpers.command import assert_one_line_error, run_rig
 
 SMALL_VPC = VpcConfig(width=160, height=120)
-RIG_BIN = Path(sys.executable).with_name("rig")
 
 
 def small_preset(name: str = "paper-sim", scale: float = 0.25) -> Preset:
@@ -123,18 +121,13 @@ def test_simulate_recording_rejects_bad_requests(tmp_path: Path) -> None:
         simulate_recording(small_preset(), "plane", tmp_path / "d", distances=(3, -1))
 
 
-def run_rig(*args: str) -> subprocess.CompletedProcess[str]:
-    assert RIG_BIN.is_file(), f"console script not installed at {RIG_BIN}"
-    return subprocess.run([str(RIG_BIN), *args], capture_output=True, text=True, timeout=300, check=False)
-
-
 def test_rig_sim_end_to_end(tmp_path: Path) -> None:
     out = tmp_path / "sim"
-    res = run_rig(
+    res = run_rig([
         "sim", "--preset", "prototype", "--scene", "plane", "--distances", "4,8", "--scale", "0.125",
         "--supersample", "2", "--vpc-size", "160x120", "--texture", "bricks", "--noise", "0",
         "--out", str(out),
-    )  # fmt: skip
+    ])  # fmt: skip
     assert res.returncode == 0, res.stderr
     assert "wrote 2 pairs" in res.stdout
     expected_files = [
@@ -167,19 +160,13 @@ def test_rig_sim_end_to_end(tmp_path: Path) -> None:
     ],
 )
 def test_rig_sim_bad_arguments_fail_in_one_line(tmp_path: Path, args: list[str], needle: str) -> None:
-    res = run_rig("sim", *args, "--out", str(tmp_path / "never"))
-    assert res.returncode == 2, (res.stdout, res.stderr)
-    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and needle in lines[0], res.stderr
+    assert_one_line_error(run_rig(["sim", *args, "--out", str(tmp_path / "never")]), needle)
     assert not (tmp_path / "never").exists()
 
 
 def test_rig_sim_refuses_a_non_empty_out(tmp_path: Path) -> None:
     (tmp_path / "keep.txt").write_text("data")
-    res = run_rig("sim", "--out", str(tmp_path))
-    assert res.returncode == 2
-    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and "not an empty directory" in lines[0]
+    assert_one_line_error(run_rig(["sim", "--out", str(tmp_path)]), "not an empty directory")
     assert (tmp_path / "keep.txt").read_text() == "data" and sorted(p.name for p in tmp_path.iterdir()) == [
         "keep.txt"
     ]

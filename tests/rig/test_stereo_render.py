@@ -11,18 +11,22 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from rig.pipeline import DepthPipeline
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
-from tests.rig.stereo_renders import central_box, plane_shot, prototype_rig
+from tests.helpers.shots import central_box, plane_shot, prototype_rig
 
 VPC = VpcConfig(width=320, height=240)
 TRUE_DISPARITIES = (12.1, 16.25, 20.4, 24.5, 28.6, 33.75)  # fx·B/Z with fx = 160 px
+#: Measured disparity RMS (px) at those disparities (docs/stereo.md's table).
+PLAIN_RMS = (0.069, 0.156, 0.226, 0.236, 0.264, 0.213)
+OURS_RMS = (0.028, 0.031, 0.037, 0.034, 0.044, 0.038)
 
 
-def test_subpixel_refinement_beats_plain_sgbm_at_every_fractional_distance(tmp_path: Path) -> None:
-    pipe = DepthPipeline(prototype_rig(0.5), VPC, cache_dir=tmp_path)
+def test_subpixel_refinement_beats_plain_sgbm_at_every_fractional_distance(lut_cache: Path) -> None:
+    pipe = DepthPipeline(prototype_rig(0.5), VPC, cache_dir=lut_cache)
     fx = pipe.pair.fx
     variants = {
         "plain SGBM": StereoParams(disparity_range=64, subpixel=False, median=0),
@@ -54,3 +58,5 @@ def test_subpixel_refinement_beats_plain_sgbm_at_every_fractional_distance(tmp_p
     assert ours.max() < 0.06
     assert plain.mean() > 0.12, "plain SGBM's pixel locking should show here"
     assert ours.mean() < plain.mean() / 3
+    assert tuple(plain) == pytest.approx(PLAIN_RMS, rel=0.15, abs=0.002)
+    assert tuple(ours) == pytest.approx(OURS_RMS, rel=0.15, abs=0.002)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
 from typing import Any
 
 import cv2
@@ -16,7 +15,8 @@ from rig.capture.frame import Frame
 from rig.capture.protocol import CameraInfo
 from rig.capture.supervisor import CameraSupervisor
 from rig.errors import CameraUnavailable, EndOfStream
-from tests.rig.capture_fixtures import FAST_SUPERVISOR, encode, frame_image
+from tests.helpers.recordings import FAST_SUPERVISOR, encode, frame_image
+from tests.helpers.waiting import wait_for
 
 JPEG = encode(frame_image("left", 0), ".jpg")
 
@@ -73,14 +73,6 @@ class ScriptedCamera:
         raw = JPEG[: len(JPEG) // 2] if mode == "corrupt" else JPEG
         self.seq += self.seq_step
         return Frame("left", self.seq, ts, "jpeg", time.monotonic_ns(), raw=raw)
-
-
-def wait_for(pred: Callable[[], bool], timeout_s: float = 10.0) -> None:
-    end = time.monotonic() + timeout_s
-    while not pred():
-        if time.monotonic() > end:
-            raise AssertionError("condition not reached")
-        time.sleep(0.01)
 
 
 def start(cam: Any, cfg: SupervisorConfig = FAST_SUPERVISOR) -> tuple[CameraSupervisor, list[Frame]]:

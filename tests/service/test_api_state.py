@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import io
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import cv2
 import httpx
@@ -18,13 +18,12 @@ from rig.recording import Recording
 from service.client import RigClient
 from service.encoders import depth_to_png16
 from service.errors import ApiError
-from tests.service.conftest import TOKEN, LiveServer, SmallRecording, wait_for
-from tests.service.test_api import metric_values, same_frame
+from tests.helpers.service import TOKEN, SmallRecording, StartServer, metric_values, same_frame
+from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.timeout(180)
 
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
-StartServer = Callable[..., LiveServer]
 
 
 def test_state_changing_endpoints_need_the_token(start_server: StartServer) -> None:

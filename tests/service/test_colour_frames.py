@@ -17,9 +17,7 @@ import pytest
 
 from bench.recordings import MjpegSpec, ensure_mjpeg_recording
 from service.client import RigClient
-from service.settings import load_settings
-from tests.service.conftest import LiveServer, service_overrides
-from tests.service.test_api import same_frame
+from tests.helpers.service import LiveServer, same_frame, service_settings
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +25,7 @@ def colour_server(tmp_path_factory: pytest.TempPathFactory, lut_cache: Path) -> 
     tmp = tmp_path_factory.mktemp("colour")
     # 3 pairs of the prototype rig at half size (640×480 fisheyes), colour JPEG 4:2:2.
     recording = ensure_mjpeg_recording(MjpegSpec(frames=3, views=1, scale=0.5), cache_dir=tmp / "cache")
-    live = LiveServer(load_settings(None, service_overrides(recording, tmp, lut_cache))).start()
+    live = LiveServer(service_settings(recording, tmp, lut_cache)).start()
     live.wait_ready()
     yield live
     live.stop()

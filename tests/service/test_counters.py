@@ -20,8 +20,8 @@ from prometheus_client.parser import text_string_to_metric_families
 import rig.counters
 from rig.counters import COUNTERS, GROUPS, CounterSpec, Group, counters_of
 from service.schemas import CameraHealthBase, CounterModel, PairingHealthBase, WorkerHealthBase
-from tests.service.conftest import LiveServer, SmallRecording, service_overrides
-from tests.service.test_dashboard import ARGS, CHROMIUM
+from tests.helpers.browser import CHROMIUM, CHROMIUM_ARGS, needs_chromium
+from tests.helpers.service import LiveServer, SmallRecording, service_overrides
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -160,7 +160,7 @@ specs = (table.CounterSpec(**{**a, "sum_of": tuple(a.get("sum_of", ()))}) for a 
 table.COUNTERS = (*table.COUNTERS, *specs)
 
 from service.settings import load_settings
-from tests.service.conftest import LiveServer
+from tests.helpers.service import LiveServer
 
 live = LiveServer(load_settings(None, json.loads(sys.argv[1]))).start()
 live.wait_ready()
@@ -221,15 +221,12 @@ def test_a_figure_added_to_the_table_shows_everywhere(
 
 
 @pytest.mark.browser
-@pytest.mark.skipif(
-    not Path(CHROMIUM).exists(),
-    reason=f"Debian's chromium not installed at {CHROMIUM} (apt-get install chromium; .ci/run does)",
-)
+@needs_chromium
 def test_the_dashboard_shows_a_column_added_to_the_table(extended_service: dict[str, Any]) -> None:
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:
             page = browser.new_page()
             page.goto(extended_service["base_url"] + "/")

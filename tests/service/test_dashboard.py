@@ -4,46 +4,26 @@ frames are counted and a stopped camera shows up as unavailable."""
 
 from __future__ import annotations
 
-import os
 import re
-import shutil
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 
-from tests.service.conftest import TOKEN, LiveServer
+from tests.helpers.browser import CHROMIUM, CHROMIUM_ARGS, needs_chromium
+from tests.helpers.service import TOKEN, StartServer
 
-CHROMIUM = os.environ.get("RIG_CHROMIUM", "/usr/bin/chromium")
-ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--no-first-run",
-    "--disable-sync",
-]
-
-pytestmark = [
-    pytest.mark.browser,
-    pytest.mark.timeout(180),
-    pytest.mark.skipif(
-        not (Path(CHROMIUM).exists() or shutil.which(CHROMIUM)),
-        reason=f"Debian's chromium not installed at {CHROMIUM} (apt-get install chromium; .ci/run does)",
-    ),
-]
+pytestmark = [pytest.mark.browser, pytest.mark.timeout(180), needs_chromium]
 
 
-def test_dashboard_live_in_chromium(start_server: Callable[..., LiveServer], tmp_path: Path) -> None:
+def test_dashboard_live_in_chromium(start_server: StartServer, tmp_path: Path) -> None:
     from playwright.sync_api import sync_playwright
 
     live = start_server()
     console_errors: list[str] = []
     with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:
             page = browser.new_page(viewport={"width": 1400, "height": 1100})
             page.on("console", lambda m: console_errors.append(m.text) if m.type == "error" else None)

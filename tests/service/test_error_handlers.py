@@ -5,25 +5,21 @@ handlers) under a real uvicorn server, for a tiny route that raises and for real
 from __future__ import annotations
 
 import logging
-import socket
-import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
-import uvicorn
 from fastapi import FastAPI
 
 import calibration.errors
 import rig.errors
 import service.errors
 from calibration.errors import CalibrationFileError, ModelError
-from service.app import create_app
 from service.errors import ApiError, StereoParamsRefused
 from service.settings import load_settings
+from tests.helpers.service import LiveServer
 
 #: Every exported exception class → the status the API answers it with.
 EXPECTED: dict[str, int] = {
@@ -96,7 +92,10 @@ def make(cls: type[Exception]) -> tuple[Exception, Any]:
 
 @pytest.fixture(scope="module")
 def raising_app() -> Iterator[tuple[FastAPI, httpx.Client]]:
-    app = create_app(load_settings(None, {"server": {"api_token": None}}))  # whatever RIG_API_TOKEN says
+    # No lifespan: the runtime is never built (none is needed to raise). No token, whatever
+    # RIG_API_TOKEN says.
+    live = LiveServer(load_settings(None, {"server": {"api_token": None}}), lifespan="off")
+    app = live.app
     pending: list[Exception] = []
 
     @app.get("/test/raise")
@@ -104,23 +103,12 @@ def raising_app() -> Iterator[tuple[FastAPI, httpx.Client]]:
         raise pending.pop()
 
     app.state.pending = pending
-    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)
-    sock.bind(("127.0.0.1", 0))
-    # No lifespan: the runtime is never built (none is needed to raise).
-    server = uvicorn.Server(uvicorn.Config(app, log_level="warning", lifespan="off"))
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30
-    while not server.started:
-        assert thread.is_alive() and time.monotonic() < deadline, "uvicorn did not start"
-        time.sleep(0.02)
+    live.start()
     # A fresh connection per request: after an unexpected exception uvicorn closes the one it used.
-    url = f"http://127.0.0.1:{sock.getsockname()[1]}"
-    with httpx.Client(base_url=url, timeout=10, limits=httpx.Limits(max_keepalive_connections=0)) as client:
+    limits = httpx.Limits(max_keepalive_connections=0)
+    with httpx.Client(base_url=live.base_url, timeout=10, limits=limits) as client:
         yield app, client
-    server.should_exit = True
-    thread.join(20)
-    sock.close()
+    live.stop()
 
 
 def test_every_exported_exception_has_an_expected_status() -> None:

@@ -4,7 +4,7 @@ the app."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import cv2
@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 import service.app
-from tests.service.conftest import SMALL_SPEC, LiveServer, wait_for
+from tests.helpers.service import SMALL_SPEC, LiveServer, StartServer
+from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -36,7 +37,7 @@ def fast_answers(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[str]]:
     yield answered
 
 
-def _frozen(start_server: Callable[..., LiveServer], **server: Any) -> LiveServer:
+def _frozen(start_server: StartServer, **server: Any) -> LiveServer:
     """A ready server whose worker is stopped: its latest frame stays the latest."""
     live = start_server(**server)
     live.runtime.worker.stop()
@@ -53,7 +54,7 @@ def _comparable(r: httpx.Response) -> tuple[int, dict[str, str], bytes]:
     ["/depth", "/depth?format=png", "/depth?format=npy", "/disparity", "/disparity?format=npy"],
 )
 def test_a_polled_frame_gets_the_routes_response(
-    start_server: Callable[..., LiveServer], fast_answers: list[str], path: str
+    start_server: StartServer, fast_answers: list[str], path: str
 ) -> None:
     live = _frozen(start_server)
     with httpx.Client(base_url=live.base_url) as client:
@@ -68,9 +69,7 @@ def test_a_polled_frame_gets_the_routes_response(
     assert seq == live.runtime.store.latest.seq  # type: ignore[union-attr]
 
 
-def test_the_fast_bodies_decode_to_the_frame(
-    start_server: Callable[..., LiveServer], fast_answers: list[str]
-) -> None:
+def test_the_fast_bodies_decode_to_the_frame(start_server: StartServer, fast_answers: list[str]) -> None:
     live = _frozen(start_server)
     frame = live.runtime.store.latest.frame  # type: ignore[union-attr]
     with httpx.Client(base_url=live.base_url) as client:
@@ -88,7 +87,7 @@ def test_the_fast_bodies_decode_to_the_frame(
 
 
 def test_a_fresh_health_document_is_answered_as_the_route_does(
-    start_server: Callable[..., LiveServer], fast_answers: list[str]
+    start_server: StartServer, fast_answers: list[str]
 ) -> None:
     live = start_server(health_max_age_s=1.0)  # one document for the three requests
     with httpx.Client(base_url=live.base_url) as client:
@@ -104,7 +103,7 @@ def test_a_fresh_health_document_is_answered_as_the_route_does(
 
 
 def test_a_stale_health_document_is_left_to_the_route(
-    start_server: Callable[..., LiveServer], fast_answers: list[str]
+    start_server: StartServer, fast_answers: list[str]
 ) -> None:
     live = start_server(health_max_age_s=0.0)  # never fresh: every request builds one
     with httpx.Client(base_url=live.base_url) as client:
@@ -127,7 +126,7 @@ def test_a_stale_health_document_is_left_to_the_route(
     ],
 )
 def test_other_requests_go_to_the_app(
-    start_server: Callable[..., LiveServer],
+    start_server: StartServer,
     fast_answers: list[str],
     method: str,
     path: str,
@@ -147,7 +146,7 @@ def test_other_requests_go_to_the_app(
         assert "detail" in r.json()
 
 
-def test_no_fast_path_with_cors(start_server: Callable[..., LiveServer], fast_answers: list[str]) -> None:
+def test_no_fast_path_with_cors(start_server: StartServer, fast_answers: list[str]) -> None:
     origin = "http://robot-ui.test"
     live = start_server(cors_origins=[origin])
     assert live.app.fast_path_on is False

@@ -14,7 +14,8 @@ import pytest
 
 from rig.ros.names import RosNames
 from service.store import PublishedResult
-from tests.service.conftest import LiveServer, wait_for
+from tests.helpers.service import LiveServer
+from tests.helpers.waiting import wait_for
 from tests.service.foxglove_client import FoxgloveClient
 
 N = RosNames()

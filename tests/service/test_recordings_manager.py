@@ -7,7 +7,6 @@ import json
 import threading
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 
@@ -17,16 +16,15 @@ from rig.recording import Recording
 from rig.sim import get_preset
 from service.errors import RecordingConflict, RecordingNameError, RecordingNotFound
 from service.recordings import RecordingManager, _Active, recording_path, validate_name
+from tests.helpers.recordings import encode
 
 
 def jpeg_pair(seq: int) -> FramePair:
     rng = np.random.default_rng(seq)
     frames = []
     for cam in ("left", "right"):
-        img = rng.integers(0, 256, (24, 32, 3), dtype=np.uint8)
-        ok, buf = cv2.imencode(".jpg", img)
-        assert ok
-        frames.append(Frame(cam, seq, 1_000 + seq * 33_000_000, "jpeg", 0, raw=buf.tobytes()))
+        raw = encode(rng.integers(0, 256, (24, 32, 3), dtype=np.uint8), ".jpg")
+        frames.append(Frame(cam, seq, 1_000 + seq * 33_000_000, "jpeg", 0, raw=raw))
     return FramePair(frames[0], frames[1])
 
 

@@ -13,7 +13,7 @@ from pypcd4 import PointCloud
 
 from calibration import load_rig
 from service.client import parse_ply
-from tests.service.conftest import SMALL_SPEC, LiveServer, SmallRecording
+from tests.helpers.service import SMALL_SPEC, LiveServer, SmallRecording
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -9,7 +9,7 @@ import pytest
 
 from service.client import RigClient
 from service.errors import ApiError, ServiceError
-from tests.service.conftest import SMALL_SPEC, LiveServer
+from tests.helpers.service import SMALL_SPEC, LiveServer
 
 pytestmark = pytest.mark.timeout(120)
 

@@ -5,7 +5,6 @@ its ``last_error``, and no depth is made from it; the worker reports no error of
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import cv2
@@ -21,18 +20,13 @@ from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
 from service.store import ResultStore
 from service.worker import DepthWorker
-from tests.rig.capture_fixtures import FAST_SUPERVISOR, PERIOD_NS, T0_NS, replay_config
-from tests.rig.stereo_renders import StereoShot, plane_shot
+from tests.helpers.recordings import FAST_SUPERVISOR, PERIOD_NS, T0_NS, encode, replay_config
+from tests.helpers.shots import StereoShot, plane_shot
+from tests.helpers.waiting import wait_for
 
 PAIRS = 6
 BAD_SEQ = 3
 VPC = VpcConfig(width=320, height=240)
-
-
-def _jpeg(img: np.ndarray) -> bytes:
-    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 95])
-    assert ok
-    return bytes(buf.tobytes())
 
 
 def _undecodable(data: bytes) -> bytes:
@@ -56,7 +50,7 @@ def shot() -> StereoShot:
 @pytest.fixture(scope="module")
 def recording(shot: StereoShot, tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("undecodable") / "rec"
-    left, right = _jpeg(shot.left), _jpeg(shot.right)
+    left, right = encode(shot.left, ".jpg", 95), encode(shot.right, ".jpg", 95)
     with RecordingWriter(root, meta={"source": "test"}) as w:
         for seq in range(PAIRS):
             ts = T0_NS + seq * PERIOD_NS
@@ -65,9 +59,8 @@ def recording(shot: StereoShot, tmp_path_factory: pytest.TempPathFactory) -> Pat
 
 
 @pytest.fixture(scope="module")
-def pipe(shot: StereoShot, tmp_path_factory: pytest.TempPathFactory) -> DepthPipeline:
-    luts = tmp_path_factory.mktemp("lut")
-    return DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=64), cache_dir=luts)
+def pipe(shot: StereoShot, lut_cache: Path) -> DepthPipeline:
+    return DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=64), cache_dir=lut_cache)
 
 
 @pytest.mark.parametrize("decode", [False, True], ids=["worker-decodes", "capture-decodes"])
@@ -87,9 +80,7 @@ def test_an_undecodable_frame_is_counted_against_its_camera(
     worker = DepthWorker(capture, pipe, ResultStore(), on_result=lambda r, t: seen.append(r.seq), poll_s=0.02)
     worker.start()
     try:
-        deadline = time.monotonic() + 60.0
-        while not (capture.finished and len(seen) >= PAIRS - 1) and time.monotonic() < deadline:
-            time.sleep(0.02)
+        wait_for(lambda: capture.finished and len(seen) >= PAIRS - 1, 60.0, "the replay to end")
         health, stats = capture.health(), worker.stats()
     finally:
         worker.stop()

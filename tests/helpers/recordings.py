@@ -1,8 +1,9 @@
-"""Small recordings built on the fly for the capture tests: real JPEG/PNG bytes from cv2.imencode,
-timestamps on an exact grid so pairing outcomes are known in advance."""
+"""Small recordings built on the fly: real JPEG/PNG bytes from cv2.imencode, timestamps on an
+exact grid so pairing outcomes are known in advance, and the file-camera configs replaying them."""
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -12,7 +13,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rig.capture.config import CaptureConfig, FileCameraConfig, PairingConfig, SupervisorConfig
-from rig.recording import RecordingWriter
+from rig.recording import Recording, RecordingWriter
+
+__all__ = [
+    "FAST_SUPERVISOR",
+    "PERIOD_NS",
+    "T0_NS",
+    "encode",
+    "file_camera_config",
+    "frame_image",
+    "jpeg_copy",
+    "replay_config",
+    "write_recording",
+]
 
 PERIOD_NS = 33_333_333  # 30 fps
 T0_NS = 5_000_000_000
@@ -37,8 +50,10 @@ def frame_image(cam: str, seq: int, width: int = 160, height: int = 120) -> NDAr
     return img
 
 
-def encode(img: NDArray[Any], ext: str) -> bytes:
-    ok, buf = cv2.imencode(ext, img)
+def encode(img: NDArray[Any], ext: str, quality: int | None = None) -> bytes:
+    """``img`` as ``ext`` file bytes (JPEG at ``quality`` if given, else OpenCV's default)."""
+    params = [] if quality is None else [cv2.IMWRITE_JPEG_QUALITY, quality]
+    ok, buf = cv2.imencode(ext, img, params)
     assert ok
     return bytes(buf.tobytes())
 
@@ -102,3 +117,16 @@ def replay_config(
 
 def file_camera_config(recording: Path, camera: str = "left", **kw: Any) -> FileCameraConfig:
     return FileCameraConfig.model_validate({"recording": str(recording), "camera": camera, **kw})
+
+
+def jpeg_copy(source: Path, out: Path, quality: int = 90) -> Path:
+    """``source`` (a rendered PNG recording) re-encoded as JPEG frames, same seqs and timestamps,
+    with its calibration.yaml: what an MJPEG camera recording looks like."""
+    src = Recording(source)
+    with RecordingWriter(out, meta={"source": f"jpeg copy of {source}"}) as writer:
+        for pair in src.pairs:
+            left, right = (encode(src.read_image(pair, cam), ".jpg", quality) for cam in ("left", "right"))
+            writer.write_pair(pair.seq, pair.left_ts_ns, pair.right_ts_ns, left, right, ext=".jpg")
+    if src.calibration_path is not None:
+        shutil.copyfile(src.calibration_path, out / "calibration.yaml")
+    return out

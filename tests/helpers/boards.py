@@ -1,9 +1,9 @@
-"""Rendered calibration targets with known truth, for the calibration tests.
+"""Rendered calibration targets with known truth, for the calibration tests and the
+``rig calibrate`` command's.
 
-Boards are rendered by the virtual environment (``rig.sim.render``) through the true lens. To keep
-tests fast only the board's bounding box is ray-cast: the same model with its principal point /
-distortion centre shifted by the crop origin sees exactly the same ray at every pixel, so the
-crop pasted into a background canvas is the full render (pixel for pixel).
+Boards are rendered by the virtual environment through the true lens, as ``rig evaluate``
+renders them (``rig.evaluate.renders.render_board``: only the board's bounding box is ray-cast,
+pixel for pixel the full render).
 """
 
 from __future__ import annotations
@@ -20,12 +20,13 @@ from calibration.geometry import invert_transform
 from calibration.models import CameraModel, create
 from calibration.targets import detect_chessboard
 from rig.evaluate.renders import board_pose as evaluate_board_pose
-from rig.sim import chessboard_corners, chessboard_scene, render
+from rig.evaluate.renders import render_board as evaluate_render_board
+from rig.sim import chessboard_corners
 
 F64 = NDArray[np.float64]
+U8 = NDArray[np.uint8]
 
 BOARD = (9, 6)  # inner corners; odd x even, so the detected order is unambiguous
-BACKGROUND = 90
 # Supersampling of renders behind accuracy claims: 4x4 rays per pixel (16 coverage levels per
 # edge pixel). At 2x2 the renders' own edge staircase is ~0.04 px of corner error; at 4x4 the
 # refined corners are ~0.02 px from the truth (at 8x8, ~0.01 px).
@@ -138,46 +139,10 @@ def twin_lens(lens: CameraModel) -> CameraModel:
     return lens.replace(**change)
 
 
-def _crop_camera(camera: CameraModel, x0: int, y0: int, w: int, h: int) -> CameraModel:
-    """The same lens seeing only the window [x0, x0+w) x [y0, y0+h) of its image."""
-    return camera.replace(width=w, height=h, cx=camera.param_dict["cx"] - x0, cy=camera.param_dict["cy"] - y0)
-
-
-def render_board(
-    camera: CameraModel,
-    T_cam_board: F64,
-    square_m: float = 0.05,
-    supersample: int = 2,
-    T_world_cam: F64 | None = None,
-) -> NDArray[np.uint8]:
-    """8-bit grey image of the board through ``camera``. ``T_cam_board`` is in the camera
-    frame; ``T_world_cam`` (default identity) only moves both into a world frame."""
-    T_wc = np.eye(4) if T_world_cam is None else np.asarray(T_world_cam, dtype=np.float64)
-    scene = chessboard_scene(*BOARD, square_m, T_wc @ T_cam_board)
-    # Bounding box of the board (with its white margin) in the image, padded.
-    cols, rows = BOARD
-    outline = np.array(
-        [[x, y, 0.0] for x in np.linspace(-2 * square_m, (cols + 1) * square_m, 24)
-         for y in np.linspace(-2 * square_m, (rows + 1) * square_m, 24)]
-    )  # fmt: skip
-    pts = outline @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
-    pix, ok = camera.project(pts, in_image=False)
-    image = np.full((camera.height, camera.width), BACKGROUND, dtype=np.uint8)
-    if not ok.any():
-        return image
-    pad = 6
-    x0 = max(int(np.floor(pix[ok, 0].min())) - pad, 0)
-    y0 = max(int(np.floor(pix[ok, 1].min())) - pad, 0)
-    x1 = min(int(np.ceil(pix[ok, 0].max())) + pad, camera.width)
-    y1 = min(int(np.ceil(pix[ok, 1].max())) + pad, camera.height)
-    if not ok.all():  # part of the board outside the model's domain: render everything
-        x0, y0, x1, y1 = 0, 0, camera.width, camera.height
-    if x1 <= x0 or y1 <= y0:
-        return image
-    crop = _crop_camera(camera, x0, y0, x1 - x0, y1 - y0)
-    out = render(scene, crop, T_wc, supersample=supersample, background=BACKGROUND)
-    image[y0:y1, x0:x1] = out.image
-    return image
+def render_board(camera: CameraModel, T_cam_board: F64, square_m: float = 0.05, supersample: int = 2) -> U8:
+    """8-bit grey image of the :data:`BOARD` through ``camera`` (``T_cam_board`` in the camera
+    frame), on the evaluation's background (only the board's bounding box is ray-cast)."""
+    return evaluate_render_board(camera, T_cam_board, BOARD, square_m, supersample)
 
 
 def true_corners(camera: CameraModel, T_cam_board: F64, square_m: float = 0.05) -> tuple[F64, F64]:

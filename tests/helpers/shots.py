@@ -1,23 +1,24 @@
-"""Renders of the virtual environment shared by the stereo/pipeline tests (cached per process).
+"""Rendered stereo shots with their ground truth, shared by the stereo, pipeline, service and
+bench tests (cached per process).
 
-Only the part of each fisheye image that the VPC's lookup table reads is rendered: a crop of a
-Kannala-Brandt (or any fx/fy/cx/cy) camera is the same camera with its principal point moved,
-so every rendered pixel is exactly the pixel of the full image; the rest stays background (0),
-which the table never samples. That makes full-size prototype renders affordable in tests.
+Only the part of each fisheye image that the VPC's lookup table reads is rendered
+(``rig.evaluate.renders.render_in_box``: the same lens with its principal point moved sees the
+same ray at every pixel); the rest stays background (0), which the table never samples. That
+makes full-size prototype renders affordable in tests.
 """
 
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from calibration.geometry import make_transform
-from calibration.models import CameraModel, PinholeModel
+from calibration.models import PinholeModel
 from calibration.rig import Rig
+from rig.evaluate.renders import lut_box, render_in_box
 from rig.lut import build_vpc_lut
 from rig.sim import Scene, divergent_rig, get_preset, plane_scene, render, room_scene
 from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
@@ -35,7 +36,6 @@ __all__ = [
 
 U8 = NDArray[np.uint8]
 F32 = NDArray[np.float32]
-_MARGIN = 3  # px around the sampled region: bilinear neighbours and supersample footprint
 PINHOLE = VpcConfig(projection="pinhole")  # the shots' default pair: the paper's 640x480, 90°
 
 
@@ -67,11 +67,6 @@ def mount_rig(scale: float, angle_deg: float, pitch_deg: float) -> Rig:
     return divergent_rig(base.cameras["left"], base.cameras["right"], base.baseline(), angle_deg, pitch_deg)
 
 
-def _crop(model: CameraModel, x0: int, y0: int, w: int, h: int) -> CameraModel:
-    p = model.param_dict
-    return model.replace(width=w, height=h, cx=p["cx"] - x0, cy=p["cy"] - y0)
-
-
 def render_for_vpc(
     scene: Scene,
     rig: Rig,
@@ -86,21 +81,11 @@ def render_for_vpc(
     """Full-size fisheye image of camera ``name`` with only the VPC's source region rendered
     (noise and vignetting as the renderer applies them, per pixel)."""
     model = rig.cameras[name]
-    lut = build_vpc_lut(model, pair.R_cam_vpc[name], pair.camera)
-    xs, ys = lut.map_x[lut.valid], lut.map_y[lut.valid]
-    x0 = max(0, math.floor(xs.min()) - _MARGIN)
-    y0 = max(0, math.floor(ys.min()) - _MARGIN)
-    x1 = min(model.width, math.ceil(xs.max()) + _MARGIN + 1)
-    y1 = min(model.height, math.ceil(ys.max()) + _MARGIN + 1)
-    crop = _crop(model, x0, y0, x1 - x0, y1 - y0)
-    T = T_world_rig @ rig.T_rig_cam[name]
-    part = render(
-        scene, crop, T, supersample=supersample, noise_std=noise_std, vignetting=vignetting, seed=seed
-    )
-    part_image = part.image
-    full = np.zeros((model.height, model.width), dtype=np.uint8)
-    full[y0:y1, x0:x1] = part_image
-    return full
+    box = lut_box(build_vpc_lut(model, pair.R_cam_vpc[name], pair.camera), model)
+    return render_in_box(
+        scene, model, T_world_rig @ rig.T_rig_cam[name], box,
+        supersample=supersample, noise_std=noise_std, vignetting=vignetting, seed=seed,
+    )  # fmt: skip
 
 
 def _reference_depth(scene: Scene, camera: PinholeModel, T_world_vpc: NDArray[np.float64]) -> F32:

@@ -1,0 +1,15 @@
+"""What several test packages share, each thing once:
+
+- :mod:`~tests.helpers.waiting`: ``wait_for`` (poll until a condition holds or fail naming it);
+- :mod:`~tests.helpers.recordings`: small recordings written on the fly (real JPEG/PNG bytes on
+  an exact timestamp grid) and the file-camera configs that replay them;
+- :mod:`~tests.helpers.shots`: rendered stereo shots with their ground truth (plane and room);
+- :mod:`~tests.helpers.boards`: rendered calibration boards through known lenses;
+- :mod:`~tests.helpers.service`: service settings for a replayed recording and ``create_app``
+  under a real uvicorn server in a thread;
+- :mod:`~tests.helpers.command`: the ``rig`` console command in subprocesses (one-shot runs and
+  ``rig serve`` waited for until it answers).
+
+The fixtures built on them (the small rendered recording, the session's LUT cache, server
+factories) are in ``tests/conftest.py``.
+"""
