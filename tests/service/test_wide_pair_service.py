@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import io
 import json
-import os
-import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -20,10 +18,11 @@ from rig.sim import room_scene
 from rig.sim.render import render_range
 from service.client import RigClient
 from service.settings import load_settings
-from tests.service.conftest import LiveServer, SmallRecording, service_overrides, wait_for
+from tests.helpers.browser import CHROMIUM, CHROMIUM_ARGS, needs_chromium
+from tests.helpers.service import LiveServer, SmallRecording, service_overrides
+from tests.helpers.waiting import wait_for
 
 WIDE = {"projection": "latlon", "px_per_deg": 2.0}
-CHROMIUM = os.environ.get("RIG_CHROMIUM", "/usr/bin/chromium")
 
 
 @pytest.fixture(scope="module")
@@ -127,19 +126,14 @@ def test_pinhole_range_is_depth_along_the_ray(start_server: Callable[..., LiveSe
 
 @pytest.mark.browser
 @pytest.mark.timeout(180)
-@pytest.mark.skipif(
-    not (Path(CHROMIUM).exists() or shutil.which(CHROMIUM)),
-    reason=f"Debian's chromium not installed at {CHROMIUM} (apt-get install chromium; .ci/run does)",
-)
+@needs_chromium
 def test_dashboard_shows_the_wide_pair(wide_server: LiveServer, tmp_path: Path) -> None:
     from playwright.sync_api import sync_playwright
-
-    from tests.service.test_dashboard import ARGS
 
     cam = wide_server.runtime.pipeline.pair.camera
     errors: list[str] = []
     with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         try:
             page = browser.new_page(viewport={"width": 1400, "height": 1100})
             page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
