@@ -31,7 +31,7 @@ def room(tmp_path_factory: pytest.TempPathFactory) -> Path:
     rec = tmp / "rec"
     res = run(
         "sim", "--preset", "prototype", "--scene", "room", "--frames", "1", "--scale", "0.25",
-        "--supersample", "2", *LATLON, "--stereo", tmp / "stereo.yaml", "--out", rec, cache=tmp / "c",
+        "--supersample", "2", *LATLON, "--stereo", tmp / "stereo.yaml", "--out", rec, tmp=tmp / "c",
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
     assert "left latlon view's range" in res.stdout
@@ -51,7 +51,7 @@ def test_process_writes_range_and_vpc_json_of_the_lat_lon_pair(room: Path, tmp_p
     stereo = room.parent / "stereo.yaml"
     out = tmp_path / "out"
     res = run(
-        "process", room, "--out", out, *LATLON, "--stereo", stereo, "--ply", "--preview", cache=tmp_path / "c"
+        "process", room, "--out", out, *LATLON, "--stereo", stereo, "--ply", "--preview", tmp=tmp_path / "c"
     )
     assert res.returncode == 0, res.stderr
     assert "processed 1 of 1 pairs" in res.stdout and "lat-lon" in res.stdout and "1.400 px/deg" in res.stdout
@@ -79,7 +79,7 @@ def test_a_field_wider_than_the_overlap_is_clipped_with_one_line(room: Path, tmp
     stereo = room.parent / "stereo.yaml"
     res = run(
         "process", room, "--out", tmp_path / "o", *LATLON, "--field", "170x300", "--stereo", stereo,
-        cache=tmp_path / "c",
+        tmp=tmp_path / "c",
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
     lines = [ln for ln in res.stderr.splitlines() if "clipped" in ln]
@@ -100,7 +100,7 @@ def test_a_field_wider_than_the_overlap_is_clipped_with_one_line(room: Path, tmp
 def test_bad_projection_options_are_one_line(
     room: Path, tmp_path: Path, args: list[str], needle: str
 ) -> None:
-    res = run("process", room, "--out", tmp_path / "o", *args, cache=tmp_path / "c")
+    res = run("process", room, "--out", tmp_path / "o", *args, tmp=tmp_path / "c")
     assert res.returncode == 2, res.stdout
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0], res.stderr
@@ -119,7 +119,7 @@ def test_a_rig_without_overlap_is_one_line(tmp_path: Path) -> None:
     with RecordingWriter(rec) as writer:
         writer.write_images(0, 0, 0, np.zeros((48, 64), np.uint8), np.zeros((48, 64), np.uint8))
     save_rig(rig, rec / "calibration.yaml")
-    res = run("process", rec, "--out", tmp_path / "o", "--projection", "latlon", cache=tmp_path / "c")
+    res = run("process", rec, "--out", tmp_path / "o", "--projection", "latlon", tmp=tmp_path / "c")
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and "no stereo overlap" in lines[0], res.stderr
@@ -136,7 +136,7 @@ def test_evaluate_wide_pair_quick_writes_the_study(tmp_path: Path) -> None:
         "--quick",
         "--out",
         out,
-        cache=tmp_path / "c",
+        tmp=tmp_path / "c",
     )
     assert res.returncode == 0, res.stderr
     assert "overlap 3.67 sr" in res.stdout and "wrote" in res.stdout
@@ -151,6 +151,6 @@ def test_evaluate_wide_pair_quick_writes_the_study(tmp_path: Path) -> None:
     doc = json.loads((out / "wide_pair.json").read_text())
     assert doc["settings"]["quick"] is True and len(doc["variants"]) == 4
     bad = run(
-        "evaluate", "--study", "wide-pair", "--textures", "2", "--out", tmp_path / "b", cache=tmp_path / "c"
+        "evaluate", "--study", "wide-pair", "--textures", "2", "--out", tmp_path / "b", tmp=tmp_path / "c"
     )
     assert bad.returncode == 2 and "--textures apply to --study paper" in bad.stderr
