@@ -24,6 +24,7 @@ from rig.sim import Scene, divergent_rig, get_preset, plane_scene, render, room_
 from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
 
 __all__ = [
+    "PINHOLE",
     "StereoShot",
     "add_noise",
     "central_box",
