@@ -223,10 +223,27 @@ def _stereo_overrides(text: str | None) -> dict[str, Any]:
     return out
 
 
-def _configs(quick: bool) -> list[tuple[int, int, int]]:
+def _configs(quick: bool) -> list[tuple[VpcConfig, int]]:
     if quick:
-        return [(160, 120, 32)]
-    return [(w, h, d) for (w, h) in FULL_SIZES for d in FULL_DISPARITIES]
+        return [(VpcConfig(width=160, height=120), 32)]
+    return [(VpcConfig(width=w, height=h), d) for (w, h) in FULL_SIZES for d in FULL_DISPARITIES]
+
+
+def parse_config(item: str) -> tuple[VpcConfig, int]:
+    """``640x480/128`` (a pinhole pair), ``latlon/128`` (the lat-lon pair at its default
+    resolution) or ``latlon@4.5/128`` (at 4.5 px/deg): the rectified pair and its disparities."""
+    view, disp = item.split("/")
+    view = view.strip().lower()
+    if view.startswith("latlon"):
+        ppd = float(view.split("@", 1)[1]) if "@" in view else None
+        return VpcConfig(projection="latlon", px_per_deg=ppd), int(disp)
+    w, h = (int(v) for v in view.split("x"))
+    return VpcConfig(width=w, height=h), int(disp)
+
+
+def _label(row: dict[str, Any]) -> str:
+    w, h = row["vpc"]
+    return f"{w}×{h}" + (f" lat-lon {row['px_per_deg']:.2f} px/deg" if row["projection"] == "latlon" else "")
 
 
 def _quartiles(values: list[float]) -> tuple[float, float]:
@@ -269,8 +286,7 @@ def alternate_windows(
 
 
 def measure_config(
-    w: int,
-    h: int,
+    vpc: VpcConfig,
     disp: int,
     *,
     stages: str,
@@ -285,7 +301,6 @@ def measure_config(
 ) -> dict[str, Any]:
     """One row of the table: throughput (cameras unpaced) and latency (cameras paced) each in
     alternating windows with the floor, then the same-work loop ``m.repeat`` times."""
-    vpc = VpcConfig(width=w, height=h)
     stereo = StereoParams(**{"disparity_range": disp, **STAGES[stages], **(overrides or {})})
     pipeline = DepthPipeline(rig, vpc, stereo, cache_dir=tmp / "lut")
     sgbm = floor_matcher(stereo)
@@ -316,7 +331,9 @@ def measure_config(
     latencies = [x for _, o in paced for x in o.latency_ms]
     stage_keys = paced[0][1].stage_ms if paced else {}
     return {
-        "vpc": [w, h],
+        "vpc": [pipeline.pair.camera.width, pipeline.pair.camera.height],
+        "projection": pipeline.pair.projection,
+        "px_per_deg": math.radians(pipeline.pair.fx),
         "disparities": disp,
         "stereo": stereo.model_dump(),
         "floor_ms_per_frame": median(median(f.frame_ms) for f, _ in windows),
@@ -354,7 +371,6 @@ def measure_config(
 
 
 def _table_row(row: dict[str, Any]) -> list[str]:
-    w, h = row["vpc"]
     q1, q3 = row["throughput_ratio_iqr"]
     l1, l3 = row["latency_ratio_iqr"]
     lat = row["ours_latency_ms"]
@@ -362,7 +378,7 @@ def _table_row(row: dict[str, Any]) -> list[str]:
         f"{k[:3]} {v:.1f}" for k, v in row["ours_stage_ms"].items() if k != "total" and not math.isnan(v)
     )
     return [
-        f"{w}×{h}",
+        _label(row),
         str(row["disparities"]),
         f"{row['floor_ms_per_frame']:.1f}",
         f"{row['floor_fps']:.1f}",
@@ -421,7 +437,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "with only the floor's work (plain SGBM: the pipelining and glue overhead alone)",
     )
     parser.add_argument(
-        "--sizes", default=None, help="VPC sizes and disparities, e.g. 640x480/128,320x240/64"
+        "--sizes",
+        default=None,
+        help="rectified pairs and disparities, e.g. 640x480/128,320x240/64 (pinhole pairs), latlon/128 "
+        "(the lat-lon pair at its default resolution), latlon@4.5/128",
     )
     parser.add_argument(
         "--stereo",
@@ -450,11 +469,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rig = load_rig(recording / "calibration.yaml")
     configs = _configs(quick)
     if args.sizes:
-        configs = []
-        for item in args.sizes.split(","):
-            size, disp = item.split("/")
-            w, h = (int(v) for v in size.lower().split("x"))
-            configs.append((w, h, int(disp)))
+        configs = [parse_config(item) for item in args.sizes.split(",")]
     kind = "colour 4:2:2" if spec.color else "gray"
     console.print(
         f"input: {recording} ({len(pairs)} pairs, {kind} JPEG q{spec.quality}, "
@@ -470,10 +485,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         table.add_column(col, justify="right")
     rows = []
     with tempfile.TemporaryDirectory(prefix="rig-bench-worker-") as tmp_name:
-        for w, h, disp in configs:
+        for vpc, disp in configs:
             row = measure_config(
-                w,
-                h,
+                vpc,
                 disp,
                 stages=args.stages,
                 decode=DECODE_MODES[args.decode],
@@ -489,7 +503,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             table.add_row(*_table_row(row))
             if row["worker_errors"]:
                 failed = row["worker_errors"]
-                console.print(f"[red]warning:[/red] the worker reported {failed} failed frame(s) at {w}×{h}")
+                console.print(
+                    f"[red]warning:[/red] the worker reported {failed} failed frame(s) at {_label(row)}"
+                )
     console.print(
         "throughput × = ours fps / floor fps per window pair, median (interquartile range) (target ≥ 1.0, "
         "aim 1.3), and ours' median fps / the same-work loop's; CPU ceiling × = the fps ours' CPU per "

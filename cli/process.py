@@ -1,11 +1,13 @@
-"""`rig process RECORDING --calibration FILE --out DIR`: depth for every pair of a recording,
-headless (recording layout: see docs/cameras.md), or of a ROS bag's two image topics (see
-docs/ros.md).
+"""`rig process RECORDING --calibration FILE --out DIR`: depth and range for every pair of a
+recording, headless (recording layout: see docs/cameras.md), or of a ROS bag's two image topics
+(see docs/ros.md); the rectified projections: docs/wide-pair.md.
 
-Output: ``DIR/depth/NNNNNN.png`` (uint16 mm, 0 = invalid, aligned with the left VPC image),
-``DIR/left/NNNNNN.png``, ``DIR/right/NNNNNN.png`` (the VPC images), ``DIR/vpc.json``
-(``width, height, fx, fy, cx, cy, baseline_m``); with ``--ply`` also ``DIR/cloud/NNNNNN.ply``
-(rig frame), with ``--preview`` ``DIR/preview/NNNNNN.png`` (left VPC beside colour depth).
+Output: ``DIR/range/NNNNNN.png`` (uint16 mm along each pixel's ray, 0 = invalid, aligned with
+the left rectified image), for the pinhole pair also ``DIR/depth/NNNNNN.png`` (uint16 mm of z),
+``DIR/left/NNNNNN.png``, ``DIR/right/NNNNNN.png`` (the rectified images), ``DIR/vpc.json``
+(``projection, width, height, fx, fy, cx, cy, baseline_m, R_rig_vpc``); with ``--ply`` also
+``DIR/cloud/NNNNNN.ply`` (rig frame), with ``--preview`` ``DIR/preview/NNNNNN.png`` (left view
+beside colour depth, or range for the lat-lon pair).
 
 Before the first pair is processed, the calibration is checked against the first readable pair
 (:mod:`rig.calibration_check`): frames of another size, or cameras that look swapped, stop the
@@ -38,7 +40,10 @@ from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption,
 from cli.vpc_options import (
     CacheDirOption,
     CalibrationOption,
+    FieldOption,
     PitchOption,
+    ProjectionOption,
+    PxPerDegOption,
     VpcHfovOption,
     VpcSizeOption,
     YawOption,
@@ -89,14 +94,20 @@ def build_pipeline(
     stereo: Path | None,
     cache_dir: Path | None,
 ) -> tuple[DepthPipeline, Path]:
-    """The depth pipeline of the options (calibration, VPC, stereo file, cache), with a warning
-    when the VPC leaves a camera's field; and the calibration file used."""
+    """The depth pipeline of the options (calibration, rectified pair, stereo file, cache), with a
+    warning line when a pinhole VPC leaves a camera's field or a lat-lon field was clipped to the
+    lenses' overlap; and the calibration file used."""
     rig, cal_path = load_calibration(calibration, fallback)
     params = load_stereo_params(stereo) if stereo is not None else None
+    # The pipeline logs the same for the service's log: here it is one warning line, below.
+    logging.getLogger("rig.pipeline").setLevel(logging.ERROR)
     pipeline = DepthPipeline(rig, config, params, cache_dir=cache_dir)
-    for name, frac in pipeline.valid_fraction.items():
-        if frac < 1.0:
-            warn(f"the VPC leaves camera '{name}''s field: {percent_valid(frac)} of its pixels are valid")
+    if pipeline.pair.field_note:
+        warn(pipeline.pair.field_note)
+    if pipeline.pair.projection == "pinhole":  # a lat-lon field spans the overlap by design
+        for name, frac in pipeline.valid_fraction.items():
+            if frac < 1.0:
+                warn(f"the VPC leaves camera '{name}''s field: {percent_valid(frac)} of its pixels are valid")
     return pipeline, cal_path
 
 
@@ -155,10 +166,13 @@ def register(app: typer.Typer) -> None:
         ],
         out: Annotated[Path, typer.Option("--out", "-o", metavar="DIR", help="Output directory.")],
         calibration: CalibrationOption = None,
-        vpc_hfov: VpcHfovOption = 90.0,
-        vpc_size: VpcSizeOption = "640x480",
-        yaw: YawOption = 0.0,
-        pitch: PitchOption = 0.0,
+        projection: ProjectionOption = None,
+        vpc_hfov: VpcHfovOption = None,
+        vpc_size: VpcSizeOption = None,
+        px_per_deg: PxPerDegOption = None,
+        field: FieldOption = None,
+        yaw: YawOption = None,
+        pitch: PitchOption = None,
         stereo: StereoOption = None,
         ply: Annotated[
             bool, typer.Option("--ply", help="Also write DIR/cloud/NNNNNN.ply (rig frame).")
@@ -178,14 +192,20 @@ def register(app: typer.Typer) -> None:
             ),
         ] = False,
     ) -> None:
-        """Depth for every pair of RECORDING into --out: depth/, left/, right/ PNGs and vpc.json."""
+        """Range (and the pinhole pair's depth) for every pair of RECORDING into --out: range/,
+        depth/, left/, right/ PNGs and vpc.json."""
         rec = open_source(recording, left_topic, right_topic, max_skew_ms)
-        config = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
+        config = make_vpc_config(
+            vpc_size, vpc_hfov, yaw, pitch, projection=projection, px_per_deg=px_per_deg, field=field
+        )
         pipeline, cal_path = build_pipeline(calibration, rec.calibration_path, config, stereo, cache_dir)
         if not no_check:
             check_against_frames(pipeline, rec)
-        extra = (("cloud",) if ply else ()) + (("preview",) if preview else ())
-        dirs = {k: out / k for k in ("depth", "left", "right", *extra)}
+        pinhole = pipeline.pair.projection == "pinhole"
+        extra = (
+            (("depth",) if pinhole else ()) + (("cloud",) if ply else ()) + (("preview",) if preview else ())
+        )
+        dirs = {k: out / k for k in ("range", "left", "right", *extra)}
         try:
             for d in dirs.values():
                 d.mkdir(parents=True, exist_ok=True)
@@ -210,7 +230,9 @@ def register(app: typer.Typer) -> None:
                     progress.advance(task)
                     continue
                 stem = f"{pair.seq:06d}.png"
-                _write_png(dirs["depth"] / stem, depth_to_png_mm(frame.depth))
+                _write_png(dirs["range"] / stem, depth_to_png_mm(frame.range))
+                if pinhole:
+                    _write_png(dirs["depth"] / stem, depth_to_png_mm(frame.depth))
                 _write_png(dirs["left"] / stem, frame.left_vpc)
                 _write_png(dirs["right"] / stem, frame.right_vpc)
                 if preview:
@@ -224,9 +246,15 @@ def register(app: typer.Typer) -> None:
         if total and not done:
             fail(f"no pair of {total} in {recording} could be processed ({skipped} skipped)")
         note = f", [yellow]{skipped} skipped[/yellow]" if skipped else ""
+        cam = pipeline.pair.camera
+        view = (
+            f"VPC {cam.width}x{cam.height} fx {cam.fx:.1f}"
+            if pinhole
+            else f"lat-lon {cam.width}x{cam.height} {np.radians(cam.fx):.3f} px/deg"
+        )
         console.print(
             f"processed {done} of {total} pairs{note} -> {out} (calibration {cal_path}, "
-            f"VPC {config.width}x{config.height} fx {pipeline.pair.fx:.1f}, B {pipeline.baseline_m:.4f} m)",
+            f"{view}, B {pipeline.baseline_m:.4f} m)",
             highlight=False,
             soft_wrap=True,
         )

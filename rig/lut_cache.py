@@ -104,7 +104,7 @@ def _canonical_rotation(R: ArrayLike) -> list[list[float]]:
     return [[float(x) for x in row] for row in Rr]
 
 
-def lut_key(model: CameraModel, R_cam_vpc: ArrayLike, vpc_camera: PinholeModel) -> str:
+def lut_key(model: CameraModel, R_cam_vpc: ArrayLike, vpc_camera: CameraModel) -> str:
     """sha256 hex of the canonical description of one table (see module doc)."""
     doc = {
         "format": LUT_FORMAT_VERSION,
@@ -177,8 +177,9 @@ def _payload_bytes(h: int, w: int) -> int:
     return sum(dt.itemsize * int(np.prod(shape)) for _, dt, shape in _payload_layout(h, w))
 
 
-def _summary(model: CameraModel, vpc_camera: PinholeModel) -> str:
-    return f"{model.name} {model.width}x{model.height} -> vpc {vpc_camera.width}x{vpc_camera.height}"
+def _summary(model: CameraModel, vpc_camera: CameraModel) -> str:
+    kind = "" if isinstance(vpc_camera, PinholeModel) else f" {vpc_camera.name}"
+    return f"{model.name} {model.width}x{model.height} -> vpc {vpc_camera.width}x{vpc_camera.height}{kind}"
 
 
 class LutCache:
@@ -195,7 +196,7 @@ class LutCache:
         return self.directory / f"{key}{SUFFIX}"
 
     # ----- lookup ------------------------------------------------------------------------------
-    def get(self, model: CameraModel, R_cam_vpc: ArrayLike, vpc_camera: PinholeModel) -> CachedLut:
+    def get(self, model: CameraModel, R_cam_vpc: ArrayLike, vpc_camera: CameraModel) -> CachedLut:
         """The table from the cache, or built (and stored) when missing, stale or corrupt."""
         key = lut_key(model, R_cam_vpc, vpc_camera)
         path = self.path(key)

@@ -27,9 +27,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from calibration.models import LatLonModel
 from calibration.rig import Rig
-from rig.depth import depth_points
+from rig.depth import range_points
 from rig.errors import ConfigError, PipelineError
+from rig.field import image_border, region_outline
 from rig.filters import fill_where, visible_in_right
 from rig.finish import FinishStage
 from rig.heap import tune_allocator
@@ -48,9 +50,11 @@ U8 = NDArray[np.uint8]
 
 @dataclass
 class DepthFrame:
-    """One processed pair. Arrays are (H, W) at the VPC size.
+    """One processed pair. Arrays are (H, W) at the rectified view's size.
 
-    ``depth`` float32 m along the left VPC's z, NaN invalid; ``disparity`` float32 px, NaN
+    ``range`` float32 m along each left rectified pixel's ray, NaN invalid; ``depth`` float32 m:
+    z in the left VPC frame for the pinhole pair, the range itself (the same array) for the
+    lat-lon pair, whose rays reach past 90° off its z axis; ``disparity`` float32 px, NaN
     invalid; ``valid`` bool; ``confidence`` float32 in [0, 1] (0 where invalid) or None;
     ``left_vpc``/``right_vpc`` uint8, gray or BGR like the input; ``timings_ms`` per stage
     (remap, match, refine, filters, depth, total).
@@ -59,6 +63,7 @@ class DepthFrame:
     seq: int
     ts_ns: int
     depth: F32
+    range: F32
     disparity: F32
     valid: NDArray[np.bool_]
     confidence: F32 | None
@@ -114,7 +119,9 @@ class DepthPipeline:
             tune_allocator()
         self.rig = rig
         self.vpc_config = vpc or VpcConfig()
-        self.pair: VpcPair = design_vpc_pair(rig, self.vpc_config)
+        params = stereo or StereoParams()
+        # A lat-lon field's default leaves room for the matcher's unmatched columns.
+        self.pair: VpcPair = design_vpc_pair(rig, self.vpc_config, blind_band_px=params.blind_band_px)
         self.baseline_m = self.pair.baseline_m
         self.cache = LutCache(cache_dir)
         self.names = (self.pair.left, self.pair.right)
@@ -125,6 +132,44 @@ class DepthPipeline:
             )
         self.luts: dict[str, Lut] = {n: info.lut for n, info in self.lut_info.items()}
         self.valid_fraction = {n: lut.valid_fraction for n, lut in self.luts.items()}
+        self._latlon = isinstance(self.pair.camera, LatLonModel)
+        self._blind_band_px = params.blind_band_px
+        self._report_field()
+        left_lut, right_lut = self.luts[self.pair.left], self.luts[self.pair.right]
+        # Masks are only applied when they exclude something (the usual VPC sees all valid).
+        self._left_mask = None if left_lut.valid_fraction == 1.0 else left_lut.valid
+        self._right_mask = None if right_lut.valid_fraction == 1.0 else right_lut.valid
+        self._swap_lock = threading.Lock()
+        self._process_lock = threading.Lock()
+        self._match_lock = threading.Lock()
+        self._finish_lock = threading.Lock()
+        self._check_params(params)
+        self._matcher = StereoMatcher(params)
+        self._finish = FinishStage(self.pair.camera, self.baseline_m, self._matcher)
+
+    # ----- configuration -----------------------------------------------------------------------
+    @property
+    def stereo(self) -> StereoParams:
+        return self._matcher.params
+
+    def _report_field(self) -> None:
+        """Log what the rectified view leaves out: for the pinhole pair the share of its pixels a
+        lens does not see (an unusual VPC); the lat-lon field is the lenses' overlap by design,
+        an explicit field wider than it is clipped (:attr:`VpcPair.field_note`)."""
+        c = self.pair.camera
+        if self.pair.field_note:
+            log.warning("%s", self.pair.field_note)
+        if self._latlon:
+            log.info(
+                "lat-lon pair %dx%d, %.3f px/deg, %d unmatched columns on the left; the lenses see "
+                "%s / %s of its pixels",
+                c.width,
+                c.height,
+                np.radians(c.fx),
+                self._blind_band_px,
+                *(percent_valid(self.valid_fraction[n]) for n in self.names),
+            )
+            return
         for name, frac in self.valid_fraction.items():
             if frac < 1.0:
                 log.warning(
@@ -138,23 +183,6 @@ class DepthPipeline:
                     name,
                     percent_valid(frac),
                 )
-        left_lut, right_lut = self.luts[self.pair.left], self.luts[self.pair.right]
-        # Masks are only applied when they exclude something (the usual VPC sees all valid).
-        self._left_mask = None if left_lut.valid_fraction == 1.0 else left_lut.valid
-        self._right_mask = None if right_lut.valid_fraction == 1.0 else right_lut.valid
-        self._swap_lock = threading.Lock()
-        self._process_lock = threading.Lock()
-        self._match_lock = threading.Lock()
-        self._finish_lock = threading.Lock()
-        params = stereo or StereoParams()
-        self._check_params(params)
-        self._matcher = StereoMatcher(params)
-        self._finish = FinishStage(self.pair.fx, self.baseline_m, self._matcher)
-
-    # ----- configuration -----------------------------------------------------------------------
-    @property
-    def stereo(self) -> StereoParams:
-        return self._matcher.params
 
     def _check_params(self, params: StereoParams) -> None:
         width = self.pair.camera.width
@@ -168,6 +196,14 @@ class DepthPipeline:
         """Swap in new stereo parameters (thread-safe; takes effect at the next frame)."""
         self._check_params(params)
         matcher = StereoMatcher(params)
+        if self._latlon and params.blind_band_px > self._blind_band_px:
+            log.warning(
+                "stereo: the lat-lon field leaves room for %d unmatched columns, the new settings "
+                "leave %d: the overlap's leftmost %d columns get no range until the service restarts",
+                self._blind_band_px,
+                params.blind_band_px,
+                params.blind_band_px - self._blind_band_px,
+            )
         with self._swap_lock:
             self._matcher = matcher
 
@@ -246,6 +282,7 @@ class DepthPipeline:
             seq,
             ts_ns,
             out.depth,
+            out.range,
             out.disparity,
             out.valid,
             out.confidence,
@@ -267,7 +304,7 @@ class DepthPipeline:
         """Points (N, 3) float32 in the rig frame and their colours (N, 3) uint8 RGB (gray
         images give gray colours), every ``stride``-th pixel of each axis. Colours come from
         ``image`` (the left VPC image, (H, W[, 3]) uint8) or else ``frame.left_vpc``."""
-        pts, idx = depth_points(frame.depth, self.pair.camera, self.pair.T_rig_vpc[self.pair.left], stride)
+        pts, idx = range_points(frame.range, self.pair.camera, self.pair.T_rig_vpc[self.pair.left], stride)
         img = frame.left_vpc if image is None else image
         if img.shape[:2] != frame.depth.shape:
             raise PipelineError(
@@ -281,27 +318,21 @@ class DepthPipeline:
         return pts, np.ascontiguousarray(colors)
 
     def footprint(self, camera: str, samples: int = 64) -> NDArray[np.float64]:
-        """The VPC image border traced in ``camera``'s fisheye image: (M, 2) pixels, a closed
-        polyline (top, right, bottom, left edges, ``samples`` points each) of the border
-        points the lens sees. For the dashboard overlay."""
+        """The rectified view's outline traced in ``camera``'s fisheye image: (M, 2) pixels, a
+        closed polyline of the outline points the lens sees. The pinhole pair's outline is its
+        image border (top, right, bottom, left edges, ``samples`` points each); the lat-lon
+        pair's, whose image corners no lens sees, the border of the overlap (where both lenses
+        see, ``4·samples`` points). For the dashboard overlay."""
         if camera not in self.luts:
             raise ConfigError(f"footprint: no camera {camera!r} in the VPC pair ({', '.join(self.names)})")
         if samples < 2:
             raise ConfigError(f"footprint: samples must be >= 2, got {samples}")
         c = self.pair.camera
-        u = np.linspace(0.0, c.width - 1.0, samples)
-        v = np.linspace(0.0, c.height - 1.0, samples)
-        border = np.concatenate(
-            [
-                np.stack([u, np.zeros_like(u)], 1),
-                np.stack([np.full_like(v, c.width - 1.0), v], 1),
-                np.stack([u[::-1], np.full_like(u, c.height - 1.0)], 1),
-                np.stack([np.zeros_like(v), v[::-1]], 1),
-            ]
-        )
-        rays = np.stack(
-            [(border[:, 0] - c.cx) / c.fx, (border[:, 1] - c.cy) / c.fy, np.ones(len(border))], axis=1
-        )
-        cam_rays = rays @ self.pair.R_cam_vpc[camera].T
-        pix, ok = self.rig.cameras[camera].project(cam_rays, in_image=False)
+        if self._latlon:
+            both = self.luts[self.pair.left].valid & self.luts[self.pair.right].valid
+            outline = region_outline(both, 4 * samples)
+        else:
+            outline = image_border(c.width, c.height, samples)
+        rays, _ = c.unproject(outline, in_image=False)
+        pix, ok = self.rig.cameras[camera].project(rays @ self.pair.R_cam_vpc[camera].T, in_image=False)
         return pix[ok]

@@ -115,6 +115,12 @@ class StereoParams(SettingsModel):
         return self
 
     @property
+    def blind_band_px(self) -> int:
+        """Columns on the left of the image the matcher never matches: OpenCV's matchers start at
+        column ``min_disparity + disparity_range`` (a left pixel's match must lie in the image)."""
+        return max(0, self.min_disparity + self.disparity_range)
+
+    @property
     def effective_mode(self) -> str:
         return "hh" if self.full_dp else self.sgbm_mode
 

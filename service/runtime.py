@@ -116,12 +116,14 @@ class Runtime:
         self.memory_budget = service_estimate(settings, rig)
         self.metrics = ServiceMetrics(self.metrics_snapshot)
         scale, level = settings.server.depth_scale_m, settings.server.png_compression
-        # The /depth, /disparity and /confidence bodies by cache key: the routes encode them on
+        # The /depth, /range, /disparity and /confidence bodies by cache key: the routes encode them on
         # request and the worker ahead of the clients that poll them (one table, so they cannot
         # disagree).
         self.frame_bodies: dict[str, Callable[[PublishedResult], bytes]] = {
             "depth_png": lambda r: depth_png(r.frame.depth, scale, level),
             "depth_npy": lambda r: npy_bytes(r.frame.depth),
+            "range_png": lambda r: depth_png(r.frame.range, scale, level),
+            "range_npy": lambda r: npy_bytes(r.frame.range),
             "disparity_png": lambda r: disparity_png(r.frame.disparity, level),
             "disparity_npy": lambda r: npy_bytes(r.frame.disparity),
             "confidence_png": lambda r: confidence_png(r.confidence(), level),

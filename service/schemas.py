@@ -77,7 +77,10 @@ class CameraInfoModel(BaseModel):
     header: RosHeader
     height: int
     width: int
-    distortion_model: str = Field(description="equidistant (Kannala-Brandt), plumb_bob, or our model's name")
+    distortion_model: str = Field(
+        description="equidistant (Kannala-Brandt), plumb_bob, latlon (the lat-lon rectified pair), "
+        "or our model's name"
+    )
     d: list[float]
     k: list[float] = Field(min_length=9, max_length=9)
     r: list[float] = Field(min_length=9, max_length=9)
@@ -227,6 +230,10 @@ class HealthModel(BaseModel):
 
 
 class VpcModel(BaseModel):
+    projection: Literal["pinhole", "latlon"] = Field(
+        description="pinhole: u = cx + fx·x/z, v = cy + fy·y/z; latlon: u = cx + fx·asin(x/|p|), "
+        "v = cy + fy·atan2(y, z) (fx, fy in px per radian), in the left rectified frame"
+    )
     width: int
     height: int
     fx: float
@@ -234,9 +241,11 @@ class VpcModel(BaseModel):
     cx: float
     cy: float
     baseline_m: float
-    hfov_deg: float
+    hfov_deg: float | None = Field(description="the pinhole pair's horizontal field of view (None: lat-lon)")
+    px_per_deg: float | None = Field(description="the lat-lon pair's resolution (None: pinhole)")
     yaw_deg: float
     pitch_deg: float
+    R_rig_vpc: list[list[float]] = Field(description="the left rectified frame's axes in the rig frame")
     T_rig_vpc: dict[str, list[list[float]]]
 
 

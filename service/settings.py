@@ -12,7 +12,7 @@ cameras:                         # rig.capture.CaptureConfig; omitted = no camer
   left:  {kind: v4l2, device: /dev/rig/left}
   right: {kind: v4l2, device: /dev/rig/right}
 calibration: {path: rig.yaml}    # rig.yaml or Kalibr camchain.yaml
-vpc: {width: 640, height: 480, hfov_deg: 90}
+vpc: {projection: latlon, px_per_deg: 5.585}  # or {projection: pinhole, width: 640, height: 480}
 stereo: {disparity_range: 96}    # rig.stereo.StereoParams
 ros: {namespace: /rig}           # rig.ros.RosNames: topic names and frame ids (Foxglove, MCAP)
 cache_dir: null                  # LUT cache (default: $RIG_CACHE_DIR or the user cache dir)

@@ -151,7 +151,8 @@ def make_config(
     ks = _check_distances(
         distances if distances is not None else (QUICK_DISTANCES if quick else FULL_DISTANCES)
     )
-    vpc = VpcConfig(width=320, height=240) if quick else VpcConfig()
+    # The paper's method: the pinhole pair.
+    vpc = VpcConfig(width=320, height=240) if quick else VpcConfig(projection="pinhole")
     return EvalConfig(
         preset=preset,
         models=_check_models(models if models is not None else DEFAULT_MODELS),

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from rig.depth import depth_to_png_mm, depth_to_range, pack_xyzrgb, pixel_ray_norms
+from rig.depth import depth_to_png_mm, pack_xyzrgb
 from rig.pipeline import DepthFrame, DepthPipeline
 from rig.recording import StoredFrame
 from rig.ros.camera_info import CameraInfo, raw_camera_info, rectified_camera_info
@@ -120,7 +120,6 @@ class MessageBuilder:
         self.raw_infos = {c: raw_camera_info(rig.cameras[c], pair, c, self.names) for c in self.cameras}
         self.rect_infos = {c: rectified_camera_info(pair, c, self.names) for c in self.cameras}
         self.transforms = static_transforms(rig, pair, self.names)
-        self._ray_norms = pixel_ray_norms(pair.camera)
 
     # ----- static ------------------------------------------------------------------------------
     def static(self, stamp_ns: int) -> list[Message]:
@@ -175,8 +174,7 @@ class MessageBuilder:
         if want(self.names.depth_image):
             out.append(self.depth_image(frame, stamp_ns))
         if want(topic := self.names.range_image):
-            rng = depth_to_range(frame.depth, self.pipeline.pair.camera, self._ray_norms)
-            out.append(ImageMessage(topic, rect_frame, stamp_ns, raw_pixels(rng)))
+            out.append(ImageMessage(topic, rect_frame, stamp_ns, raw_pixels(frame.range)))
         if frame.confidence is not None and want(topic := self.names.confidence_image):
             conf = np.asarray(frame.confidence, dtype=np.float32)
             out.append(ImageMessage(topic, rect_frame, stamp_ns, raw_pixels(conf)))

@@ -29,18 +29,20 @@ def calibration(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_build_reports_path_key_valid_fraction_and_time_then_hits(calibration: Path, tmp_path: Path) -> None:
     cache = tmp_path / "lut"
-    res = run("lut", "build", "--calibration", calibration, "--cache-dir", cache)
+    res = run("lut", "build", "--calibration", calibration, "--cache-dir", cache, "--projection", "pinhole")
     assert res.returncode == 0, res.stderr
-    pair = design_vpc_pair(prototype_rig(1.0), VpcConfig())
+    pair = design_vpc_pair(prototype_rig(1.0), VpcConfig(projection="pinhole"))
     for name in ("left", "right"):
         key = lut_key(prototype_rig(1.0).cameras[name], pair.R_cam_vpc[name], pair.camera)
         assert (cache / f"{key}.lut").is_file()
         assert key[:16] in res.stdout
     assert res.stdout.count("100.0%") == 2 and res.stdout.count("built") == 2
     assert "VPC 640x480" in res.stdout
-    again = run("lut", "build", "-c", calibration, "--cache-dir", cache)
+    again = run("lut", "build", "-c", calibration, "--cache-dir", cache, "--projection", "pinhole")
     assert again.returncode == 0 and again.stdout.count("cache (load)") == 2
-    forced = run("lut", "build", "-c", calibration, "--cache-dir", cache, "--rebuild")
+    forced = run(
+        "lut", "build", "-c", calibration, "--cache-dir", cache, "--rebuild", "--projection", "pinhole"
+    )
     assert forced.returncode == 0 and forced.stdout.count("built") == 2
 
 

@@ -111,11 +111,14 @@ def test_output_layout_vpc_json_and_depth(tmp_path: Path, shot: StereoShot) -> N
         "--stereo", tmp_path / "stereo.yaml", "--ply", "--preview", tmp=tmp_path,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["cloud", "depth", "left", "preview", "right", "vpc.json"]
-    for sub in ("depth", "left", "right"):
+    assert sorted(p.name for p in out.iterdir()) == [
+        "cloud", "depth", "left", "preview", "range", "right", "vpc.json"
+    ]  # fmt: skip
+    for sub in ("depth", "range", "left", "right"):
         assert sorted(p.name for p in (out / sub).iterdir()) == ["000003.png", "000004.png"]
     doc = json.loads((out / "vpc.json").read_text())
-    assert list(doc) == ["width", "height", "fx", "fy", "cx", "cy", "baseline_m"]
+    assert list(doc) == ["projection", "width", "height", "fx", "fy", "cx", "cy", "baseline_m", "R_rig_vpc"]
+    assert doc["projection"] == "pinhole" and np.allclose(doc["R_rig_vpc"], shot.pair.R_rig_vpc)
     assert (doc["width"], doc["height"]) == (320, 240)
     assert doc["fx"] == pytest.approx(160.0) and doc["cx"] == pytest.approx(159.5)
     assert doc["baseline_m"] == pytest.approx(shot.rig.baseline())
