@@ -16,6 +16,7 @@ __all__ = [
     "LutError",
     "PipelineError",
     "RecordingError",
+    "RectificationError",
     "RigError",
     "SimulationError",
     "UsbError",
@@ -64,6 +65,10 @@ class LutError(RigError):
 
 class PipelineError(RigError):
     """The depth pipeline was given inputs it cannot process."""
+
+
+class RectificationError(RigError):
+    """The scene does not support a rectification measurement or refinement (too few matches)."""
 
 
 class SimulationError(RigError):
