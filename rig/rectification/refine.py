@@ -39,6 +39,9 @@ __all__ = ["RectificationRefinement", "RefineOptions", "collect_matches", "refin
 
 log = logging.getLogger(__name__)
 
+# Frames whose grey levels vary less than this are blank (no scene to match).
+_BLANK_STD = 2.0
+
 #: ``progress(done, total)`` after each matched pair.
 Progress = Callable[[int, int], None]
 
@@ -158,10 +161,11 @@ def collect_matches(
     identical = 0
     for done, pair in enumerate(chosen, 1):
         try:
-            raw_l, raw_r = recording.read_bytes(pair, "left"), recording.read_bytes(pair, "right")
-            identical += raw_l == raw_r
             gray_l = recording.read_image(pair, "left", cv2.IMREAD_GRAYSCALE)
             gray_r = recording.read_image(pair, "right", cv2.IMREAD_GRAYSCALE)
+            # The same textured image on both sides: one camera recorded twice (two cameras
+            # looking at nothing, lens caps on, give blank frames: that is "not enough matches").
+            identical += bool(np.array_equal(gray_l, gray_r) and gray_l.std() > _BLANK_STD)
         except RecordingError as err:
             skipped[pair.seq] = str(err)
             log.warning("skipping seq %d: %s", pair.seq, err)

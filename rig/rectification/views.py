@@ -58,7 +58,8 @@ class EpipolarViews:
     """The lat-lon views of cameras ``left`` and ``right`` of ``rig`` (see module doc).
 
     ``lon_deg`` / ``lat_deg``: half extents of the grid; ``scale`` multiplies the lenses'
-    angular resolution (0.5: a quarter of the pixels, for a cheap check). ``luts[name]`` maps
+    angular resolution (0.5: a quarter of the pixels), ``max_px_per_deg`` caps it (a cheap
+    check on any camera). ``luts[name]`` maps
     each view pixel to its fisheye pixel; ``mask`` (H, W) uint8 is 255 where both cameras see,
     shrunk by a margin: where features are looked for.
     """
@@ -70,6 +71,7 @@ class EpipolarViews:
         right: str = "right",
         *,
         scale: float = 1.0,
+        max_px_per_deg: float | None = None,
         lon_deg: float = 60.0,
         lat_deg: float = 80.0,
     ) -> None:
@@ -84,6 +86,8 @@ class EpipolarViews:
         self.R_cam_view = {n: pair.R_cam_vpc[n] for n in self.names}
         self.cameras = {n: rig.cameras[n] for n in self.names}
         self.px_per_rad = scale * min(angular_resolution(c) for c in self.cameras.values())
+        if max_px_per_deg is not None:
+            self.px_per_rad = min(self.px_per_rad, max_px_per_deg * 180.0 / math.pi)
         s = self.px_per_rad
         self.width = 2 * round(math.radians(lon_deg) * s) + 1
         self.height = 2 * round(math.radians(lat_deg) * s) + 1

@@ -1,0 +1,446 @@
+"""The live rectification measure and the opt-in online refinement (docs/rectification.md).
+
+Every ``check_interval_s`` a low-priority thread takes the newest pair the service has (never a
+frame of its own, never on the depth worker's path), matches it in the epipolar views
+(:mod:`rig.rectification.matching`), keeps the matches that agree on one relative pose (the
+robust fit of :func:`calibration.relative_pose.refine_relative_pose`, so moving objects and
+mismatches do not count) and measures their vertical disparity in the VPC pair. The status
+says ``degraded`` when the last ``confirm_checks`` measurements all pass a bound; a check
+without enough matches (or with matches bunched in one place) says ``not enough matches``,
+never ``degraded``.
+
+Online refinement (``auto_refine``) pools the consistent matches of the checks since the last
+correction and applies the pooled rotation correction only when every condition holds: enough
+pooled matches, a correction at least three standard deviations from zero, the last
+``stable_checks`` single-check estimates within ``stable_deg`` of it, a step no larger than
+``max_step_deg`` and a vertical disparity at least ``min_gain_px`` smaller on the pooled
+matches. The baseline direction is never changed online (``rig calibrate refine`` does that).
+Applying calls ``apply(new_rig)`` (the service rebuilds its lookup tables there and swaps them
+in) on this thread, logs once and starts a new pool.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from calibration.errors import CalibrationFailed
+from calibration.relative_pose import (
+    RelativePoseFit,
+    RelativePoseOptions,
+    refine_relative_pose,
+    rig_with_relative_pose,
+)
+from calibration.rig import Rig
+from rig.errors import ConfigError, RigError
+from rig.rectification.matching import MatchOptions, RayMatches, match_pair
+from rig.rectification.measure import VerticalDisparity, vertical_disparity
+from rig.rectification.refine import relative_pose
+from rig.rectification.views import EpipolarViews
+from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
+
+__all__ = [
+    "CheckResult",
+    "MonitorOptions",
+    "RectificationMonitor",
+    "RectificationState",
+    "RectificationStatus",
+]
+
+log = logging.getLogger("rig.rectification")
+
+U8 = NDArray[np.uint8]
+F64 = NDArray[np.float64]
+
+RectificationState = Literal["waiting", "ok", "not enough matches", "degraded"]
+#: The newest gray pair (left, right), or None while there is none.
+PairSource = Callable[[], tuple[U8, U8] | None]
+# The monitor's thread runs at this nice value (the lowest priority; raising nice needs no rights).
+_MONITOR_NICE = 19
+# Consensus threshold of a check, in epipolar-view pixels.
+_INLIER_PX = 2.0
+
+
+@dataclass(frozen=True)
+class MonitorOptions:
+    """The ``rectification`` settings (see the module doc; lengths in VPC pixels, angles in
+    degrees)."""
+
+    check_interval_s: float = 10.0
+    view_px_per_deg: float = 2.6
+    max_features: int = 2000
+    min_matches: int = 50
+    min_spread: float = 0.4
+    max_p50_px: float = 0.5
+    max_p95_px: float = 1.5
+    confirm_checks: int = 2
+    trend_window_s: float = 3600.0
+    auto_refine: bool = False
+    pool_checks: int = 6
+    min_pool_matches: int = 300
+    stable_checks: int = 3
+    stable_deg: float = 0.05
+    max_step_deg: float = 1.0
+    min_gain_px: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not self.check_interval_s > 0:
+            raise ConfigError(f"rectification: check_interval_s must be > 0, got {self.check_interval_s}")
+        if self.stable_checks > self.pool_checks:
+            raise ConfigError(
+                f"rectification: stable_checks ({self.stable_checks}) cannot exceed pool_checks "
+                f"({self.pool_checks})"
+            )
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """One check: when (``time.monotonic()`` s), its measurement, the matches found, the
+    single-check rotation estimate (deg, about the VPC axes; None without a fit) and its cost
+    (wall and this thread's CPU, ms)."""
+
+    at_s: float
+    measure: VerticalDisparity
+    matches: int
+    correction_deg: F64 | None
+    wall_ms: float
+    cpu_ms: float
+
+
+@dataclass(frozen=True)
+class RectificationStatus:
+    """What ``/health`` and ``/metrics`` report. ``p50_px`` / ``p95_px`` are the last valid
+    measurement's (``measured_age_s`` old), ``trend_px_per_hour`` the slope of p50 over the
+    trend window (None with fewer than three valid checks), ``refinement`` what the online
+    refinement is doing."""
+
+    state: RectificationState
+    reason: str | None
+    p50_px: float | None
+    p95_px: float | None
+    trend_px_per_hour: float | None
+    matches: int | None
+    checks: int
+    checks_without_enough_matches: int
+    last_check_age_s: float | None
+    measured_age_s: float | None
+    check_wall_ms: float | None
+    check_cpu_ms: float | None
+    auto_refine: bool
+    corrections_applied: int
+    last_correction_deg: float | None
+    refinement: str | None = None
+
+
+@dataclass
+class _Pool:
+    """Consistent matches and single-check estimates since the last applied correction."""
+
+    matches: deque[RayMatches]
+    estimates: deque[F64]
+
+    @classmethod
+    def new(cls, size: int) -> _Pool:
+        return cls(deque(maxlen=size), deque(maxlen=size))
+
+
+@dataclass
+class _Counters:
+    checks: int = 0
+    without_matches: int = 0
+    corrections: int = 0
+    last_correction_deg: float | None = None
+    refinement: str | None = None
+    history: deque[CheckResult] = field(default_factory=lambda: deque(maxlen=1024))
+
+
+class RectificationMonitor:
+    """Measures (and optionally refines) the rectification of ``rig``'s pair ``vpc`` from the
+    pairs ``source`` gives (see the module doc). :meth:`check` runs one check on the calling
+    thread; :meth:`start` runs them every ``check_interval_s`` on a thread of its own."""
+
+    def __init__(
+        self,
+        rig: Rig,
+        vpc: VpcConfig,
+        source: PairSource,
+        options: MonitorOptions | None = None,
+        apply: Callable[[Rig], None] | None = None,
+    ) -> None:
+        self.options = options or MonitorOptions()
+        self.vpc = vpc
+        self._source = source
+        self._apply = apply
+        self._lock = threading.Lock()
+        self._counters = _Counters()
+        self._pool = _Pool.new(self.options.pool_checks)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._set_rig(rig)
+
+    # ----- geometry ----------------------------------------------------------------------------
+    def _set_rig(self, rig: Rig) -> None:
+        views = EpipolarViews(rig, self.vpc.left, self.vpc.right, max_px_per_deg=self.options.view_px_per_deg)
+        pair = design_vpc_pair(rig, self.vpc)
+        with self._lock:
+            self.rig, self._views, self._pair = rig, views, pair
+
+    @property
+    def pair(self) -> VpcPair:
+        return self._pair
+
+    # ----- lifecycle ---------------------------------------------------------------------------
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="rig-rectification", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout_s)
+        self._thread = None
+
+    def _run(self) -> None:
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), _MONITOR_NICE)
+        except (OSError, AttributeError):  # no per-thread priority here: runs at normal priority
+            log.debug("rectification monitor: could not lower its thread's priority")
+        while not self._stop.wait(self.options.check_interval_s):
+            pair = self._source()
+            if pair is None:
+                continue
+            try:
+                self.check(*pair)
+            except RigError as err:  # a frame of the wrong size, say: reported, never fatal
+                log.warning("rectification check failed: %s", err)
+            except Exception:  # a bug must not end the measurement for good
+                log.exception("rectification check: unexpected error")
+
+    # ----- one check ---------------------------------------------------------------------------
+    def check(self, left: U8, right: U8) -> CheckResult:
+        """Match one gray pair, measure it and, with ``auto_refine``, maybe apply a correction."""
+        t0, c0 = time.perf_counter(), time.thread_time()
+        with self._lock:
+            rig, views, pair = self.rig, self._views, self._pair
+        opts = self.options
+        matches = match_pair(views, left, right, MatchOptions(max_features=opts.max_features))
+        fit = self._fit(rig, pair, views, matches, opts.min_matches)
+        if fit is None:
+            measure = VerticalDisparity(len(matches), None, None, None, 0.0, "not enough matches",
+                                        f"{len(matches)} matches agree on no relative pose")  # fmt: skip
+            consistent = RayMatches.empty()
+        else:
+            consistent = matches.select(fit.inliers)
+            measure = vertical_disparity(
+                pair,
+                consistent.left,
+                consistent.right,
+                min_matches=opts.min_matches,
+                min_spread=opts.min_spread,
+            )
+        now = time.monotonic()
+        result = CheckResult(
+            now,
+            measure,
+            len(matches),
+            None if fit is None or not measure.ok else fit.rotation_deg,
+            (time.perf_counter() - t0) * 1e3,
+            (time.thread_time() - c0) * 1e3,
+        )
+        with self._lock:
+            self._counters.checks += 1
+            self._counters.without_matches += not measure.ok
+            self._counters.history.append(result)
+        if opts.auto_refine and measure.ok and result.correction_deg is not None:
+            self._pool.matches.append(consistent)
+            self._pool.estimates.append(result.correction_deg)
+            self._consider_refinement(rig, pair, views)
+        return result
+
+    def _fit(
+        self, rig: Rig, pair: VpcPair, views: EpipolarViews, matches: RayMatches, min_inliers: int
+    ) -> RelativePoseFit | None:
+        """The rotation-only fit of ``matches`` against ``rig`` (None when they do not support one)."""
+        if len(matches) < min_inliers:
+            return None
+        pose = RelativePoseOptions(
+            inlier_threshold_deg=math.degrees(_INLIER_PX / views.px_per_rad),
+            estimate_direction="never",
+            min_inliers=min_inliers,
+        )
+        try:
+            return refine_relative_pose(
+                matches.left,
+                matches.right,
+                relative_pose(rig, pair.left, pair.right),
+                pair.R_cam_vpc[pair.left],
+                pose,
+            )
+        except CalibrationFailed:
+            return None
+
+    # ----- online refinement -------------------------------------------------------------------
+    def _consider_refinement(self, rig: Rig, pair: VpcPair, views: EpipolarViews) -> None:
+        opts = self.options
+        if len(self._pool.estimates) < opts.stable_checks:
+            self._set_refinement(
+                f"collecting evidence ({len(self._pool.estimates)} of {opts.stable_checks} checks)"
+            )
+            return
+        pooled = RayMatches.concat(list(self._pool.matches))
+        fit = self._fit(rig, pair, views, pooled, opts.min_pool_matches)
+        if fit is None:
+            self._set_refinement(
+                f"collecting evidence ({len(pooled)} of {opts.min_pool_matches} pooled matches)"
+            )
+            return
+        new_rig = rig_with_relative_pose(rig, pair.left, pair.right, fit.T_right_left)
+        consistent = pooled.select(fit.inliers)
+        before = vertical_disparity(pair, consistent.left, consistent.right)
+        after = vertical_disparity(design_vpc_pair(new_rig, self.vpc), consistent.left, consistent.right)
+        why_not = self._unjustified(fit, before, after)
+        if why_not is not None:
+            self._set_refinement(f"no correction: {why_not}")
+            return
+        try:
+            if self._apply is not None:
+                self._apply(new_rig)
+        except RigError as err:
+            self._set_refinement(f"correction not applied: {err}")
+            log.warning("rectification: could not apply a %.3f° correction: %s", fit.angle_deg, err)
+            return
+        self._set_rig(new_rig)
+        self._pool = _Pool.new(opts.pool_checks)
+        pitch, vergence, roll = fit.rotation_deg
+        log.info(
+            "rectification: applied a %.3f° ± %.3f° correction of the right camera (about the baseline "
+            "%+.3f°, vertical %+.3f°, look direction %+.3f°) from %d matches; vertical disparity p50 "
+            "%.2f -> %.2f px",
+            fit.angle_deg, fit.angle_sigma_deg, pitch, vergence, roll, fit.n_inliers,
+            before.p50_px, after.p50_px,
+        )  # fmt: skip
+        with self._lock:
+            self._counters.corrections += 1
+            self._counters.last_correction_deg = fit.angle_deg
+            self._counters.refinement = (
+                f"applied {fit.angle_deg:.3f}° ± {fit.angle_sigma_deg:.3f}° "
+                f"(p50 {before.p50_px:.2f} -> {after.p50_px:.2f} px)"
+            )
+
+    def _unjustified(
+        self, fit: RelativePoseFit, before: VerticalDisparity, after: VerticalDisparity
+    ) -> str | None:
+        """Why the pooled correction ``fit`` must not be applied, or None when it may."""
+        opts = self.options
+        if not (before.ok and after.ok and before.p50_px is not None and after.p50_px is not None):
+            return "too few pooled matches inside the rectified pair"
+        if fit.angle_deg < 3.0 * fit.angle_sigma_deg:
+            return f"{fit.angle_deg:.3f}° is within 3σ ({fit.angle_sigma_deg:.3f}°) of no correction"
+        if fit.angle_deg > opts.max_step_deg:
+            return f"{fit.angle_deg:.2f}° exceeds max_step_deg {opts.max_step_deg:g}°; recalibrate"
+        spread = max(
+            float(np.linalg.norm(e - fit.rotation_deg))
+            for e in list(self._pool.estimates)[-opts.stable_checks :]
+        )
+        if spread > opts.stable_deg:
+            return f"single checks disagree by up to {spread:.3f}° (stable_deg {opts.stable_deg:g}°)"
+        gain = before.p50_px - after.p50_px
+        if gain < opts.min_gain_px:
+            return (
+                f"it would gain only {gain:.2f} px of vertical disparity (min_gain_px {opts.min_gain_px:g})"
+            )
+        return None
+
+    def _set_refinement(self, text: str) -> None:
+        with self._lock:
+            changed = self._counters.refinement != text
+            self._counters.refinement = text
+        if changed:
+            log.debug("rectification: %s", text)
+
+    # ----- status ------------------------------------------------------------------------------
+    def status(self) -> RectificationStatus:
+        """The state from the checks so far (see the module doc)."""
+        opts = self.options
+        now = time.monotonic()
+        with self._lock:
+            c = self._counters
+            history = list(c.history)
+            checks, without, corrections = c.checks, c.without_matches, c.corrections
+            last_corr, refinement = c.last_correction_deg, c.refinement
+        valid = [h for h in history if h.measure.ok]
+        last = history[-1] if history else None
+        good = valid[-1] if valid else None
+        state, reason = self._state(last, valid)
+        return RectificationStatus(
+            state=state,
+            reason=reason,
+            p50_px=None if good is None else good.measure.p50_px,
+            p95_px=None if good is None else good.measure.p95_px,
+            trend_px_per_hour=_trend(valid, now, opts.trend_window_s),
+            matches=None if last is None else last.measure.count,
+            checks=checks,
+            checks_without_enough_matches=without,
+            last_check_age_s=None if last is None else now - last.at_s,
+            measured_age_s=None if good is None else now - good.at_s,
+            check_wall_ms=None if last is None else last.wall_ms,
+            check_cpu_ms=None if last is None else last.cpu_ms,
+            auto_refine=opts.auto_refine,
+            corrections_applied=corrections,
+            last_correction_deg=last_corr,
+            refinement=refinement if opts.auto_refine else None,
+        )
+
+    def _state(
+        self, last: CheckResult | None, valid: list[CheckResult]
+    ) -> tuple[RectificationState, str | None]:
+        opts = self.options
+        if last is None:
+            return "waiting", "no check yet"
+        if not last.measure.ok:
+            return "not enough matches", last.measure.reason
+        recent = valid[-opts.confirm_checks :]
+        over = [h for h in recent if _over(h.measure, opts)]
+        if len(recent) == opts.confirm_checks and len(over) == len(recent):
+            m = last.measure
+            return "degraded", (
+                f"vertical disparity p50 {m.p50_px:.2f} px, p95 {m.p95_px:.2f} px over the bound "
+                f"({opts.max_p50_px:g} / {opts.max_p95_px:g} px) in {len(recent)} checks"
+            )
+        return "ok", None
+
+
+def _over(m: VerticalDisparity, opts: MonitorOptions) -> bool:
+    return (
+        m.p50_px is not None
+        and m.p95_px is not None
+        and (m.p50_px > opts.max_p50_px or m.p95_px > opts.max_p95_px)
+    )
+
+
+def _trend(valid: list[CheckResult], now: float, window_s: float) -> float | None:
+    """Least-squares slope of p50 (px per hour) over the valid checks within ``window_s``."""
+    pts = [
+        (h.at_s, h.measure.p50_px) for h in valid if now - h.at_s <= window_s and h.measure.p50_px is not None
+    ]
+    if len(pts) < 3:
+        return None
+    t = np.array([p[0] for p in pts])
+    y = np.array([p[1] for p in pts])
+    if np.ptp(t) <= 0:
+        return None
+    slope = float(np.polyfit(t - t[0], y, 1)[0])
+    return slope * 3600.0
