@@ -6,6 +6,13 @@ Lowe's ratio test and a mutual check, then each match's right position refined t
 precision by Lucas-Kanade on the views (the two views sample the same rays, so patches align
 up to parallax). Matches come out as unit rays in each camera's frame, through the camera
 models, ready for :func:`calibration.relative_pose.refine_relative_pose`.
+
+Matching is guided by the calibration the views were made with: a right keypoint is a candidate
+for a left one only within ``max_row_gap_deg`` of its row (its epipolar plane) and with a
+disparity between ``-max_row_gap_deg`` and ``max_disparity_deg``. Repeated texture (bricks,
+tiles) then offers far fewer look-alikes, so the ratio test keeps more true matches; a
+calibration off by more than the gap finds few matches, which reads "not enough matches", not
+a verdict.
 """
 
 from __future__ import annotations
@@ -32,12 +39,16 @@ U8 = NDArray[np.uint8]
 class MatchOptions:
     """``max_features`` per view (strongest first); ``ratio``: Lowe's ratio test;
     ``lk_window`` (px, odd; 0 = keep the keypoints' positions): the Lucas-Kanade patch;
-    ``lk_max_shift_px``: a refinement moving a match further is dropped (it found something else)."""
+    ``lk_max_shift_px``: a refinement moving a match further is dropped (it found something else);
+    ``max_row_gap_deg`` / ``max_disparity_deg``: the guided search (see the module doc; None:
+    every right keypoint is a candidate)."""
 
     max_features: int = 4000
-    ratio: float = 0.8
+    ratio: float = 0.9
     lk_window: int = 15
     lk_max_shift_px: float = 1.5
+    max_row_gap_deg: float | None = 4.0
+    max_disparity_deg: float = 25.0
 
     def __post_init__(self) -> None:
         if self.max_features < 8:
@@ -46,6 +57,10 @@ class MatchOptions:
             raise ConfigError(f"matching: ratio must be in (0, 1], got {self.ratio}")
         if self.lk_window and (self.lk_window < 5 or self.lk_window % 2 == 0):
             raise ConfigError(f"matching: lk_window must be 0 or an odd number >= 5, got {self.lk_window}")
+        if self.max_row_gap_deg is not None and not 0.0 < self.max_row_gap_deg <= 45.0:
+            raise ConfigError(
+                f"matching: max_row_gap_deg must be in (0, 45] or None, got {self.max_row_gap_deg}"
+            )
 
 
 @dataclass(frozen=True)
@@ -78,25 +93,39 @@ class RayMatches:
         return RayMatches(self.left[keep], self.right[keep], self.frame[keep])
 
 
+def _candidates(pl: F64, pr: F64, px_per_deg: float, options: MatchOptions) -> NDArray[np.uint8] | None:
+    """Mask (n_left, n_right) of the pairs the guided search allows (None: all of them)."""
+    if options.max_row_gap_deg is None:
+        return None
+    gap = options.max_row_gap_deg * px_per_deg
+    rows = np.abs(pl[:, None, 1] - pr[None, :, 1]) <= gap
+    disparity = pl[:, None, 0] - pr[None, :, 0]
+    allowed = rows & (disparity >= -gap) & (disparity <= options.max_disparity_deg * px_per_deg)
+    return np.ascontiguousarray(allowed, dtype=np.uint8)
+
+
 def _mutual_ratio_matches(
-    desc_l: NDArray[Any] | None, desc_r: NDArray[Any] | None, ratio: float
+    desc_l: NDArray[Any] | None, desc_r: NDArray[Any] | None, ratio: float, allowed: NDArray[np.uint8] | None
 ) -> list[tuple[int, int]]:
-    """(left index, right index) pairs passing the ratio test whose right keypoint's own best
-    match is the same left keypoint."""
+    """(left index, right index) pairs among the ``allowed`` ones passing the ratio test (a lone
+    candidate passes) whose right keypoint's own best match is the same left keypoint."""
     if desc_l is None or desc_r is None or desc_l.ndim != 2 or desc_r.ndim != 2:
         return []
     if len(desc_l) < 2 or len(desc_r) < 2:
         return []
     matcher = cv2.BFMatcher(cv2.NORM_L2)
-    forward = matcher.knnMatch(desc_l, desc_r, k=2)
-    backward = {m[0].queryIdx: m[0].trainIdx for m in matcher.knnMatch(desc_r, desc_l, k=1) if m}
+    if allowed is None:
+        forward = matcher.knnMatch(desc_l, desc_r, k=2)
+        backward_raw = matcher.knnMatch(desc_r, desc_l, k=1)
+    else:
+        forward = matcher.knnMatch(desc_l, desc_r, k=2, mask=allowed)
+        backward_raw = matcher.knnMatch(desc_r, desc_l, k=1, mask=np.ascontiguousarray(allowed.T))
+    backward = {m[0].queryIdx: m[0].trainIdx for m in backward_raw if m}
     out = []
     for m in forward:
-        if (
-            len(m) == 2
-            and m[0].distance < ratio * m[1].distance
-            and backward.get(m[0].trainIdx) == m[0].queryIdx
-        ):
+        if not m or (len(m) == 2 and m[0].distance >= ratio * m[1].distance):
+            continue
+        if backward.get(m[0].trainIdx) == m[0].queryIdx:
             out.append((m[0].queryIdx, m[0].trainIdx))
     return out
 
@@ -139,11 +168,16 @@ def match_pair(
     sift = cv2.SIFT.create(nfeatures=opts.max_features)
     kp_l, desc_l = sift.detectAndCompute(view_l, views.mask)
     kp_r, desc_r = sift.detectAndCompute(view_r, views.mask)
-    pairs = _mutual_ratio_matches(np.asarray(desc_l), np.asarray(desc_r), opts.ratio)
+    if len(kp_l) < 2 or len(kp_r) < 2:
+        return RayMatches.empty()
+    all_l = np.array([k.pt for k in kp_l], dtype=np.float64)
+    all_r = np.array([k.pt for k in kp_r], dtype=np.float64)
+    allowed = _candidates(all_l, all_r, views.px_per_rad * np.pi / 180.0, opts)
+    pairs = _mutual_ratio_matches(np.asarray(desc_l), np.asarray(desc_r), opts.ratio, allowed)
     if not pairs:
         return RayMatches.empty()
-    pl = np.array([kp_l[i].pt for i, _ in pairs], dtype=np.float32)
-    pr = np.array([kp_r[j].pt for _, j in pairs], dtype=np.float32)
+    pl = all_l[[i for i, _ in pairs]].astype(np.float32)
+    pr = all_r[[j for _, j in pairs]].astype(np.float32)
     if opts.lk_window:
         pr, ok = _lk_refine(view_l, view_r, pl, pr, opts)
         pl, pr = pl[ok], pr[ok]
