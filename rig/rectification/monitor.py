@@ -29,12 +29,14 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from calibration.errors import CalibrationFailed
+from calibration.errors import CalibrationError, CalibrationFailed
 from calibration.relative_pose import (
     RelativePoseFit,
     RelativePoseOptions,
@@ -42,10 +44,10 @@ from calibration.relative_pose import (
     rig_with_relative_pose,
 )
 from calibration.rig import Rig
-from rig.errors import ConfigError, RigError
+from rig.errors import RigError
 from rig.rectification.matching import MatchOptions, RayMatches, match_pair
 from rig.rectification.measure import VerticalDisparity, vertical_disparity
-from rig.rectification.refine import relative_pose
+from rig.rectification.refine import relative_pose, save_refined
 from rig.rectification.views import EpipolarViews
 from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
 
@@ -71,36 +73,44 @@ _MONITOR_NICE = 19
 _INLIER_PX = 2.0
 
 
-@dataclass(frozen=True)
-class MonitorOptions:
-    """The ``rectification`` settings (see the module doc; lengths in VPC pixels, angles in
-    degrees)."""
+class MonitorOptions(BaseModel):
+    """The ``rectification`` settings (see the module doc): the live measure, its bounds and the
+    online refinement (lengths in VPC pixels, angles in degrees)."""
 
-    check_interval_s: float = 10.0
-    view_px_per_deg: float = 2.6
-    max_features: int = 2000
-    min_matches: int = 50
-    min_spread: float = 0.4
-    max_p50_px: float = 0.5
-    max_p95_px: float = 1.5
-    confirm_checks: int = 2
-    trend_window_s: float = 3600.0
-    auto_refine: bool = False
-    pool_checks: int = 6
-    min_pool_matches: int = 300
-    stable_checks: int = 3
-    stable_deg: float = 0.05
-    max_step_deg: float = 1.0
-    min_gain_px: float = 0.1
+    model_config = ConfigDict(extra="forbid", frozen=True)
 
-    def __post_init__(self) -> None:
-        if not self.check_interval_s > 0:
-            raise ConfigError(f"rectification: check_interval_s must be > 0, got {self.check_interval_s}")
+    enabled: bool = Field(True, description="measure the rectification from the frames")
+    check_interval_s: float = Field(10.0, ge=0.5, le=3600.0, description="seconds between checks")
+    view_px_per_deg: float = Field(
+        2.6, ge=0.5, le=20.0, description="resolution of the epipolar views (capped at the lenses')"
+    )
+    max_features: int = Field(2000, ge=100, le=20000, description="SIFT keypoints per view")
+    min_matches: int = Field(50, ge=10, le=100000, description="fewer consistent matches: not enough")
+    min_spread: float = Field(
+        0.4, ge=0.0, le=1.0, description="share of a 3x3 grid over the VPC image the matches must cover"
+    )
+    max_p50_px: float = Field(0.5, gt=0.0, description="bound on the vertical disparity's median")
+    max_p95_px: float = Field(1.5, gt=0.0, description="bound on its 95th percentile")
+    confirm_checks: int = Field(2, ge=1, le=100, description="consecutive checks over a bound: degraded")
+    trend_window_s: float = Field(3600.0, gt=0.0, description="window of the p50 trend")
+    auto_refine: bool = Field(False, description="apply justified rotation corrections online")
+    pool_checks: int = Field(6, ge=1, le=100, description="checks whose matches are pooled")
+    min_pool_matches: int = Field(300, ge=30, le=10**6, description="pooled matches needed to correct")
+    stable_checks: int = Field(3, ge=1, le=100, description="last checks that must agree")
+    stable_deg: float = Field(0.05, gt=0.0, le=5.0, description="how closely they must agree")
+    max_step_deg: float = Field(1.0, gt=0.0, le=10.0, description="largest correction applied online")
+    min_gain_px: float = Field(0.1, ge=0.0, description="smallest p50 improvement worth a LUT swap")
+    persist_path: Path | None = Field(
+        None, description="write each applied correction here (rig.yaml, atomically; original kept)"
+    )
+
+    @model_validator(mode="after")
+    def _stable_within_pool(self) -> MonitorOptions:
         if self.stable_checks > self.pool_checks:
-            raise ConfigError(
-                f"rectification: stable_checks ({self.stable_checks}) cannot exceed pool_checks "
-                f"({self.pool_checks})"
+            raise ValueError(
+                f"stable_checks ({self.stable_checks}) cannot exceed pool_checks ({self.pool_checks})"
             )
+        return self
 
 
 @dataclass(frozen=True)
@@ -176,8 +186,10 @@ class RectificationMonitor:
         source: PairSource,
         options: MonitorOptions | None = None,
         apply: Callable[[Rig], None] | None = None,
+        calibration_path: Path | None = None,
     ) -> None:
         self.options = options or MonitorOptions()
+        self.calibration_path = calibration_path
         self.vpc = vpc
         self._source = source
         self._apply = apply
@@ -324,6 +336,7 @@ class RectificationMonitor:
             return
         self._set_rig(new_rig)
         self._pool = _Pool.new(opts.pool_checks)
+        self._persist(new_rig)
         pitch, vergence, roll = fit.rotation_deg
         log.info(
             "rectification: applied a %.3f° ± %.3f° correction of the right camera (about the baseline "
@@ -339,6 +352,23 @@ class RectificationMonitor:
                 f"applied {fit.angle_deg:.3f}° ± {fit.angle_sigma_deg:.3f}° "
                 f"(p50 {before.p50_px:.2f} -> {after.p50_px:.2f} px)"
             )
+
+    def _persist(self, rig: Rig) -> None:
+        """Write an applied correction to ``persist_path`` (the original calibration is kept)."""
+        path = self.options.persist_path
+        if path is None:
+            return
+        try:
+            backup = save_refined(rig, path, self.calibration_path)
+        except CalibrationError as err:
+            log.warning("rectification: the corrected calibration was not saved: %s", err)
+            return
+        if backup is not None:
+            log.info(
+                "rectification: saved the corrected calibration to %s (original kept as %s)", path, backup
+            )
+        else:
+            log.info("rectification: saved the corrected calibration to %s", path)
 
     def _unjustified(
         self, fit: RelativePoseFit, before: VerticalDisparity, after: VerticalDisparity

@@ -13,13 +13,17 @@ matches in the VPC pair of the given :class:`~rig.vpc.VpcConfig`.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import cv2
 import numpy as np
 
-from calibration.errors import CalibrationFailed
+from calibration.errors import CalibrationFailed, CalibrationFileError
+from calibration.formats import save_rig
+from calibration.formats.rig_yaml import atomic_write_bytes
 from calibration.geometry import invert_transform
 from calibration.relative_pose import (
     RelativePoseFit,
@@ -35,7 +39,15 @@ from rig.rectification.measure import VerticalDisparity, vertical_disparity
 from rig.rectification.views import EpipolarViews
 from rig.vpc import VpcConfig, design_vpc_pair
 
-__all__ = ["RectificationRefinement", "RefineOptions", "collect_matches", "refine_recording", "refine_rig"]
+__all__ = [
+    "RectificationRefinement",
+    "RefineOptions",
+    "backup_path",
+    "collect_matches",
+    "refine_recording",
+    "refine_rig",
+    "save_refined",
+]
 
 log = logging.getLogger(__name__)
 
@@ -207,3 +219,35 @@ def refine_recording(
     except RectificationError as err:
         raise RectificationError(f"{recording.root}: {err}") from err
     return replace(result, skipped=skipped)
+
+
+def backup_path(calibration: Path) -> Path:
+    """Where the original of a calibration file refined in place is kept: ``rig.orig.yaml`` for
+    ``rig.yaml``."""
+    return calibration.with_name(f"{calibration.stem}.orig{calibration.suffix}")
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return a.resolve() == b.resolve()
+
+
+def save_refined(rig: Rig, out: Path, original: Path | None) -> Path | None:
+    """Write ``rig`` to ``out`` as rig.yaml, atomically (temp file, fsync, rename). When ``out``
+    is the ``original`` calibration file itself, the original's bytes are first kept in
+    :func:`backup_path` (once: an existing backup already holds the original and is left as it
+    is); returns that backup's path then, else None. CalibrationFileError naming the file that
+    cannot be read or written."""
+    backup = None
+    if original is not None and out.exists() and _same_file(out, original):
+        backup = backup_path(original)
+        if not backup.exists():
+            try:
+                data = original.read_bytes()
+            except OSError as err:
+                raise CalibrationFileError(original, f"cannot read: {err.strerror or err}") from err
+            atomic_write_bytes(backup, data)
+    save_rig(rig, out)
+    return backup

@@ -16,12 +16,13 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration.formats import load_rig
+from calibration.formats import load_rig, save_rig
 from calibration.rig import Rig
 from rig.errors import RecordingError, RectificationError
 from rig.recording import Recording, RecordingWriter
 from rig.rectification import EpipolarViews, RefineOptions, match_pair, refine_recording, vertical_disparity
 from rig.rectification.monitor import MonitorOptions, RectificationMonitor
+from rig.rectification.refine import backup_path, save_refined
 from rig.vpc import design_vpc_pair
 from tests.rig.rectification_renders import (
     VPC,
@@ -139,18 +140,19 @@ def test_bad_input_is_one_clear_error(room: tuple[Path, Rig], tmp_path: Path) ->
         refine_recording(Recording(root), truth, VPC, RefineOptions(frames=1, min_matches=100_000))
 
 
-def test_monitor_measures_degrades_and_refines(room: tuple[Path, Rig]) -> None:
+def test_monitor_measures_degrades_and_refines(room: tuple[Path, Rig], tmp_path: Path) -> None:
     """A calibration 0.7° off: degraded after two checks, corrected after three agreeing ones,
-    then ok, with the truth recovered; the LUT swap hook gets the corrected rig once."""
+    then ok, with the truth recovered; the LUT swap hook gets the corrected rig once, and it is
+    persisted over the calibration file with the original kept."""
     root, truth = room
     pairs = gray_pairs(root)
     applied: list[Rig] = []
+    calibration = tmp_path / "rig.yaml"
+    save_rig(perturbed(truth, (0.3, 0.5, -0.4)), calibration)
+    original = calibration.read_bytes()
+    options = MonitorOptions(auto_refine=True, persist_path=calibration)
     monitor = RectificationMonitor(
-        perturbed(truth, (0.3, 0.5, -0.4)),
-        VPC,
-        lambda: None,
-        MonitorOptions(auto_refine=True),
-        applied.append,
+        load_rig(calibration), VPC, lambda: None, options, applied.append, calibration_path=calibration
     )
     assert monitor.status().state == "waiting"
     states = []
@@ -165,6 +167,30 @@ def test_monitor_measures_degrades_and_refines(room: tuple[Path, Rig]) -> None:
     assert states[-1] == "ok" and status.p50_px is not None and status.p50_px < 0.2
     assert relative_rotation_error_deg(applied[0], truth) <= 0.02
     assert relative_rotation_error_deg(monitor.rig, truth) <= 0.02
+    assert (tmp_path / "rig.orig.yaml").read_bytes() == original
+    assert relative_rotation_error_deg(load_rig(calibration), truth) <= 0.02
+
+
+def test_save_refined_keeps_the_original(room: tuple[Path, Rig], tmp_path: Path) -> None:
+    _, truth = room
+    source = tmp_path / "camchain.yaml"
+    save_rig(perturbed(truth, (0.2, 0.0, 0.0)), source)
+    before = source.read_bytes() + b"# the user's own comment\n"
+    source.write_bytes(before)
+    # Another file: written, the calibration untouched, no backup.
+    assert save_refined(truth, tmp_path / "refined.yaml", source) is None
+    assert source.read_bytes() == before and not backup_path(source).exists()
+    assert relative_rotation_error_deg(load_rig(tmp_path / "refined.yaml"), truth) < 1e-12
+    # In place: the original's bytes kept once, and not overwritten by a second refinement.
+    assert save_refined(perturbed(truth, (0.1, 0.0, 0.0)), source, source) == tmp_path / "camchain.orig.yaml"
+    assert save_refined(truth, source, source) == tmp_path / "camchain.orig.yaml"
+    assert (tmp_path / "camchain.orig.yaml").read_bytes() == before
+    assert relative_rotation_error_deg(load_rig(source), truth) < 1e-12
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "camchain.orig.yaml",
+        "camchain.yaml",
+        "refined.yaml",
+    ]
 
 
 def test_monitor_low_texture_is_never_an_alarm(room: tuple[Path, Rig]) -> None:
