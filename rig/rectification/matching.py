@@ -139,7 +139,7 @@ def _normalised_u8(view: U8) -> U8:
     cameras see a point at different angles off their axes, so vignetting gives it different
     brightness and a brightness ramp, which would bias Lucas-Kanade's step."""
     z = normalise_contrast(view)
-    return np.clip(z * _Z_GAIN + 128.0, 0, 255).astype(np.uint8)
+    return np.asarray(np.clip(z * _Z_GAIN + 128.0, 0, 255), dtype=np.uint8)
 
 
 def _lk_refine(
