@@ -47,7 +47,7 @@ def _vd(m: VerticalDisparity) -> str:
 
 def _report(result: RectificationRefinement) -> Table:
     fit = result.fit
-    table = Table(title="correction of the right camera (° about the rectified pair's axes)")
+    table = Table(title="right camera correction")
     for col in ("axis", "correction °", "1σ °"):
         table.add_column(col, justify="left" if col == "axis" else "right")
     axes = ("x, the baseline (pitch)", "y, vertical (vergence)", "z, the look direction (roll)")
