@@ -22,7 +22,7 @@ from rich.table import Table
 
 from bench.common import add_common_arguments, console, finish, machine_info, median, print_machine
 from bench.recordings import MjpegSpec, ensure_mjpeg_recording, load_jpeg_pairs
-from rig.rectification.monitor import MonitorOptions, RectificationMonitor
+from rig.rectification.monitor import RectificationConfig, RectificationMonitor
 from rig.sim import get_preset
 from rig.vpc import VpcConfig
 
@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     recording = ensure_mjpeg_recording(MjpegSpec(scale=scale))
     pairs = [(_gray(a), _gray(b)) for a, b in load_jpeg_pairs(recording)]
     rig = get_preset("prototype").scaled(scale).rig
-    options = MonitorOptions()
+    options = RectificationConfig()
     vpc = VpcConfig(width=320, height=240) if args.quick else VpcConfig()
     t0 = time.perf_counter()
     monitor = RectificationMonitor(rig, vpc, lambda: None, options)

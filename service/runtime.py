@@ -17,6 +17,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, TypeVar
 
+import numpy as np
+from numpy.typing import NDArray
+
 from calibration import load_rig
 from calibration.rig import Rig
 from rig import priority
@@ -24,8 +27,10 @@ from rig.capture.capture import CAMERA_NAMES, StereoCapture
 from rig.capture.config import CaptureConfig, FileCameraConfig
 from rig.capture.health import CaptureHealth
 from rig.capture.recorded import open_recording
+from rig.errors import CorruptFrameError
 from rig.heap import heap_stats
 from rig.pipeline import DepthPipeline
+from rig.rectification.monitor import RectificationMonitor, RectificationStatus
 from service.encoders import confidence_png, depth_png, disparity_png, npy_bytes
 from service.errors import SettingsError
 from service.host import HostInfo, host_info
@@ -86,6 +91,7 @@ class HealthReport:
     worker: WorkerStats
     host: HostInfo
     recording: RecordingStatus | None
+    rectification: RectificationStatus | None = None
 
 
 class Runtime:
@@ -129,6 +135,16 @@ class Runtime:
             on_result=self.metrics.observe,
             prefetch=self.frame_bodies,
         )
+        self.rectification: RectificationMonitor | None = None
+        if settings.rectification.enabled:
+            self.rectification = RectificationMonitor(
+                rig,
+                settings.vpc,
+                self._latest_gray_pair,
+                settings.rectification,
+                apply=self._apply_corrected_rig,
+                calibration_path=calibration_path,
+            )
         self.started_ns = time.monotonic_ns()
         self.calibration_doc: Any = None  # /calibration's response, made on first request
         self._running = False
@@ -175,6 +191,8 @@ class Runtime:
         self.capture.start()
         self.worker.start()
         priority.prioritise_native_threads()  # OpenCV's pool, if the main thread started it
+        if self.rectification is not None:
+            self.rectification.start()
         log.info(
             "depth service running: VPC %s, baseline %.4f m",
             self.pipeline.pair.as_json(),
@@ -182,11 +200,33 @@ class Runtime:
         )
 
     def stop(self) -> None:
-        """Join the worker, finish a running recording, join the capture threads; idempotent."""
+        """Join the rectification monitor and the worker, finish a running recording, join the
+        capture threads; idempotent."""
+        if self.rectification is not None:
+            self.rectification.stop()
         self.worker.stop()
         self.recordings.close()
         self.capture.stop()
         self._running = False
+
+    # ----- rectification -----------------------------------------------------------------------
+    def _latest_gray_pair(self) -> tuple[NDArray[np.uint8], NDArray[np.uint8]] | None:
+        """The newest published pair's luma (decoded by the worker already), for the monitor."""
+        result = self.store.latest
+        if result is None:
+            return None
+        try:
+            return result.left.gray, result.right.gray
+        except CorruptFrameError:
+            return None
+
+    def _apply_corrected_rig(self, rig: Rig) -> None:
+        """An online correction: new lookup tables swapped into the running pipeline (built on
+        the monitor's thread, the worker keeps going), and the rig everything else reports."""
+        self.pipeline.replace_rig(rig)
+        self.rig = rig
+        self.recordings.rig = rig
+        self.calibration_doc = None
 
     # ----- state -------------------------------------------------------------------------------
     def metrics_snapshot(self) -> MetricsSnapshot:
@@ -224,8 +264,8 @@ class Runtime:
 
     def health(self) -> HealthReport:
         """``down``: no camera delivers, the worker or the capture is not running; ``degraded``:
-        one camera out, no depth yet, depth older than ``server.stale_after_s`` or the active
-        recording has stopped writing; else ``ok``."""
+        one camera out, no depth yet, depth older than ``server.stale_after_s``, the active
+        recording has stopped writing or the rectification is off its bound; else ``ok``."""
         cap = self.capture.health()
         worker = self.worker.stats()
         reasons: list[str] = []
@@ -251,6 +291,9 @@ class Runtime:
         if recording is not None and recording.error is not None:
             # The operator asked for this recording and it has stopped writing (e.g. disk full).
             reasons.append(f"recording {recording.name} stopped writing: {recording.error}")
+        rectification = None if self.rectification is None else self.rectification.status()
+        if rectification is not None and rectification.state == "degraded":
+            reasons.append(f"rectification: {rectification.reason}")
         down = not cap.running or not worker.alive or not any(c.connected for c in cap.cameras.values())
         if not cap.running:
             reasons.append("capture not running")
@@ -263,4 +306,5 @@ class Runtime:
             worker=worker,
             host=host_info(self.settings.server.recordings_dir),
             recording=recording,
+            rectification=rectification,
         )

@@ -3,6 +3,7 @@ relative rotation from it, offline and online (docs/rectification.md)."""
 
 from rig.rectification.matching import MatchOptions, RayMatches, match_pair
 from rig.rectification.measure import VerticalDisparity, vertical_disparity
+from rig.rectification.monitor import RectificationConfig, RectificationMonitor, RectificationStatus
 from rig.rectification.refine import (
     RectificationRefinement,
     RefineOptions,
@@ -16,7 +17,10 @@ __all__ = [
     "EpipolarViews",
     "MatchOptions",
     "RayMatches",
+    "RectificationConfig",
+    "RectificationMonitor",
     "RectificationRefinement",
+    "RectificationStatus",
     "RefineOptions",
     "VerticalDisparity",
     "collect_matches",

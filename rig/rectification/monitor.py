@@ -53,7 +53,7 @@ from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
 
 __all__ = [
     "CheckResult",
-    "MonitorOptions",
+    "RectificationConfig",
     "RectificationMonitor",
     "RectificationState",
     "RectificationStatus",
@@ -73,7 +73,7 @@ _MONITOR_NICE = 19
 _INLIER_PX = 2.0
 
 
-class MonitorOptions(BaseModel):
+class RectificationConfig(BaseModel):
     """The ``rectification`` settings (see the module doc): the live measure, its bounds and the
     online refinement (lengths in VPC pixels, angles in degrees)."""
 
@@ -105,7 +105,7 @@ class MonitorOptions(BaseModel):
     )
 
     @model_validator(mode="after")
-    def _stable_within_pool(self) -> MonitorOptions:
+    def _stable_within_pool(self) -> RectificationConfig:
         if self.stable_checks > self.pool_checks:
             raise ValueError(
                 f"stable_checks ({self.stable_checks}) cannot exceed pool_checks ({self.pool_checks})"
@@ -184,11 +184,11 @@ class RectificationMonitor:
         rig: Rig,
         vpc: VpcConfig,
         source: PairSource,
-        options: MonitorOptions | None = None,
+        options: RectificationConfig | None = None,
         apply: Callable[[Rig], None] | None = None,
         calibration_path: Path | None = None,
     ) -> None:
-        self.options = options or MonitorOptions()
+        self.options = options or RectificationConfig()
         self.calibration_path = calibration_path
         self.vpc = vpc
         self._source = source
@@ -198,7 +198,9 @@ class RectificationMonitor:
         self._pool = _Pool.new(self.options.pool_checks)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._set_rig(rig)
+        self.rig = rig
+        self._pair = design_vpc_pair(rig, vpc)  # checks the pair's cameras now
+        self._views: EpipolarViews | None = None  # built by the first check (not at start-up)
 
     # ----- geometry ----------------------------------------------------------------------------
     def _set_rig(self, rig: Rig) -> None:
@@ -206,6 +208,14 @@ class RectificationMonitor:
         pair = design_vpc_pair(rig, self.vpc)
         with self._lock:
             self.rig, self._views, self._pair = rig, views, pair
+
+    def _geometry(self) -> tuple[Rig, EpipolarViews, VpcPair]:
+        with self._lock:
+            rig, views, pair = self.rig, self._views, self._pair
+        if views is None:
+            self._set_rig(rig)
+            return self._geometry()
+        return rig, views, pair
 
     @property
     def pair(self) -> VpcPair:
@@ -245,8 +255,7 @@ class RectificationMonitor:
     def check(self, left: U8, right: U8) -> CheckResult:
         """Match one gray pair, measure it and, with ``auto_refine``, maybe apply a correction."""
         t0, c0 = time.perf_counter(), time.thread_time()
-        with self._lock:
-            rig, views, pair = self.rig, self._views, self._pair
+        rig, views, pair = self._geometry()
         opts = self.options
         matches = match_pair(views, left, right, MatchOptions(max_features=opts.max_features))
         fit = self._fit(rig, pair, views, matches, opts.min_matches)
@@ -453,7 +462,7 @@ class RectificationMonitor:
         return "ok", None
 
 
-def _over(m: VerticalDisparity, opts: MonitorOptions) -> bool:
+def _over(m: VerticalDisparity, opts: RectificationConfig) -> bool:
     return (
         m.p50_px is not None
         and m.p95_px is not None

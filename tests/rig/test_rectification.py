@@ -21,7 +21,7 @@ from calibration.rig import Rig
 from rig.errors import RecordingError, RectificationError
 from rig.recording import Recording, RecordingWriter
 from rig.rectification import EpipolarViews, RefineOptions, match_pair, refine_recording, vertical_disparity
-from rig.rectification.monitor import MonitorOptions, RectificationMonitor
+from rig.rectification.monitor import RectificationConfig, RectificationMonitor
 from rig.rectification.refine import backup_path, save_refined
 from rig.vpc import design_vpc_pair
 from tests.rig.rectification_renders import (
@@ -150,7 +150,7 @@ def test_monitor_measures_degrades_and_refines(room: tuple[Path, Rig], tmp_path:
     calibration = tmp_path / "rig.yaml"
     save_rig(perturbed(truth, (0.3, 0.5, -0.4)), calibration)
     original = calibration.read_bytes()
-    options = MonitorOptions(auto_refine=True, persist_path=calibration)
+    options = RectificationConfig(auto_refine=True, persist_path=calibration)
     monitor = RectificationMonitor(
         load_rig(calibration), VPC, lambda: None, options, applied.append, calibration_path=calibration
     )
@@ -198,7 +198,7 @@ def test_monitor_low_texture_is_never_an_alarm(room: tuple[Path, Rig]) -> None:
     left, _ = gray_pairs(root)[0]
     blank = np.full_like(left, 90)
     monitor = RectificationMonitor(
-        perturbed(truth, (1.0, 0.0, 0.0)), VPC, lambda: None, MonitorOptions(auto_refine=True)
+        perturbed(truth, (1.0, 0.0, 0.0)), VPC, lambda: None, RectificationConfig(auto_refine=True)
     )
     for _ in range(3):
         monitor.check(blank, blank)
@@ -219,12 +219,12 @@ def test_online_refinement_never_applies_an_unjustified_step(room: tuple[Path, R
     pairs = gray_pairs(root)
     # Already right: nothing to gain.
     applied: list[Rig] = []
-    monitor = RectificationMonitor(truth, VPC, lambda: None, MonitorOptions(auto_refine=True), applied.append)
+    monitor = RectificationMonitor(truth, VPC, lambda: None, RectificationConfig(auto_refine=True), applied.append)
     for k in range(4):
         monitor.check(*pairs[k % 2])
     assert not applied and "no correction" in (monitor.status().refinement or "")
     # Beyond the step bound: reported, not applied (and the status is degraded, so it is seen).
-    options = MonitorOptions(auto_refine=True, max_step_deg=0.5)
+    options = RectificationConfig(auto_refine=True, max_step_deg=0.5)
     monitor = RectificationMonitor(
         perturbed(truth, (0.8, 0.0, 0.0)), VPC, lambda: None, options, applied.append
     )
@@ -236,7 +236,7 @@ def test_online_refinement_never_applies_an_unjustified_step(room: tuple[Path, R
     left, right = pairs[0]
     shifted = np.roll(right, 2, axis=0)
     monitor = RectificationMonitor(
-        perturbed(truth, (0.3, 0.0, 0.0)), VPC, lambda: None, MonitorOptions(auto_refine=True), applied.append
+        perturbed(truth, (0.3, 0.0, 0.0)), VPC, lambda: None, RectificationConfig(auto_refine=True), applied.append
     )
     for k in range(4):
         monitor.check(left, shifted if k % 2 else right)
