@@ -219,7 +219,8 @@ def test_online_refinement_never_applies_an_unjustified_step(room: tuple[Path, R
     pairs = gray_pairs(root)
     # Already right: nothing to gain.
     applied: list[Rig] = []
-    monitor = RectificationMonitor(truth, VPC, lambda: None, RectificationConfig(auto_refine=True), applied.append)
+    auto = RectificationConfig(auto_refine=True)
+    monitor = RectificationMonitor(truth, VPC, lambda: None, auto, applied.append)
     for k in range(4):
         monitor.check(*pairs[k % 2])
     assert not applied and "no correction" in (monitor.status().refinement or "")
@@ -235,9 +236,7 @@ def test_online_refinement_never_applies_an_unjustified_step(room: tuple[Path, R
     # Checks that disagree (the right image shifted by 2 px every other time): not stable.
     left, right = pairs[0]
     shifted = np.roll(right, 2, axis=0)
-    monitor = RectificationMonitor(
-        perturbed(truth, (0.3, 0.0, 0.0)), VPC, lambda: None, RectificationConfig(auto_refine=True), applied.append
-    )
+    monitor = RectificationMonitor(perturbed(truth, (0.3, 0.0, 0.0)), VPC, lambda: None, auto, applied.append)
     for k in range(4):
         monitor.check(left, shifted if k % 2 else right)
     assert not applied and "disagree" in (monitor.status().refinement or "")
