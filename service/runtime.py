@@ -236,6 +236,7 @@ class Runtime:
             encodes=self.store.counter.snapshot(),
             recording=self.recordings.active,
             heap=heap_stats(),
+            rectification=None if self.rectification is None else self.rectification.status(),
         )
 
     def health_snapshot(self, render: Callable[[HealthReport], _T], max_age_s: float) -> _T:

@@ -44,6 +44,7 @@ from calibration.relative_pose import (
     rig_with_relative_pose,
 )
 from calibration.rig import Rig
+from rig.counters import CounterValue, Counts, complete
 from rig.errors import RigError
 from rig.rectification.matching import MatchOptions, RayMatches, match_pair
 from rig.rectification.measure import VerticalDisparity, vertical_disparity
@@ -129,27 +130,55 @@ class CheckResult:
 
 @dataclass(frozen=True)
 class RectificationStatus:
-    """What ``/health`` and ``/metrics`` report. ``p50_px`` / ``p95_px`` are the last valid
-    measurement's (``measured_age_s`` old), ``trend_px_per_hour`` the slope of p50 over the
-    trend window (None with fewer than three valid checks), ``refinement`` what the online
-    refinement is doing."""
+    """What ``/health`` reports under ``rectification``: the state and why, whether the online
+    refinement is on and what it is doing, how old the last measurement with enough matches is
+    and how long the last check took (wall), and the figures of group ``rectification`` in
+    :mod:`rig.counters` (``counters``; the vertical disparity is the last such measurement's)."""
 
     state: RectificationState
     reason: str | None
-    p50_px: float | None
-    p95_px: float | None
-    trend_px_per_hour: float | None
-    matches: int | None
-    checks: int
-    checks_without_enough_matches: int
-    last_check_age_s: float | None
+    auto_refine: bool
+    refinement: str | None
     measured_age_s: float | None
     check_wall_ms: float | None
-    check_cpu_ms: float | None
-    auto_refine: bool
-    corrections_applied: int
-    last_correction_deg: float | None
-    refinement: str | None = None
+    counters: Counts
+
+    def _float(self, name: str) -> float | None:
+        value = self.counters[name]
+        return None if value is None else float(value)
+
+    @property
+    def p50_px(self) -> float | None:
+        return self._float("vertical_disparity_p50_px")
+
+    @property
+    def p95_px(self) -> float | None:
+        return self._float("vertical_disparity_p95_px")
+
+    @property
+    def trend_px_per_hour(self) -> float | None:
+        return self._float("trend_px_per_hour")
+
+    @property
+    def check_cpu_ms(self) -> float | None:
+        return self._float("check_cpu_ms")
+
+    @property
+    def matches(self) -> int | None:
+        value = self.counters["matches"]
+        return None if value is None else int(value)
+
+    @property
+    def checks(self) -> int:
+        return int(self.counters["checks"] or 0)
+
+    @property
+    def checks_without_enough_matches(self) -> int:
+        return int(self.counters["checks_without_enough_matches"] or 0)
+
+    @property
+    def corrections_applied(self) -> int:
+        return int(self.counters["corrections_applied"] or 0)
 
 
 @dataclass
@@ -260,8 +289,8 @@ class RectificationMonitor:
         matches = match_pair(views, left, right, MatchOptions(max_features=opts.max_features))
         fit = self._fit(rig, pair, views, matches, opts.min_matches)
         if fit is None:
-            measure = VerticalDisparity(len(matches), None, None, None, 0.0, "not enough matches",
-                                        f"{len(matches)} matches agree on no relative pose")  # fmt: skip
+            why = f"{len(matches)} matches agree on no relative pose"
+            measure = VerticalDisparity(0, None, None, None, 0.0, "not enough matches", why)
             consistent = RayMatches.empty()
         else:
             consistent = matches.select(fit.inliers)
@@ -424,23 +453,28 @@ class RectificationMonitor:
         last = history[-1] if history else None
         good = valid[-1] if valid else None
         state, reason = self._state(last, valid)
+        figures: dict[str, CounterValue] = {
+            "vertical_disparity_p50_px": None if good is None else good.measure.p50_px,
+            "vertical_disparity_p95_px": None if good is None else good.measure.p95_px,
+            "trend_px_per_hour": _trend(valid, now, opts.trend_window_s),
+            "degraded": state == "degraded",
+            "enough_matches": last is not None and last.measure.ok,
+            "matches": None if last is None else last.measure.count,
+            "checks": checks,
+            "checks_without_enough_matches": without,
+            "corrections_applied": corrections,
+            "last_correction_deg": last_corr,
+            "last_check_age_s": None if last is None else now - last.at_s,
+            "check_cpu_ms": None if last is None else last.cpu_ms,
+        }
         return RectificationStatus(
             state=state,
             reason=reason,
-            p50_px=None if good is None else good.measure.p50_px,
-            p95_px=None if good is None else good.measure.p95_px,
-            trend_px_per_hour=_trend(valid, now, opts.trend_window_s),
-            matches=None if last is None else last.measure.count,
-            checks=checks,
-            checks_without_enough_matches=without,
-            last_check_age_s=None if last is None else now - last.at_s,
+            auto_refine=opts.auto_refine,
+            refinement=refinement if opts.auto_refine else None,
             measured_age_s=None if good is None else now - good.at_s,
             check_wall_ms=None if last is None else last.wall_ms,
-            check_cpu_ms=None if last is None else last.cpu_ms,
-            auto_refine=opts.auto_refine,
-            corrections_applied=corrections,
-            last_correction_deg=last_corr,
-            refinement=refinement if opts.auto_refine else None,
+            counters=complete("rectification", figures),
         )
 
     def _state(

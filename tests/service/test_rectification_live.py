@@ -9,11 +9,13 @@ import itertools
 import time
 from pathlib import Path
 
+import httpx
+
 from calibration.formats import load_rig, save_rig
 from service.runtime import Runtime
 from service.settings import load_settings
 from tests.rig.rectification_renders import perturbed, relative_rotation_error_deg
-from tests.service.conftest import SmallRecording, service_overrides, wait_for
+from tests.service.conftest import LiveServer, SmallRecording, service_overrides, wait_for
 
 FAST_CHECKS = {"check_interval_s": 0.5, "confirm_checks": 2}
 
@@ -62,7 +64,7 @@ def test_a_turned_calibration_is_corrected_online_without_losing_a_frame(
     finally:
         runtime.stop()
     stats = runtime.worker.stats()
-    assert stats.errors == 0
+    assert stats.counters["errors"] == 0
     # Every pair the worker took was published, in order, and the stream never paused for the
     # table rebuild longer than a few frames at 10 fps.
     indexes = [i for _, i in published]
@@ -105,3 +107,38 @@ def test_measurement_can_be_switched_off(
     calibration = small_recording.loop / "calibration.yaml"
     runtime = _runtime(small_recording, tmp_path, lut_cache, calibration, enabled=False)
     assert runtime.rectification is None and runtime.health().rectification is None
+
+
+def test_health_and_metrics_report_the_measure(
+    small_recording: SmallRecording, lut_cache: Path, tmp_path: Path
+) -> None:
+    """Over HTTP: /health's rectification object (degraded with a reason for a calibration 0.6°
+    off, online refinement off) and the same figures in /metrics."""
+    truth = load_rig(small_recording.loop / "calibration.yaml")
+    calibration = tmp_path / "rig.yaml"
+    save_rig(perturbed(truth, (0.3, 0.4, -0.3)), calibration)
+    doc = service_overrides(small_recording.loop, tmp_path, lut_cache)
+    doc["calibration"] = {"path": str(calibration)}
+    doc["rectification"] = FAST_CHECKS
+    live = LiveServer(load_settings(None, doc)).start()
+    try:
+        live.wait_ready()
+        wait_for(lambda: httpx.get(live.base_url + "/health").json()["status"] == "degraded", 60, "degraded")
+        health = httpx.get(live.base_url + "/health").json()
+        metrics = httpx.get(live.base_url + "/metrics").text
+    finally:
+        live.stop()
+    rect = health["rectification"]
+    assert rect["state"] == "degraded" and rect["degraded"] is True and rect["auto_refine"] is False
+    assert (
+        rect["vertical_disparity_p50_px"] > 0.5 and rect["checks"] >= 2 and rect["corrections_applied"] == 0
+    )
+    assert any(r.startswith("rectification: vertical disparity p50") for r in health["reasons"])
+    p50 = rect["vertical_disparity_p50_px"]
+    line = f'rig_rectification_vertical_disparity_px{{quantile="0.5"}} {p50!r}'
+    assert line in metrics or any(
+        ln.startswith('rig_rectification_vertical_disparity_px{quantile="0.5"}')
+        for ln in metrics.splitlines()
+    )
+    assert "rig_rectification_degraded 1.0" in metrics
+    assert "rig_rectification_checks_total" in metrics
