@@ -268,24 +268,7 @@ def _extrinsics(run: EvaluationRun, doc: dict[str, Any]) -> list[str]:
         ])  # fmt: skip
     header = ["extrinsics", "rotation error °", "translation error mm", "baseline error mm"]
     out += _table([*header, "depth RMS / Reference", f"depth bias at k = {far:g}, mm"], rows)
-    if all(ratio[k] is not None for k in ratio) and ratio["calibrated"] < ratio["true"]:
-        out += _para(
-            "The boards' extrinsics, fitted with the calibrated lenses, give less depth error here than ",
-            "the true ones: they absorb part of the lenses' own error (the VPCs look 45° off each ",
-            "lens's axis, where a focal error turns a ray sideways like a vergence error).",
-        )
-    cal, ref = ex["calibrated"] or {}, ex["refined"] or {}
-    if (
-        ratio["refined"] is not None
-        and ratio["calibrated"] is not None
-        and ref.get("rotation_deg", math.inf) < cal.get("rotation_deg", 0.0)
-        and ratio["refined"] > ratio["calibrated"]
-    ):
-        out += _para(
-            "The scene refinement brings the rotation closer to the true one and the depth error ",
-            "back towards the true extrinsics': it measures the epipolar (vertical) error, which the ",
-            "lenses' error along the rows does not cause, so that part of the depth error stays.",
-        )
+    out += _extrinsics_reading(ex)
     r = ex.get("refinement")
     if r is not None:
         out += _para(
@@ -294,6 +277,35 @@ def _extrinsics(run: EvaluationRun, doc: dict[str, Any]) -> list[str]:
             f"{_f(r['vertical_disparity_p50_px'][0])} → {_f(r['vertical_disparity_p50_px'][1])} px; ",
             f"baseline direction {r['baseline_direction']}; the baseline's length (the scale) is the ",
             "calibration's.",
+        )
+    return out
+
+
+def _extrinsics_reading(ex: dict[str, Any]) -> list[str]:
+    """What the three depth ratios say (differences under the agreement's tie margin are none)."""
+    ratio = ex["depth_rms_over_reference"]
+    if any(ratio[k] is None for k in ("true", "calibrated", "refined")):
+        return []
+    true, cal, ref = ratio["true"], ratio["calibrated"], ratio["refined"]
+    if max(true, cal, ref) <= min(true, cal, ref) * (1.0 + TIE):
+        return _para(
+            f"The three depth errors are within {TIE:.0%} of each other: the extrinsics are accurate ",
+            "enough here that what remains is the lenses' and the matcher's.",
+        )
+    out: list[str] = []
+    if cal < true / (1.0 + TIE):
+        out += _para(
+            "The boards' extrinsics, fitted with the calibrated lenses, give less depth error here than ",
+            "the true ones: they absorb part of the lenses' own error (the VPCs look 45° off each ",
+            "lens's axis, where a focal error turns a ray sideways like a vergence error).",
+        )
+    rot_cal = (ex["calibrated"] or {}).get("rotation_deg", math.inf)
+    rot_ref = (ex["refined"] or {}).get("rotation_deg", math.inf)
+    if rot_ref < rot_cal and abs(ref - true) < abs(cal - true) and ref > cal * (1.0 + TIE):
+        out += _para(
+            "The scene refinement brings the rotation closer to the true one and the depth error ",
+            "back towards the true extrinsics': it measures the epipolar (vertical) error, which the ",
+            "lenses' error along the rows does not cause, so that part of the depth error stays.",
         )
     return out
 
