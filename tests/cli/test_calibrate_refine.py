@@ -61,6 +61,7 @@ def test_refines_a_knocked_rig_and_writes_the_corrected_calibration(
     refined = load_rig(out)
     before = relative_rotation_error_deg(load_rig(nominal), truth)
     after = relative_rotation_error_deg(refined, truth)
+    print(f"relative rotation error: {before:.4f}° before, {after:.4f}° after")
     assert before > 0.7 and after <= 0.02
     assert refined.baseline() == pytest.approx(load_rig(nominal).baseline(), abs=1e-12)  # never the scale
     for text in ("x, the baseline (pitch)", "y, vertical (vergence)", "total angle", "vertical disparity",
