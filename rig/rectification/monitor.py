@@ -289,7 +289,11 @@ class RectificationMonitor:
         matches = match_pair(views, left, right, MatchOptions(max_features=opts.max_features))
         fit = self._fit(rig, pair, views, matches, opts.min_matches)
         if fit is None:
-            why = f"{len(matches)} matches agree on no relative pose"
+            why = (
+                f"{len(matches)} matches, need {opts.min_matches}"
+                if len(matches) < opts.min_matches
+                else f"{len(matches)} matches agree on no relative pose"
+            )
             measure = VerticalDisparity(0, None, None, None, 0.0, "not enough matches", why)
             consistent = RayMatches.empty()
         else:
@@ -368,7 +372,7 @@ class RectificationMonitor:
         try:
             if self._apply is not None:
                 self._apply(new_rig)
-        except RigError as err:
+        except (RigError, CalibrationError) as err:
             self._set_refinement(f"correction not applied: {err}")
             log.warning("rectification: could not apply a %.3f° correction: %s", fit.angle_deg, err)
             return
