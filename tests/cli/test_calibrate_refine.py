@@ -5,9 +5,7 @@ nominal calibration, the output file and the original kept, and bad input as one
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -17,15 +15,12 @@ import pytest
 from calibration.formats import load_rig, save_rig
 from calibration.rig import Rig
 from rig.recording import RecordingWriter
+from tests.helpers.command import assert_one_line_error, run_rig
 from tests.rig.rectification_renders import nominal_rig, perturbed, relative_rotation_error_deg, render_room
-
-RIG = Path(sys.executable).with_name("rig")
 
 
 def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "COLUMNS": "200"}
-    env.pop("RIG_DEBUG", None)
-    return subprocess.run([str(RIG), *map(str, args)], capture_output=True, text=True, timeout=300, env=env)
+    return run_rig(args)
 
 
 @pytest.fixture(scope="module")
@@ -38,15 +33,6 @@ def knocked(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Rig]:
     nominal = root / "nominal.yaml"
     save_rig(nominal_rig(), nominal)
     return rec, nominal, truth
-
-
-def _one_line_error(res: subprocess.CompletedProcess[str], *needles: str) -> None:
-    assert res.returncode == 2, (res.stdout, res.stderr)
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), res.stderr
-    assert "Traceback" not in res.stderr
-    for needle in needles:
-        assert needle in lines[0], (needle, lines[0])
 
 
 @pytest.mark.slow
@@ -104,27 +90,31 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path) -> None:
     rng = np.random.default_rng(1)
     wall = [np.clip(120 + rng.normal(0, 1.5, left.shape), 0, 255).astype(np.uint8) for _ in range(2)]
     out = tmp_path / "out.yaml"
-    _one_line_error(
+    assert_one_line_error(
         run("calibrate", "refine", _recording(tmp_path / "blank", *wall), "-c", nominal, "--out", out),
         "not enough matches",
     )
-    _one_line_error(
+    assert_one_line_error(
         run("calibrate", "refine", _recording(tmp_path / "same", left, left), "-c", nominal, "--out", out),
         "a recording of one camera",
     )
     mono = _recording(tmp_path / "mono", left, left, ["left"])
-    _one_line_error(run("calibrate", "refine", mono, "-c", nominal, "--out", out), "camera(s) left only")
-    _one_line_error(run("calibrate", "refine", tmp_path / "nowhere", "-c", nominal, "--out", out), "nowhere")
-    _one_line_error(
+    assert_one_line_error(
+        run("calibrate", "refine", mono, "-c", nominal, "--out", out), "camera(s) left only"
+    )
+    assert_one_line_error(
+        run("calibrate", "refine", tmp_path / "nowhere", "-c", nominal, "--out", out), "nowhere"
+    )
+    assert_one_line_error(
         run("calibrate", "refine", rec, "-c", nominal, "--out", out, "--baseline-direction", "sideways"),
         "--baseline-direction",
     )
     single = tmp_path / "single.yaml"
     save_rig(Rig({"left": load_rig(nominal).cameras["left"]}, {"left": np.eye(4)}), single)
-    _one_line_error(run("calibrate", "refine", rec, "-c", single, "--out", out), "holds one camera")
+    assert_one_line_error(run("calibrate", "refine", rec, "-c", single, "--out", out), "holds one camera")
     other = tmp_path / "other.yaml"
     rig = load_rig(nominal)
     save_rig(Rig({"front": rig.cameras["left"], "back": rig.cameras["right"]},
                  {"front": rig.T_rig_cam["left"], "back": rig.T_rig_cam["right"]}), other)  # fmt: skip
-    _one_line_error(run("calibrate", "refine", rec, "-c", other, "--out", out), "no camera 'left'")
+    assert_one_line_error(run("calibrate", "refine", rec, "-c", other, "--out", out), "no camera 'left'")
     assert not out.exists()

@@ -14,8 +14,9 @@ import httpx
 from calibration.formats import load_rig, save_rig
 from service.runtime import Runtime
 from service.settings import load_settings
+from tests.helpers.service import LiveServer, SmallRecording, service_overrides
+from tests.helpers.waiting import wait_for
 from tests.rig.rectification_renders import perturbed, relative_rotation_error_deg
-from tests.service.conftest import LiveServer, SmallRecording, service_overrides, wait_for
 
 FAST_CHECKS = {"check_interval_s": 0.5, "confirm_checks": 2}
 
