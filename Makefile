@@ -29,11 +29,11 @@ demo: $(RUN_STAMP)
 test: $(DEV_STAMP)
 	$(BIN)/python -m pytest
 
-## lint: ruff (lint and format), mypy, and the import layering (cli -> service -> rig -> calibration)
+## lint: ruff (rules, complexity <= 15, format), mypy --strict, import layering (cli -> service -> rig -> calibration)
 lint: $(DEV_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/mypy calibration rig service cli
+	$(BIN)/mypy calibration rig service cli bench
 	$(BIN)/lint-imports
 
 clean:

@@ -100,6 +100,10 @@ class WorkerSession:
         latest = self.runtime.store.latest
         return 0 if latest is None else latest.index
 
+    def _errors(self) -> int:
+        """The worker's error count (an int counter of :mod:`rig.counters`)."""
+        return int(self.runtime.worker.stats().counters["errors"] or 0)
+
     def _next_result(self, index: int, timeout_s: float) -> PublishedResult:
         result = self.runtime.store.wait_newer(index, timeout_s)
         if result is None:
@@ -109,7 +113,7 @@ class WorkerSession:
     def window(self, seconds: float, timeout_s: float = 30.0) -> Window:
         """Open the gate, skip :data:`SETTLE_RESULTS` results, time ``seconds``, shut the gate
         and wait until the pairs in flight are published (so the next floor window runs alone)."""
-        errors0 = self.runtime.worker.stats().counters["errors"]
+        errors0 = self._errors()
         self.gate.open.set()
         try:
             first = self._next_result(self._index(), timeout_s)
@@ -130,7 +134,7 @@ class WorkerSession:
         self._drain(fps)
         # After the drain: the watcher has seen every result up to ``last`` by now.
         latencies = [ms for ns, ms in self._published if first.published_ns < ns <= last.published_ns]
-        errors = self.runtime.worker.stats().counters["errors"] - errors0
+        errors = self._errors() - errors0
         cpu_ms = cores / fps * 1e3 if fps else float("nan")
         return Window(fps, frames, cpu_ms, cores, latencies, stage_ms, errors)
 

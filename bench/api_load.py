@@ -1,4 +1,4 @@
-"""The HTTP API under load while the worker runs (issue #8, item 3).
+"""The HTTP API under load while the worker runs (docs/performance.md, "API under load").
 
 Starts the real service (``rig serve --recording REC`` or ``--demo``, uvicorn on loopback, in a
 child process; the LUT cache warm) replaying 1280×960 MJPEG frames at the recording's 30 fps, so

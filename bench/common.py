@@ -1,7 +1,7 @@
 """What every benchmark shares: the machine description, statistics, argument parsing, JSON
 output and the cache directory for generated inputs.
 
-Benchmarks are not tests (DESIGN §9): each prints figures and ratios measured in one run against
+Benchmarks are not tests (docs/performance.md): each prints figures and ratios measured in one run against
 the bare OpenCV calls doing the same work. The machine is part of every result: CPU model, cores,
 load average at the start and the end (other work on a shared machine skews everything), and the
 OpenCV/numpy versions.

@@ -1,4 +1,5 @@
-"""LUT build per camera model against ``cv2.fisheye.initUndistortRectifyMap`` (issue #8, item 2).
+"""LUT build per camera model against ``cv2.fisheye.initUndistortRectifyMap`` (docs/performance.md,
+"LUT build per model").
 
 Grid: the default VPC (640×480, 90° horizontal FOV) of the prototype rig's left camera
 (1280×960 Kannala-Brandt 190°, rotated 45° off the lens axis, as the service builds it). Every

@@ -1,4 +1,4 @@
-"""Resident memory of ``rig serve --demo`` over time (issue #8, item 4).
+"""Resident memory of ``rig serve --demo`` over time (docs/performance.md, "Memory").
 
 Starts the real service in a child process (``rig serve --demo``, or ``--recording REC``), waits
 for its first depth frame, then samples its RSS (``/proc/PID/status`` VmRSS) every

@@ -1,4 +1,4 @@
-"""Start-up time of ``rig serve``: launch → first depth frame (issue #8, item 5).
+"""Start-up time of ``rig serve``: launch → first depth frame (docs/performance.md, "Start-up").
 
 Launches the real command in a child process and polls ``/readyz`` (200 once a depth frame has
 been published) from the moment of launch. Cases:

@@ -1,4 +1,4 @@
-"""Worker path against the OpenCV floor (issue #8, item 1).
+"""Worker path against the OpenCV floor (docs/performance.md).
 
 Input: a recording of 1280×960 MJPEG fisheye frames (:mod:`bench.recordings`, built once).
 

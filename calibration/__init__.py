@@ -3,7 +3,8 @@
 Imports only numpy, scipy and cv2: nothing here knows about streaming cameras or HTTP.
 """
 
-from calibration.calibrate import CameraCalibration, DroppedView, calibrate_camera
+from calibration.board_views import DroppedView
+from calibration.calibrate import CameraCalibration, calibrate_camera
 from calibration.corner_refine import RefinementReport, refine_corners_local
 from calibration.errors import CalibrationError, CalibrationFailed, CalibrationFileError, ModelError
 from calibration.formats import detect_format, load_camera, load_rig, save_rig

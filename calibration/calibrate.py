@@ -28,8 +28,17 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from calibration.board_views import (
+    DroppedView,
+    drop_out_of_domain,
+    drop_outliers,
+    drop_thin_views,
+    max_corner_angle,
+    prepare_views,
+    require_views,
+)
 from calibration.corner_refine import ImageSource, RefinementReport, refine_views
-from calibration.errors import CalibrationError, CalibrationFailed
+from calibration.errors import CalibrationError
 from calibration.initial_guess import board_poses, convert_model, search_equidistant_focal, seed_model
 from calibration.lm import LOSSES
 from calibration.models.base import MODELS, CameraModel
@@ -38,10 +47,10 @@ from calibration.solver import BundleResult, CameraBlock, Observation, refine_bu
 __all__ = [
     "DEFAULT_FIXED",
     "CameraCalibration",
-    "DroppedView",
+    "FitOptions",
     "calibrate_camera",
+    "check_loss",
     "free_mask",
-    "prepare_views",
 ]
 
 F64 = NDArray[np.float64]
@@ -54,21 +63,18 @@ F64 = NDArray[np.float64]
 # e = 0 stretch times such a rotation, with the scale taken up by the polynomial).
 DEFAULT_FIXED: dict[str, tuple[str, ...]] = {"mei": ("s",), "scaramuzza": ("poly[1]", "e")}
 
-# Minimum corners for a view to give a pose.
-MIN_CORNERS = 6
-
-# A view is an outlier during initialisation when its RMS exceeds both of these.
-_OUTLIER_FACTOR = 8.0
-_OUTLIER_MIN_PX = 2.0
-
 
 @dataclass(frozen=True)
-class DroppedView:
-    """A view left out of the calibration: its input index, name and why."""
+class FitOptions:
+    """How :func:`calibrate_camera` fits a lens (see there for each option); what
+    :func:`calibration.stereo_calibrate.calibrate_stereo` passes on to each camera's."""
 
-    index: int
-    name: str
-    reason: str
+    fix: tuple[str, ...] = ()
+    fov_deg: float | None = None
+    loss: str = "linear"
+    min_views: int = 3
+    refine_rounds: int = 3
+    refine_tol_px: float = 1e-3
 
 
 @dataclass
@@ -105,44 +111,6 @@ def free_mask(model: CameraModel, fix: Iterable[str] = ()) -> NDArray[np.bool_]:
     return np.array([n not in fixed and n.split("[")[0] not in fixed for n in model.param_layout])
 
 
-def prepare_views(
-    object_points: Sequence[ArrayLike],
-    image_points: Sequence[ArrayLike | None],
-    names: Sequence[str] | None,
-) -> tuple[list[F64], list[F64 | None], list[str], list[DroppedView]]:
-    """Validate per-view arrays; views with fewer than MIN_CORNERS detected corners become
-    DroppedView. Returns object points, image points (None for dropped), names, dropped."""
-    if len(object_points) != len(image_points):
-        raise CalibrationError(
-            f"{len(object_points)} object point sets but {len(image_points)} image point sets"
-        )
-    names = list(names) if names is not None else [f"view {i}" for i in range(len(object_points))]
-    if len(names) != len(object_points):
-        raise CalibrationError(f"{len(names)} view names for {len(object_points)} views")
-    objs: list[F64] = []
-    imgs: list[F64 | None] = []
-    dropped: list[DroppedView] = []
-    for i, (X, u) in enumerate(zip(object_points, image_points, strict=True)):
-        Xa = np.asarray(X, dtype=np.float64).reshape(-1, 3)
-        objs.append(Xa)
-        if u is None:
-            imgs.append(None)
-            dropped.append(DroppedView(i, names[i], "no corners detected"))
-            continue
-        ua = np.asarray(u, dtype=np.float64).reshape(-1, 2)
-        if len(ua) != len(Xa):
-            raise CalibrationError(f"{names[i]}: {len(ua)} image points but {len(Xa)} object points")
-        if not np.isfinite(Xa).all():
-            raise CalibrationError(f"{names[i]}: object points must be finite")
-        n = int(np.isfinite(ua).all(axis=1).sum())
-        if n < MIN_CORNERS:
-            imgs.append(None)
-            dropped.append(DroppedView(i, names[i], f"only {n} corners (need {MIN_CORNERS})"))
-            continue
-        imgs.append(ua)
-    return objs, imgs, names, dropped
-
-
 def calibrate_camera(
     model: str,
     object_points: Sequence[ArrayLike],
@@ -171,10 +139,7 @@ def calibrate_camera(
     refinement: at most ``refine_rounds`` rounds of refine → recalibrate, stopping once no
     corner changes by more than ``refine_tol_px``; ``result.refinement`` reports it.
     """
-    if model not in MODELS:
-        raise CalibrationError(f"unknown camera model {model!r}; known: {', '.join(sorted(MODELS))}")
-    if loss not in LOSSES:
-        raise CalibrationError(f"unknown loss {loss!r}; known: {', '.join(LOSSES)}")
+    _check_model_and_loss(model, loss)
     w, h = (int(v) for v in image_size)
     if w <= 0 or h <= 0:
         raise CalibrationError(f"image size must be positive, got {image_size}")
@@ -183,84 +148,172 @@ def calibrate_camera(
         raise CalibrationError(f"{len(images)} images for {len(objs)} views")
     if refine_rounds < 1 or not refine_tol_px > 0:
         raise CalibrationError("refine_rounds must be >= 1 and refine_tol_px > 0")
+    options = FitOptions(tuple(fix), fov_deg, loss, min_views, refine_rounds, refine_tol_px)
     views = [i for i, u in enumerate(imgs) if u is not None]
-    _require(views, min_views, dropped)
+    require_views(views, min_views, dropped)
+    U = {i: u for i, u in enumerate(imgs) if u is not None}
+    data = _Views({i: objs[i] for i in views}, U, names, dropped, min_views)
 
-    X = {i: objs[i] for i in views}
-    U: dict[int, F64] = {i: u for i, u in enumerate(imgs) if u is not None}
+    if initial is None:
+        camera, poses, views = _initial_lens(data, views, model, (w, h))
+    else:
+        camera, poses, views = _poses_for_guess(data, views, initial, (w, h))
+    camera, views = _converted(data, camera, poses, views, model, options.fix)
+    if fov_deg is not None:
+        camera = camera.replace(fov_deg=fov_deg)
 
-    def fit(camera: CameraModel, poses: dict[int, F64], use: list[int], free: NDArray[np.bool_] | None,
-            loss_: str) -> BundleResult:  # fmt: skip
-        obs = [Observation(0, k, X[i], U[i]) for k, i in enumerate(use)]
-        return refine_bundle([CameraBlock(camera, free)], [poses[i] for i in use], obs, loss=loss_)
+    free = free_mask(camera, options.fix)
+    final = data.fit(camera, poses, views, free, loss)
+    if images is None or all(images[i] is None for i in views):
+        return _result(final, views, names, data.X, data.U, dropped)
+    return _refine_corners(data, final, views, images, free, options)
 
-    def initial_poses(camera: CameraModel, use: list[int]) -> tuple[dict[int, F64], list[int]]:
-        finite = [np.isfinite(U[i]).all(axis=1) for i in use]
-        found = board_poses(camera, [X[i][f] for i, f in zip(use, finite, strict=True)],
-                            [U[i][f] for i, f in zip(use, finite, strict=True)])  # fmt: skip
+
+def _check_model_and_loss(model: str, loss: str) -> None:
+    if model not in MODELS:
+        raise CalibrationError(f"unknown camera model {model!r}; known: {', '.join(sorted(MODELS))}")
+    check_loss(loss)
+
+
+def check_loss(loss: str) -> None:
+    """``loss`` names a loss of :data:`calibration.lm.LOSSES` (else CalibrationError)."""
+    if loss not in LOSSES:
+        raise CalibrationError(f"unknown loss {loss!r}; known: {', '.join(LOSSES)}")
+
+
+@dataclass
+class _Views:
+    """One camera's board views while it is calibrated: object points ``X`` and detected
+    corners ``U`` (NaN rows: not detected) by input index, every view's name, the views
+    dropped so far and the fewest views a fit may use."""
+
+    X: dict[int, F64]
+    U: dict[int, F64]
+    names: list[str]
+    dropped: list[DroppedView]
+    min_views: int
+
+    def require(self, views: list[int]) -> None:
+        require_views(views, self.min_views, self.dropped)
+
+    def seen(self, views: list[int]) -> tuple[list[F64], list[F64]]:
+        """The detected corners of ``views`` and their object points."""
+        finite = [np.isfinite(self.U[i]).all(axis=1) for i in views]
+        return (
+            [self.X[i][f] for i, f in zip(views, finite, strict=True)],
+            [self.U[i][f] for i, f in zip(views, finite, strict=True)],
+        )
+
+    def fit(
+        self,
+        camera: CameraModel,
+        poses: dict[int, F64],
+        use: list[int],
+        free: NDArray[np.bool_] | None,
+        loss: str,
+    ) -> BundleResult:
+        """The joint refinement of ``camera`` (``free``: its optimised parameters, None: all)
+        and the board poses of views ``use``."""
+        obs = [Observation(0, k, self.X[i], self.U[i]) for k, i in enumerate(use)]
+        return refine_bundle([CameraBlock(camera, free)], [poses[i] for i in use], obs, loss=loss)
+
+    def initial_poses(self, camera: CameraModel, use: list[int]) -> tuple[dict[int, F64], list[int]]:
+        """Board poses of views ``use`` by PnP on rays; views no pose fits are dropped.
+        Returns the poses and the views left."""
+        found = board_poses(camera, *self.seen(use))
         poses = {}
         for i, T in zip(use, found, strict=True):
             if T is None:
-                dropped.append(DroppedView(i, names[i], "no board pose fits the corners"))
+                self.dropped.append(DroppedView(i, self.names[i], "no board pose fits the corners"))
             else:
                 poses[i] = T
         return poses, [i for i in use if i in poses]
 
-    if initial is None:
-        finite = [np.isfinite(U[i]).all(axis=1) for i in views]
-        camera: CameraModel = search_equidistant_focal(
-            [X[i][f] for i, f in zip(views, finite, strict=True)],
-            [U[i][f] for i, f in zip(views, finite, strict=True)],
-            (w, h),
-        )
-        poses, views = initial_poses(camera, views)
-        _require(views, min_views, dropped)
-        stage = fit(camera, poses, views, None, "soft_l1")
-        views, poses = _drop_outliers(stage, views, names, dropped, min_views)
+
+def _initial_lens(
+    data: _Views, views: list[int], model: str, size: tuple[int, int]
+) -> tuple[CameraModel, dict[int, F64], list[int]]:
+    """A lens from no guess: the equidistant focal length by 1-D search, board poses by PnP on
+    rays, a robust equidistant fit, then (for any other ``model``) a Kannala-Brandt one; views
+    far off after a fit are dropped. Returns the lens, the poses and the views left."""
+    camera: CameraModel = search_equidistant_focal(*data.seen(views), size)
+    poses, views = data.initial_poses(camera, views)
+    data.require(views)
+    stage = data.fit(camera, poses, views, None, "soft_l1")
+    views, poses = drop_outliers(stage, views, data.names, data.dropped, data.min_views)
+    camera = stage.cameras[0]
+    if model != "equidistant":
+        kb = seed_model("kannala_brandt", camera, math.pi)
+        stage = data.fit(kb, poses, views, None, "soft_l1")
+        views, poses = drop_outliers(stage, views, data.names, data.dropped, data.min_views)
         camera = stage.cameras[0]
-        if model != "equidistant":
-            kb = seed_model("kannala_brandt", camera, math.pi)
-            stage = fit(kb, poses, views, None, "soft_l1")
-            views, poses = _drop_outliers(stage, views, names, dropped, min_views)
-            camera = stage.cameras[0]
-    else:
-        if (initial.width, initial.height) != (w, h):
-            raise CalibrationError(
-                f"initial guess is for {initial.width}x{initial.height} images, the views are {w}x{h}"
-            )
-        camera = initial
-        poses, views = initial_poses(camera, views)
-        _require(views, min_views, dropped)
+    return camera, poses, views
 
-    if camera.name != model:
-        theta_obs = _max_angle(poses, X, views)
-        target = seed_model(model, camera, theta_obs)
-        limit = min(theta_obs * 1.02, 0.98 * target.max_theta)
-        camera = convert_model(camera, target, limit, free_mask(target, fix))
-        views = _drop_out_of_domain(camera, poses, X, U, views, names, dropped)
-        _require(views, min_views, dropped)
-    if fov_deg is not None:
-        camera = camera.replace(fov_deg=fov_deg)
 
-    final = fit(camera, poses, views, free_mask(camera, fix), loss)
-    if images is None or all(images[i] is None for i in views):
-        return _result(final, views, names, X, U, dropped)
+def _poses_for_guess(
+    data: _Views, views: list[int], initial: CameraModel, size: tuple[int, int]
+) -> tuple[CameraModel, dict[int, F64], list[int]]:
+    """The ``initial`` lens (checked against the image ``size``), the board poses it gives and
+    the views left."""
+    w, h = size
+    if (initial.width, initial.height) != (w, h):
+        raise CalibrationError(
+            f"initial guess is for {initial.width}x{initial.height} images, the views are {w}x{h}"
+        )
+    poses, views = data.initial_poses(initial, views)
+    data.require(views)
+    return initial, poses, views
 
-    # ---- corner refinement with the lens just found ------------------------------------------
+
+def _converted(
+    data: _Views,
+    camera: CameraModel,
+    poses: dict[int, F64],
+    views: list[int],
+    model: str,
+    fix: tuple[str, ...],
+) -> tuple[CameraModel, list[int]]:
+    """``camera``'s lens as a ``model`` lens (least squares over the observed field) and the
+    views left: those with corners the model cannot image are dropped."""
+    if camera.name == model:
+        return camera, views
+    theta_obs = max_corner_angle(poses, data.X, views)
+    target = seed_model(model, camera, theta_obs)
+    limit = min(theta_obs * 1.02, 0.98 * target.max_theta)
+    camera = convert_model(camera, target, limit, free_mask(target, fix))
+    views = drop_out_of_domain(camera, poses, data.X, data.U, views, data.names, data.dropped)
+    data.require(views)
+    return camera, views
+
+
+def _refine_corners(
+    data: _Views,
+    final: BundleResult,
+    views: list[int],
+    images: Sequence[ImageSource | None],
+    free: NDArray[np.bool_],
+    options: FitOptions,
+) -> CameraCalibration:
+    """Corner refinement with the lens just found (``final``), then the joint refinement
+    again, for at most ``options.refine_rounds`` rounds, until no corner moves by more than
+    ``options.refine_tol_px``; the calibration with its :class:`RefinementReport`."""
+    U = data.U
     raw = {i: U[i] for i in views}
     rms_before, changes, previous = final.rms, [], raw
-    for _ in range(refine_rounds):
-        refined, rejected = refine_views(images, {i: raw[i] for i in views}, final.cameras[0], X, names)
+    for _ in range(options.refine_rounds):
+        refined, rejected = refine_views(
+            images, {i: raw[i] for i in views}, final.cameras[0], data.X, data.names
+        )
         changes.append(_largest_change(refined, previous))  # over the views still in use
         U.update(refined)
         poses = dict(zip(views, final.T_ref_board, strict=True))
-        kept = _drop_thin_views(U, views, names, dropped)
-        _require(kept, min_views, dropped)
+        kept = drop_thin_views(U, views, data.names, data.dropped)
+        data.require(kept)
         if kept != views:
             views, poses = kept, {i: poses[i] for i in kept}
-        final = fit(final.cameras[0], poses, views, free_mask(camera, fix), loss)
+        final = data.fit(final.cameras[0], poses, views, free, options.loss)
         previous = refined
-        if changes[-1] <= refine_tol_px:
+        if changes[-1] <= options.refine_tol_px:
             break
     shifts = np.concatenate([np.linalg.norm(U[i] - raw[i], axis=1) for i in views])
     report = RefinementReport(
@@ -268,95 +321,18 @@ def calibrate_camera(
         rms_after=final.rms,
         rounds=len(changes),
         changes_px=tuple(changes),
-        converged=changes[-1] <= refine_tol_px,
+        converged=changes[-1] <= options.refine_tol_px,
         mean_shift_px=float(np.nanmean(shifts)) if np.isfinite(shifts).any() else 0.0,
         n_corners=int(sum(int(k.sum()) for k in final.kept)),
         rejected=tuple(r for r in rejected if r.view in views),
     )
-    return _result(final, views, names, X, U, dropped, report)
+    return _result(final, views, data.names, data.X, U, dropped=data.dropped, refinement=report)
 
 
 def _largest_change(refined: dict[int, F64], previous: dict[int, F64]) -> float:
     """Largest distance (px) between the corners of two rounds, over corners found in both."""
     d = np.concatenate([np.linalg.norm(refined[i] - previous[i], axis=1) for i in refined])
     return float(np.nanmax(d)) if np.isfinite(d).any() else 0.0
-
-
-def _drop_thin_views(
-    U: dict[int, F64], views: list[int], names: list[str], dropped: list[DroppedView]
-) -> list[int]:
-    """Views left with fewer than MIN_CORNERS corners after refinement are dropped."""
-    keep = []
-    for i in views:
-        n = int(np.isfinite(U[i]).all(axis=1).sum())
-        if n >= MIN_CORNERS:
-            keep.append(i)
-        else:
-            dropped.append(DroppedView(i, names[i], f"only {n} corners left after corner refinement"))
-    return keep
-
-
-def _require(views: list[int], min_views: int, dropped: list[DroppedView]) -> None:
-    if len(views) >= min_views:
-        return
-    reasons = "; ".join(f"{d.name}: {d.reason}" for d in dropped[:5])
-    more = f" (+{len(dropped) - 5} more)" if len(dropped) > 5 else ""
-    raise CalibrationFailed(
-        f"only {len(views)} usable view(s), need at least {min_views}"
-        + (f" — {reasons}{more}" if reasons else "")
-    )
-
-
-def _drop_outliers(
-    stage: BundleResult, views: list[int], names: list[str], dropped: list[DroppedView], min_views: int
-) -> tuple[list[int], dict[int, F64]]:
-    """Drop views whose RMS is far above the others' after an initialisation stage."""
-    rms = np.array([np.sqrt(np.mean(np.sum(r**2, axis=1))) for r in stage.residuals])
-    limit = max(_OUTLIER_FACTOR * float(np.median(rms)), _OUTLIER_MIN_PX)
-    keep = []
-    for k, i in enumerate(views):
-        if rms[k] > limit:
-            dropped.append(DroppedView(i, names[i], f"reprojection {rms[k]:.1f} px, far above the others"))
-        else:
-            keep.append(k)
-    _require([views[k] for k in keep], min_views, dropped)
-    return [views[k] for k in keep], {views[k]: stage.T_ref_board[k] for k in keep}
-
-
-def _max_angle(poses: dict[int, F64], X: dict[int, F64], views: list[int]) -> float:
-    """Largest angle (rad) of a board corner off the optical axis over the views."""
-    best = 0.0
-    for i in views:
-        p = X[i] @ poses[i][:3, :3].T + poses[i][:3, 3]
-        cos = p[:, 2] / np.linalg.norm(p, axis=1)
-        best = max(best, float(np.arccos(np.clip(cos, -1.0, 1.0)).max()))
-    return best
-
-
-def _drop_out_of_domain(
-    camera: CameraModel,
-    poses: dict[int, F64],
-    X: dict[int, F64],
-    U: dict[int, F64],
-    views: list[int],
-    names: list[str],
-    dropped: list[DroppedView],
-) -> list[int]:
-    """Views with corners the model cannot image (e.g. past 90° for a pinhole) are dropped."""
-    keep = []
-    for i in views:
-        seen = np.isfinite(U[i]).all(axis=1)
-        p = X[i][seen] @ poses[i][:3, :3].T + poses[i][:3, 3]
-        _, ok = camera.project(p, in_image=False)
-        if ok.all():
-            keep.append(i)
-        else:
-            dropped.append(
-                DroppedView(
-                    i, names[i], f"{int((~ok).sum())} corners outside the {camera.name} model's field"
-                )
-            )
-    return keep
 
 
 def _result(
@@ -372,7 +348,8 @@ def _result(
     std = final.param_std[0]
     layout = camera.param_layout
     angles = [
-        _max_angle({i: final.T_ref_board[k]}, {i: X[i][final.kept[k]]}, [i]) for k, i in enumerate(views)
+        max_corner_angle({i: final.T_ref_board[k]}, {i: X[i][final.kept[k]]}, [i])
+        for k, i in enumerate(views)
     ]
     view_rms = np.array([np.sqrt(np.mean(np.sum(r**2, axis=1))) for r in final.residuals])
     return CameraCalibration(

@@ -1,4 +1,5 @@
-"""Rigid transforms and rotations (DESIGN §3: ``T_a_b`` maps points in frame b into frame a)."""
+"""Rigid transforms and rotations: ``T_a_b`` maps points in frame b into frame a (docs/design.md,
+"Conventions")."""
 
 from __future__ import annotations
 
@@ -54,9 +55,9 @@ def invert_transform(T: ArrayLike) -> F64:
 
 def transform_points(T: ArrayLike, points: ArrayLike) -> F64:
     """Apply a 4x4 transform to points (N, 3) -> (N, 3)."""
-    T = np.asarray(T, dtype=np.float64)
+    M = np.asarray(T, dtype=np.float64)
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    return p @ T[:3, :3].T + T[:3, 3]
+    return p @ M[:3, :3].T + M[:3, 3]
 
 
 def is_rotation(R: ArrayLike, tol: float = 1e-6) -> bool:

@@ -73,16 +73,18 @@ class NormalEquations:
         starts = prob.view_starts
         Jcw = Jc * w[:, None]
         Jpw = Jp * w[:, None]
-        self.A = Jc.T @ Jcw
-        self.gc = Jcw.T @ r
+        self.A: F64 = Jc.T @ Jcw
+        self.gc: F64 = Jcw.T @ r
         # Per-row outer products summed per view (rows sorted by view, then reduceat).
-        self.B = np.add.reduceat((Jp[:, :, None] * Jpw[:, None, :])[order], starts, axis=0).reshape(V, 6, 6)
-        self.C = np.add.reduceat((Jcw[:, :, None] * Jp[:, None, :])[order], starts, axis=0).reshape(
+        self.B: F64 = np.add.reduceat((Jp[:, :, None] * Jpw[:, None, :])[order], starts, axis=0).reshape(
+            V, 6, 6
+        )
+        self.C: F64 = np.add.reduceat((Jcw[:, :, None] * Jp[:, None, :])[order], starts, axis=0).reshape(
             V, Jc.shape[1], 6
         )
-        self.gp = np.add.reduceat((Jpw * r[:, None])[order], starts, axis=0)
-        self.diag_c = np.diag(self.A).copy()
-        self.diag_p = np.einsum("vii->vi", self.B).copy()
+        self.gp: F64 = np.add.reduceat((Jpw * r[:, None])[order], starts, axis=0)
+        self.diag_c: F64 = np.diag(self.A).copy()
+        self.diag_p: F64 = np.einsum("vii->vi", self.B).copy()
         top = max(float(self.diag_c.max(initial=0.0)), float(self.diag_p.max(initial=0.0)), 1e-300)
         self.diag_c = np.maximum(self.diag_c, 1e-12 * top)
         self.diag_p = np.maximum(self.diag_p, 1e-12 * top)
@@ -94,13 +96,16 @@ class NormalEquations:
         return float(max(gc.max(initial=0.0), gp.max(initial=0.0)))
 
     def _damped_pose_blocks(self, lam: float) -> F64:
-        return self.B + lam * np.einsum("vi,ij->vij", self.diag_p, np.eye(6))
+        # Each view's block plus λ times its own diagonal.
+        return self.B + lam * (self.diag_p[:, :, None] * np.eye(6))
 
     def schur(self, lam: float) -> F64:
         """Camera-block Schur complement with damping λ (Marquardt)."""
         Bl = self._damped_pose_blocks(lam)
         BinvCt = np.linalg.solve(Bl, np.transpose(self.C, (0, 2, 1)))  # (V, 6, n_cam)
-        return self.A + lam * np.diag(self.diag_c) - np.einsum("vcj,vjd->cd", self.C, BinvCt)
+        S = self.A + lam * np.diag(self.diag_c)
+        S -= np.einsum("vcj,vjd->cd", self.C, BinvCt)
+        return S
 
     def step(self, lam: float) -> tuple[F64, F64]:
         """Solve the damped normal equations: (camera step (n_cam,), pose steps (V, 6))."""

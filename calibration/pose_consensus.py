@@ -13,7 +13,11 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["average_transforms", "consensus_pose", "half_turn"]
+from calibration.board_views import DroppedView
+from calibration.errors import CalibrationFailed
+from calibration.geometry import invert_transform
+
+__all__ = ["average_transforms", "consensus_pose", "half_turn", "relative_pose"]
 
 F64 = NDArray[np.float64]
 
@@ -78,3 +82,52 @@ def consensus_pose(candidates: list[list[F64]]) -> tuple[F64, list[int]]:
     choice = best[1]
     chosen = [candidates[v][k] for v, k in enumerate(choice) if k >= 0]
     return average_transforms(chosen), choice
+
+
+def relative_pose(
+    objs: list[F64],
+    poses: list[dict[int, F64]],
+    points: list[dict[int, F64]],
+    right_name: str,
+    vnames: list[str],
+    min_common_views: int,
+    dropped: list[tuple[str, DroppedView]],
+) -> tuple[F64, list[int]]:
+    """``T_right_left`` from the views both cameras see: each view's relative pose, with the
+    right camera's corners in either order (:func:`half_turn`), and their consensus. A view
+    whose right corners are numbered the other way round is turned (``points`` and ``poses``
+    in place); one disagreeing with the others loses its right pose. Returns the pose and the
+    common views left."""
+    common = sorted(set(poses[0]) & set(poses[1]))
+    if len(common) < min_common_views:
+        raise CalibrationFailed(
+            f"only {len(common)} view(s) with the board seen by both cameras, "
+            f"need at least {min_common_views}"
+        )
+    candidates: list[list[F64]] = []
+    flips: list[F64 | None] = []
+    for i in common:
+        F = half_turn(objs[i])
+        flips.append(F)
+        T = poses[1][i] @ invert_transform(poses[0][i])
+        cands = [T]
+        if F is not None:
+            cands.append(poses[1][i] @ F @ invert_transform(poses[0][i]))
+        candidates.append(cands)
+    T_rl, choice = consensus_pose(candidates)
+    for i, k, F in zip(common, choice, flips, strict=True):
+        if k == 1 and F is not None:
+            # The right camera numbered this board's corners the other way round.
+            points[1][i] = points[1][i][::-1].copy()
+            poses[1][i] = poses[1][i] @ F
+        elif k < 0:
+            dropped.append(
+                (right_name, DroppedView(i, vnames[i], "relative pose disagrees with the other views"))
+            )
+            del poses[1][i]
+    common = sorted(set(poses[0]) & set(poses[1]))
+    if len(common) < min_common_views:
+        raise CalibrationFailed(
+            f"only {len(common)} view(s) give a consistent relative pose, need at least {min_common_views}"
+        )
+    return T_rl, common

@@ -1,4 +1,4 @@
-"""A calibrated rig: named camera models and their poses in the rig frame (DESIGN §3, §7)."""
+"""A calibrated rig: named camera models and their poses in the rig frame (docs/design.md)."""
 
 from __future__ import annotations
 
@@ -79,7 +79,7 @@ class Rig:
         return float(np.linalg.norm(self.center(b) - self.center(a)))
 
     def to_dict(self) -> dict[str, Any]:
-        """The rig.yaml document (DESIGN §7)."""
+        """The rig.yaml document (docs/design.md, "rig.yaml")."""
         cams: dict[str, Any] = {}
         for name, model in self.cameras.items():
             entry = model.to_dict()
@@ -96,8 +96,8 @@ class Rig:
         names: tuple[str, str] = ("left", "right"),
     ) -> Rig:
         """A two-camera rig from the pose of the right camera relative to the left
-        (``p_right = T_right_left · p_left``, (4, 4)), in the canonical rig frame (DESIGN §3):
-        origin at the midpoint of the optical centres, x along the baseline (left -> right),
+        (``p_right = T_right_left · p_left``, (4, 4)), in the canonical rig frame (docs/design.md,
+        "Conventions"): origin at the midpoint of the optical centres, x along the baseline (left -> right),
         z = the mean of the two optical axes made orthogonal to x, y = z × x.
 
         Raises ModelError if the pose is not rigid, the centres coincide or the mean axis is

@@ -163,61 +163,38 @@ class _Problem:
             for b in self.blocks
         ]
         # Column layout: [intrinsics cam0 | cam1 | ... | extrinsics of free cams | views × 6].
-        self.intr_slices: list[slice] = []
-        col = 0
-        for f in self.free:
-            self.intr_slices.append(slice(col, col + int(f.sum())))
-            col += int(f.sum())
-        self.ext_slices: list[slice | None] = []
-        for c, b in enumerate(self.blocks):
-            if b.pose_free and c > 0:
-                self.ext_slices.append(slice(col, col + 6))
-                col += 6
-            else:
-                self.ext_slices.append(None)
-        self.view_col0 = col
-        self.n_params = col + 6 * self.V
+        self.intr_slices, self.ext_slices, self.view_col0 = _camera_columns(self.blocks, self.free)
+        self.n_params = self.view_col0 + 6 * self.V
         # Unknowns are solved for in units of their typical magnitude (poses: rad and m).
         self.scale = np.ones(self.n_params)
         for c, b in enumerate(self.blocks):
             self.scale[self.intr_slices[c]] = param_scales(b.model)[self.free[c]]
 
-        # Per camera: concatenated points, their view index, and where their rows go.
+        # Rows: each observation's detected corners, u then v.
         self.obs = list(observations)
-        self.kept: list[Mask] = []
-        self.per_cam: list[_CameraPoints] = []
-        rows = 0
-        obs_rows: list[slice] = []
-        for o in self.obs:
-            keep = np.asarray(
-                np.isfinite(np.asarray(o.image_points, dtype=np.float64)).all(axis=1), dtype=bool
-            )
-            self.kept.append(keep)
-            obs_rows.append(slice(rows, rows + 2 * int(keep.sum())))
-            rows += 2 * int(keep.sum())
-        self.obs_rows = obs_rows
-        self.n_res = rows
-        self.row_view = np.zeros(rows, dtype=int)
+        self.kept, self.obs_rows, self.n_res = _observation_rows(self.obs)
+        self.row_view = np.zeros(self.n_res, dtype=int)
         for k, o in enumerate(self.obs):
-            self.row_view[obs_rows[k]] = o.view
+            self.row_view[self.obs_rows[k]] = o.view
         # Rows sorted by view and where each view's run starts (for per-view sums).
         self.row_order = np.argsort(self.row_view, kind="stable")
         counts = np.bincount(self.row_view, minlength=self.V)
         self.view_starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int)
-        for c in range(len(self.blocks)):
-            idx = [k for k, o in enumerate(self.obs) if o.camera == c]
-            X = [np.asarray(self.obs[k].object_points, np.float64)[self.kept[k]] for k in idx]
-            u = [np.asarray(self.obs[k].image_points, np.float64)[self.kept[k]] for k in idx]
-            views = [np.full(len(x), self.obs[k].view) for k, x in zip(idx, X, strict=True)]
-            r = [np.arange(self.obs_rows[k].start, self.obs_rows[k].stop) for k in idx]
-            self.per_cam.append(
-                _CameraPoints(
-                    X=np.concatenate(X) if X else np.zeros((0, 3)),
-                    u=np.concatenate(u) if u else np.zeros((0, 2)),
-                    view=np.concatenate(views).astype(int) if views else np.zeros(0, int),
-                    rows=np.concatenate(r).astype(int) if r else np.zeros(0, int),
-                )
-            )
+        self.per_cam = [self._camera_points(c) for c in range(len(self.blocks))]
+
+    def _camera_points(self, c: int) -> _CameraPoints:
+        """Camera ``c``'s concatenated points, their view index, and where their rows go."""
+        idx = [k for k, o in enumerate(self.obs) if o.camera == c]
+        X = [np.asarray(self.obs[k].object_points, np.float64)[self.kept[k]] for k in idx]
+        u = [np.asarray(self.obs[k].image_points, np.float64)[self.kept[k]] for k in idx]
+        views = [np.full(len(x), self.obs[k].view) for k, x in zip(idx, X, strict=True)]
+        r = [np.arange(self.obs_rows[k].start, self.obs_rows[k].stop) for k in idx]
+        return _CameraPoints(
+            X=np.concatenate(X) if X else np.zeros((0, 3)),
+            u=np.concatenate(u) if u else np.zeros((0, 2)),
+            view=np.concatenate(views).astype(int) if views else np.zeros(0, int),
+            rows=np.concatenate(r).astype(int) if r else np.zeros(0, int),
+        )
 
     # ----- parameter vector <-> models and poses ------------------------------------------------
     def x0(self) -> F64:
@@ -343,27 +320,7 @@ def refine_bundle(
         prob, np.clip(prob.x0(), lo, hi), lo, hi, loss, f_scale, max_iter, tol
     )
     r = prob.residuals(x)
-    # Marginal covariance of the camera unknowns: σ² times the inverse Schur complement.
-    normal = NormalEquations(prob, *prob.jacobian(x), np.ones(prob.n_res), r)
-    dof = max(prob.n_res - prob.n_params, 1)
-    sigma2 = float(r @ r) / dof
-    std = np.full(prob.n_params, np.nan)
-    if prob.view_col0:
-        # Not a pseudo-inverse: that would report ~0 variance along an unobservable direction
-        # (e.g. double sphere ξ vs α over a narrow field); a true inverse reports it as huge.
-        lam, vec = np.linalg.eigh(normal.schur(0.0))
-        lam = np.maximum(lam, max(float(lam.max()), 1e-300) * 1e-300)
-        std[: prob.view_col0] = np.sqrt(sigma2 * (vec**2 / lam).sum(axis=1))
-    std *= prob.scale
-
-    param_std = []
-    pose_std = []
-    for c, b in enumerate(prob.blocks):
-        ps = np.full(len(b.model.params), np.nan)
-        ps[prob.free[c]] = std[prob.intr_slices[c]]
-        param_std.append(ps)
-        s_ = prob.ext_slices[c]
-        pose_std.append(std[s_] if s_ is not None else np.full(6, np.nan))
+    param_std, pose_std = _camera_std(prob, x, r)
     Rv, tv = prob.view_poses(x)
     T_views = []
     for R, t in zip(Rv, tv, strict=True):
@@ -385,6 +342,67 @@ def refine_bundle(
         message=message,
         nfev=nfev,
     )
+
+
+def _camera_columns(
+    blocks: Sequence[CameraBlock], free: Sequence[Mask]
+) -> tuple[list[slice], list[slice | None], int]:
+    """The unknowns' columns of each camera's free intrinsics, then of each free camera pose
+    (None: fixed); and the first column of the views' poses."""
+    intr_slices: list[slice] = []
+    col = 0
+    for f in free:
+        intr_slices.append(slice(col, col + int(f.sum())))
+        col += int(f.sum())
+    ext_slices: list[slice | None] = []
+    for c, b in enumerate(blocks):
+        if b.pose_free and c > 0:
+            ext_slices.append(slice(col, col + 6))
+            col += 6
+        else:
+            ext_slices.append(None)
+    return intr_slices, ext_slices, col
+
+
+def _observation_rows(observations: Sequence[Observation]) -> tuple[list[Mask], list[slice], int]:
+    """Each observation's detected corners (finite image points), its residual rows (two per
+    corner) and the number of rows."""
+    kept: list[Mask] = []
+    obs_rows: list[slice] = []
+    rows = 0
+    for o in observations:
+        keep = np.asarray(np.isfinite(np.asarray(o.image_points, dtype=np.float64)).all(axis=1), dtype=bool)
+        kept.append(keep)
+        obs_rows.append(slice(rows, rows + 2 * int(keep.sum())))
+        rows += 2 * int(keep.sum())
+    return kept, obs_rows, rows
+
+
+def _camera_std(prob: _Problem, x: F64, r: F64) -> tuple[list[F64], list[F64]]:
+    """1-σ of each camera's parameters (NaN where fixed) and of its pose (NaN where fixed) at
+    the solution ``x`` with residuals ``r``."""
+    # Marginal covariance of the camera unknowns: σ² times the inverse Schur complement.
+    normal = NormalEquations(prob, *prob.jacobian(x), np.ones(prob.n_res), r)
+    dof = max(prob.n_res - prob.n_params, 1)
+    sigma2 = float(r @ r) / dof
+    std = np.full(prob.n_params, np.nan)
+    if prob.view_col0:
+        # Not a pseudo-inverse: that would report ~0 variance along an unobservable direction
+        # (e.g. double sphere ξ vs α over a narrow field); a true inverse reports it as huge.
+        lam, vec = np.linalg.eigh(normal.schur(0.0))
+        lam = np.maximum(lam, max(float(lam.max()), 1e-300) * 1e-300)
+        std[: prob.view_col0] = np.sqrt(sigma2 * (vec**2 / lam).sum(axis=1))
+    std *= prob.scale
+
+    param_std = []
+    pose_std = []
+    for c, b in enumerate(prob.blocks):
+        ps = np.full(len(b.model.params), np.nan)
+        ps[prob.free[c]] = std[prob.intr_slices[c]]
+        param_std.append(ps)
+        s_ = prob.ext_slices[c]
+        pose_std.append(std[s_] if s_ is not None else np.full(6, np.nan))
+    return param_std, pose_std
 
 
 def with_params_keep_derived(model: CameraModel, vector: F64) -> CameraModel:

@@ -26,21 +26,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from calibration.calibrate import (
-    MIN_CORNERS,
-    CameraCalibration,
-    DroppedView,
-    calibrate_camera,
-    free_mask,
-    prepare_views,
-)
+from calibration.board_views import MIN_CORNERS, DroppedView, prepare_views
+from calibration.calibrate import CameraCalibration, FitOptions, calibrate_camera, check_loss, free_mask
 from calibration.corner_refine import ImageSource, RefinementReport, refine_views
 from calibration.errors import CalibrationError, CalibrationFailed
 from calibration.geometry import invert_transform
 from calibration.initial_guess import board_poses
-from calibration.lm import LOSSES
 from calibration.models.base import CameraModel
-from calibration.pose_consensus import average_transforms, consensus_pose, half_turn
+from calibration.pose_consensus import average_transforms, relative_pose
 from calibration.rig import Rig
 from calibration.solver import BundleResult, CameraBlock, Observation, refine_bundle
 
@@ -123,116 +116,151 @@ def calibrate_stereo(
     models = (model, model) if isinstance(model, str) else tuple(model)
     if len(models) != 2:
         raise CalibrationError(f"expected one model name or two, got {model!r}")
-    if loss not in LOSSES:
-        raise CalibrationError(f"unknown loss {loss!r}; known: {', '.join(LOSSES)}")
+    check_loss(loss)
     w, h = (int(v) for v in image_size)
     rw, rh = (int(v) for v in right_image_size) if right_image_size is not None else (w, h)
     sizes = ((w, h), (rw, rh))
     initials = (left_initial, right_initial)
-    if len(left_points) != len(object_points) or len(right_points) != len(object_points):
-        raise CalibrationError(
-            f"{len(object_points)} object point sets but {len(left_points)} left "
-            f"and {len(right_points)} right image point sets"
-        )
-    vnames = list(view_names) if view_names is not None else [f"view {i}" for i in range(len(object_points))]
+    cam_points = (left_points, right_points)
     images = (left_images, right_images)
-    for c, ims in enumerate(images):
-        if ims is not None and len(ims) != len(object_points):
-            raise CalibrationError(f"{len(ims)} {names[c]} images for {len(object_points)} views")
+    _check_view_counts(len(object_points), cam_points, images, names)
+    vnames = list(view_names) if view_names is not None else [f"view {i}" for i in range(len(object_points))]
+    options = FitOptions(tuple(fix), fov_deg, loss, min_views, refine_rounds, refine_tol_px)
 
     # ---- per-camera intrinsics and board poses ------------------------------------------------
-    cams: list[CameraModel] = []
-    poses: list[dict[int, F64]] = []
-    points: list[dict[int, F64]] = []
-    mono: dict[str, CameraCalibration | None] = {}
-    refinement: dict[str, RefinementReport | None] = {}
     dropped: list[tuple[str, DroppedView]] = []
-    objs: list[F64] = []
-    for c, pts in enumerate((left_points, right_points)):
-        name = names[c]
-        if fix_intrinsics and initials[c] is not None:
-            cam = initials[c]
-            assert cam is not None
-            objs, imgs, _, drop = prepare_views(object_points, pts, vnames)
-            dropped += [(name, d) for d in drop if d.reason != _UNSEEN]
-            use = [i for i, u in enumerate(imgs) if u is not None]
-            cam_poses, rms = _fixed_camera_poses(cam, objs, imgs, use, vnames, name, dropped)
-            pts_used: dict[int, F64] = {i: u for i in cam_poses if (u := imgs[i]) is not None}
-            refinement[name] = None
-            if (cam_images := images[c]) is not None:
-                cam_poses, pts_used, refinement[name] = _refine_fixed(
-                    cam, cam_images, objs, pts_used, rms, vnames, name, dropped
-                )  # fmt: skip
-            cams.append(cam)
-            poses.append(cam_poses)
-            points.append(pts_used)
-            mono[name] = None
-            continue
-        try:
-            res = calibrate_camera(
-                models[c], object_points, pts, sizes[c], initials[c], fix=fix, fov_deg=fov_deg, loss=loss,
-                min_views=min_views, view_names=vnames, images=images[c], refine_rounds=refine_rounds,
-                refine_tol_px=refine_tol_px,
+    stages: list[_CameraStage] = []
+    for c, pts in enumerate(cam_points):
+        if fix_intrinsics and (cam := initials[c]) is not None:
+            stage = _fixed_camera(cam, object_points, pts, images[c], vnames, names[c], dropped)
+        else:
+            stage = _calibrated_camera(
+                models[c], object_points, pts, sizes[c], initials[c], images[c], vnames, names[c], options,
+                dropped,
             )  # fmt: skip
-        except CalibrationFailed as err:
-            raise CalibrationFailed(f"{name} camera: {err}") from err
-        objs, imgs, _, _ = prepare_views(object_points, pts, vnames)
-        # A view only the other camera saw is not a problem worth reporting.
-        dropped += [(name, d) for d in res.dropped if imgs[d.index] is not None or d.reason != _UNSEEN]
-        cams.append(res.camera)
-        poses.append(dict(zip(res.views, res.T_cam_board, strict=True)))
-        points.append({i: res.corners[i] for i in res.views})
-        mono[name] = res
-        refinement[name] = res.refinement
+        stages.append(stage)
 
     # ---- relative pose from common views ------------------------------------------------------
-    common = sorted(set(poses[0]) & set(poses[1]))
-    if len(common) < min_common_views:
-        raise CalibrationFailed(
-            f"only {len(common)} view(s) with the board seen by both cameras, "
-            f"need at least {min_common_views}"
-        )
-    candidates: list[list[F64]] = []
-    flips: list[F64 | None] = []
-    for i in common:
-        F = half_turn(objs[i])
-        flips.append(F)
-        T = poses[1][i] @ invert_transform(poses[0][i])
-        cands = [T]
-        if F is not None:
-            cands.append(poses[1][i] @ F @ invert_transform(poses[0][i]))
-        candidates.append(cands)
-    T_rl, choice = consensus_pose(candidates)
-    for i, k, F in zip(common, choice, flips, strict=True):
-        if k == 1 and F is not None:
-            # The right camera numbered this board's corners the other way round.
-            points[1][i] = points[1][i][::-1].copy()
-            poses[1][i] = poses[1][i] @ F
-        elif k < 0:
-            dropped.append(
-                (names[1], DroppedView(i, vnames[i], "relative pose disagrees with the other views"))
-            )
-            del poses[1][i]
-    common = sorted(set(poses[0]) & set(poses[1]))
-    if len(common) < min_common_views:
-        raise CalibrationFailed(
-            f"only {len(common)} view(s) give a consistent relative pose, need at least {min_common_views}"
-        )
+    objs = stages[-1].objs
+    poses = [stage.poses for stage in stages]
+    points = [stage.points for stage in stages]
+    T_rl, common = relative_pose(objs, poses, points, names[1], vnames, min_common_views, dropped)
 
     # ---- joint refinement ---------------------------------------------------------------------
     views = common if fix_intrinsics else sorted(set(poses[0]) | set(poses[1]))
+    cams = [stage.camera for stage in stages]
+    free = [_free(cam, options.fix, fix_intrinsics) for cam in cams]
+    result, obs = _joint_refinement(cams, free, T_rl, objs, poses, points, views, loss)
+    mono = {names[c]: stage.mono for c, stage in enumerate(stages)}
+    out = _stereo_result(result, views, vnames, common, names, obs, mono, dropped)
+    out.refinement = {names[c]: stage.refinement for c, stage in enumerate(stages)}
+    return out
+
+
+def _check_view_counts(
+    n_views: int,
+    cam_points: tuple[Sequence[ArrayLike | None], Sequence[ArrayLike | None]],
+    images: tuple[Sequence[ImageSource | None] | None, Sequence[ImageSource | None] | None],
+    names: tuple[str, str],
+) -> None:
+    """Every camera's image points and images (where given) are one per view."""
+    left_points, right_points = cam_points
+    if len(left_points) != n_views or len(right_points) != n_views:
+        raise CalibrationError(
+            f"{n_views} object point sets but {len(left_points)} left "
+            f"and {len(right_points)} right image point sets"
+        )
+    for c, ims in enumerate(images):
+        if ims is not None and len(ims) != n_views:
+            raise CalibrationError(f"{len(ims)} {names[c]} images for {n_views} views")
+
+
+@dataclass
+class _CameraStage:
+    """One camera before the joint refinement: its lens, board poses and corners by view (input
+    index), the object points of every view, its own calibration (None: intrinsics given and
+    fixed) and its corner refinement's report (None: no images)."""
+
+    camera: CameraModel
+    poses: dict[int, F64]
+    points: dict[int, F64]
+    objs: list[F64]
+    mono: CameraCalibration | None
+    refinement: RefinementReport | None
+
+
+def _fixed_camera(
+    cam: CameraModel,
+    object_points: Sequence[ArrayLike],
+    pts: Sequence[ArrayLike | None],
+    cam_images: Sequence[ImageSource | None] | None,
+    vnames: list[str],
+    name: str,
+    dropped: list[tuple[str, DroppedView]],
+) -> _CameraStage:
+    """Board poses under the given lens ``cam``, and with ``cam_images`` its corners refined."""
+    objs, imgs, _, drop = prepare_views(object_points, pts, vnames)
+    dropped += [(name, d) for d in drop if d.reason != _UNSEEN]
+    use = [i for i, u in enumerate(imgs) if u is not None]
+    cam_poses, rms = _fixed_camera_poses(cam, objs, imgs, use, vnames, name, dropped)
+    pts_used: dict[int, F64] = {i: u for i in cam_poses if (u := imgs[i]) is not None}
+    report = None
+    if cam_images is not None:
+        cam_poses, pts_used, report = _refine_fixed(
+            cam, cam_images, objs, pts_used, rms, vnames, name, dropped
+        )
+    return _CameraStage(cam, cam_poses, pts_used, objs, None, report)
+
+
+def _calibrated_camera(
+    model: str,
+    object_points: Sequence[ArrayLike],
+    pts: Sequence[ArrayLike | None],
+    size: tuple[int, int],
+    initial: CameraModel | None,
+    cam_images: Sequence[ImageSource | None] | None,
+    vnames: list[str],
+    name: str,
+    options: FitOptions,
+    dropped: list[tuple[str, DroppedView]],
+) -> _CameraStage:
+    """The camera's own calibration (:func:`calibrate_camera`) from all of its views."""
+    try:
+        res = calibrate_camera(
+            model, object_points, pts, size, initial, fix=options.fix, fov_deg=options.fov_deg,
+            loss=options.loss, min_views=options.min_views, view_names=vnames, images=cam_images,
+            refine_rounds=options.refine_rounds, refine_tol_px=options.refine_tol_px,
+        )  # fmt: skip
+    except CalibrationFailed as err:
+        raise CalibrationFailed(f"{name} camera: {err}") from err
+    objs, imgs, _, _ = prepare_views(object_points, pts, vnames)
+    # A view only the other camera saw is not a problem worth reporting.
+    dropped += [(name, d) for d in res.dropped if imgs[d.index] is not None or d.reason != _UNSEEN]
+    poses = dict(zip(res.views, res.T_cam_board, strict=True))
+    return _CameraStage(res.camera, poses, {i: res.corners[i] for i in res.views}, objs, res, res.refinement)
+
+
+def _joint_refinement(
+    cams: list[CameraModel],
+    free: list[NDArray[np.bool_]],
+    T_rl: F64,
+    objs: list[F64],
+    poses: list[dict[int, F64]],
+    points: list[dict[int, F64]],
+    views: list[int],
+    loss: str,
+) -> tuple[BundleResult, list[Observation]]:
+    """One refinement of the relative pose, every board pose in the left frame and the
+    cameras' ``free`` parameters over all corners of ``views``; and its observations."""
     T_left_board = [poses[0][i] if i in poses[0] else invert_transform(T_rl) @ poses[1][i] for i in views]
     obs = [
         Observation(c, k, objs[i], points[c][i]) for k, i in enumerate(views) for c in (0, 1) if i in poses[c]
     ]
     blocks = [
-        CameraBlock(cams[0], _free(cams[0], fix, fix_intrinsics)),
-        CameraBlock(cams[1], _free(cams[1], fix, fix_intrinsics), T_cam_ref=T_rl, pose_free=True),
+        CameraBlock(cams[0], free[0]),
+        CameraBlock(cams[1], free[1], T_cam_ref=T_rl, pose_free=True),
     ]
-    result = refine_bundle(blocks, T_left_board, obs, loss=loss)
-    out = _stereo_result(result, views, vnames, common, names, obs, mono, dropped)
-    out.refinement = refinement
-    return out
+    return refine_bundle(blocks, T_left_board, obs, loss=loss), obs
 
 
 def _free(camera: CameraModel, fix: Iterable[str], fix_intrinsics: bool) -> NDArray[np.bool_]:

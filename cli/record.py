@@ -15,11 +15,11 @@ import typer
 from cli.console import console, err_console, progress_bar
 from cli.errors import fail
 from rig.capture.capture import StereoCapture
-from rig.capture.config import load_capture_config
+from rig.capture.config import CaptureConfig, load_capture_config
 from rig.capture.health import CaptureHealth
 from rig.capture.recorder import Recorder, RecordResult, copy_calibration, replay_capture_config
 from rig.errors import DiskFullError, RigError
-from rig.recording import PairWriter, RecordingWriter
+from rig.recording import PairWriter, Recording, RecordingWriter
 from rig.ros.mcap_export import McapRecordingWriter
 from rig.ros.mcap_writer import partial_path, recover_mcap
 
@@ -59,6 +59,51 @@ class _StopOnSignal:
     def __exit__(self, *exc: object) -> None:
         for sig, old in self._old.items():
             signal.signal(sig, old)
+
+
+def _recover(recover: Path, out: Path | None, *, excluded: bool) -> None:
+    """``--recover``: the complete chunks of an MCAP recording cut short, as a complete file."""
+    if excluded:
+        fail("--recover excludes --config and --replay")
+    recovered = recover_mcap(recover, out)
+    state = "complete" if recovered.complete else "cut short"
+    console.print(
+        f"recovered {recovered.messages} messages from {recover} ({state}) -> {recovered.path}",
+        highlight=False,
+        soft_wrap=True,
+    )
+
+
+def _replay_source(
+    replay: Path, frames: int | None, seconds: float | None
+) -> tuple[CaptureConfig, Recording, dict[str, Any], float | None]:
+    """The capture config replaying ``replay``, that recording, the new recording's metadata
+    and the number of pairs to expect (None: unknown)."""
+    capture_cfg, source_rec = replay_capture_config(replay)
+    meta: dict[str, Any] = {"created_by": "rig record", "source": {"replay": str(replay)}}
+    total: float | None = frames or (None if seconds else len(source_rec.pairs))
+    return capture_cfg, source_rec, meta, total
+
+
+def _config_source(config: Path) -> tuple[CaptureConfig, dict[str, Any]]:
+    """The capture config of the config file ``config`` and the new recording's metadata."""
+    loaded = load_capture_config(config)
+    # Recording stores bytes; decoding in the capture threads would only cost CPU.
+    capture_cfg = loaded.model_copy(
+        update={"supervisor": loaded.supervisor.model_copy(update={"decode": False})}
+    )
+    return capture_cfg, {"created_by": "rig record", "source": {"config": str(config)}}
+
+
+def _refuse_existing(out: Path, format: str) -> None:
+    """Refuse to write over a recording: an MCAP file (or its partial file), or a recording
+    directory's frames.csv."""
+    if format == "mcap":
+        for path in (out, partial_path(out)):
+            if path.exists():
+                fail(f"{path}: already exists" + (" (recover it with --recover)" if path != out else ""))
+    elif (out / "frames.csv").exists():
+        fail(f"{out}: already holds a recording (frames.csv exists)")
 
 
 def register(app: typer.Typer) -> None:
@@ -116,15 +161,7 @@ def register(app: typer.Typer) -> None:
         ] = None,
     ) -> None:
         if recover is not None:
-            if config is not None or replay is not None:
-                fail("--recover excludes --config and --replay")
-            recovered = recover_mcap(recover, out)
-            state = "complete" if recovered.complete else "cut short"
-            console.print(
-                f"recovered {recovered.messages} messages from {recover} ({state}) -> {recovered.path}",
-                highlight=False,
-                soft_wrap=True,
-            )
+            _recover(recover, out, excluded=config is not None or replay is not None)
             return
         if out is None:
             fail("--out PATH is required")
@@ -132,28 +169,14 @@ def register(app: typer.Typer) -> None:
             fail("give exactly one of --config FILE or --replay RECORDING")
         if seconds is not None and frames is not None:
             fail("give at most one of --seconds and --frames")
-        source_rec = None
         if replay is not None:
-            capture_cfg, source_rec = replay_capture_config(replay)
-            meta: dict[str, Any] = {"created_by": "rig record", "source": {"replay": str(replay)}}
-            total: float | None = frames or (None if seconds else len(source_rec.pairs))
+            capture_cfg, source_rec, meta, total = _replay_source(replay, frames, seconds)
         else:
             assert config is not None
-            loaded = load_capture_config(config)
-            # Recording stores bytes; decoding in the capture threads would only cost CPU.
-            capture_cfg = loaded.model_copy(
-                update={"supervisor": loaded.supervisor.model_copy(update={"decode": False})}
-            )
-            meta = {"created_by": "rig record", "source": {"config": str(config)}}
-            total = frames
+            capture_cfg, meta = _config_source(config)
+            source_rec, total = None, frames
         meta["capture"] = capture_cfg.model_dump(mode="json")
-
-        if format == "mcap":
-            for path in (out, partial_path(out)):
-                if path.exists():
-                    fail(f"{path}: already exists" + (" (recover it with --recover)" if path != out else ""))
-        elif (out / "frames.csv").exists():
-            fail(f"{out}: already holds a recording (frames.csv exists)")
+        _refuse_existing(out, format)
 
         def open_writer() -> PairWriter:
             if format == "mcap":

@@ -1,4 +1,4 @@
-"""Disparity to depth, point clouds and their file formats (DESIGN §3, §6, §7).
+"""Disparity to depth, point clouds and their file formats (docs/design.md, "Depth and point clouds").
 
 Depth is z in the left VPC frame, metres, float32, NaN invalid; ``Z = fx·B/d``, invalid where
 d ≤ 0. The 16-bit PNG form is millimetres with 0 = invalid (RealSense/DepthAI convention);

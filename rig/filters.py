@@ -1,4 +1,4 @@
-"""Disparity post-filters (DESIGN §6), each switched by :class:`rig.stereo.StereoParams`.
+"""Disparity post-filters (docs/stereo.md, "Filters"), each switched by :class:`rig.stereo.StereoParams`.
 
 All work on disparity images (H, W) float32 in px with NaN where invalid and a matching bool
 mask; none fills holes (a filter may only remove or smooth values, never invent them).

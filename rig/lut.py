@@ -1,4 +1,4 @@
-"""Lookup tables from a virtual pinhole camera (VPC) into a fisheye image (DESIGN §5, paper eq. 10).
+"""Lookup tables from a virtual pinhole camera (VPC) into a fisheye image (docs/design.md, paper eq. 10).
 
 For every VPC pixel ``p``: ``p_fisheye = π_f(R_cam_vpc · π_pinhole⁻¹(p))``. Unlike OpenCV's
 ``cv2.fisheye.initUndistortRectifyMap``, rays are followed up to the lens's own limit

@@ -1,4 +1,4 @@
-"""Disk cache of VPC lookup tables (DESIGN §5).
+"""Disk cache of VPC lookup tables (docs/design.md, "LUT cache").
 
 Key: sha256 of a canonical JSON of everything that determines a table (format version, the
 fisheye model's name, size, lens limit and parameters, the VPC intrinsics and distortion, and

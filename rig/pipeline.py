@@ -21,10 +21,8 @@ with one geometry, whichever it started with, so no frame mixes two or is droppe
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,16 +31,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calibration.rig import Rig
-from rig import priority
-from rig.bands import run_in_bands
-from rig.depth import depth_points, disparity_to_depth
+from rig.depth import depth_points
 from rig.errors import ConfigError, PipelineError
-from rig.filters import TemporalFilter, fill_where, median_filter, visible_in_right
+from rig.filters import fill_where, visible_in_right
+from rig.finish import FinishStage
 from rig.heap import tune_allocator
 from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
 from rig.stereo import MatchedDisparity, StereoMatcher, StereoParams, UnfilteredDisparity
-from rig.subpixel import Normalisation, confidence_from_sigma, refine_rows, refinement_inputs
 from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
 
 __all__ = ["DepthFrame", "DepthPipeline", "MatchedPair", "RectifiedPair", "VpcGeometry", "tune_allocator"]
@@ -51,31 +47,6 @@ log = logging.getLogger(__name__)
 
 F32 = NDArray[np.float32]
 U8 = NDArray[np.uint8]
-
-_refine_pool: ThreadPoolExecutor | None = None
-_pool_lock = threading.Lock()
-_refine_pool_nice: int | None = None
-_REFINE_THREADS = min(4, os.cpu_count() or 1)
-
-
-def refine_pool() -> ThreadPoolExecutor | None:
-    """The process's threads for the banded finish stage (:func:`rig.bands.run_in_bands`);
-    None on a single core. Shared by all pipelines: the finish stage is serialised anyway. Its
-    threads take the depth threads' priority (:mod:`rig.priority`) when they start; a new
-    priority gets a new pool (the old one's threads finish their bands and end)."""
-    global _refine_pool, _refine_pool_nice
-    if _REFINE_THREADS < 2:
-        return None
-    nice = priority.configured_nice()
-    with _pool_lock:
-        if _refine_pool is None or nice != _refine_pool_nice:
-            if _refine_pool is not None:
-                _refine_pool.shutdown(wait=False)
-            _refine_pool = ThreadPoolExecutor(
-                _REFINE_THREADS, thread_name_prefix="rig-refine", initializer=priority.apply_to_current_thread
-            )
-            _refine_pool_nice = nice
-        return _refine_pool
 
 
 @dataclass
@@ -156,44 +127,6 @@ class MatchedPair:
     match_ms: float
 
 
-@dataclass
-class _FinishOutputs:
-    """The finish stage's output arrays (H, W), filled band by band."""
-
-    disparity: F32
-    valid: NDArray[np.bool_]
-    confidence: F32 | None
-    depth: F32
-
-    @classmethod
-    def empty(cls, shape: tuple[int, ...], *, with_confidence: bool, cols: slice) -> _FinishOutputs:
-        """Arrays to fill in columns ``cols`` (step 1; depth everywhere), invalid outside them."""
-
-        def f32() -> F32:
-            return np.empty(shape, dtype=np.float32)
-
-        out = cls(f32(), np.empty(shape, dtype=bool), f32() if with_confidence else None, f32())
-        for outside in (slice(0, cols.start), slice(cols.stop, None)):
-            out.disparity[:, outside] = np.nan
-            out.valid[:, outside] = False
-            if out.confidence is not None:
-                out.confidence[:, outside] = 0.0
-        return out
-
-
-def _active_columns(valid: NDArray[np.bool_], margin: int) -> slice:
-    """The columns holding every valid pixel, and ``margin`` more either side. Outside them
-    everything is invalid, so the finish stage need not look: the matcher leaves its first
-    ``min_disparity + disparity_range`` columns invalid (a fifth of a 640 px wide frame by
-    default). Within, every valid pixel sees what it would see in the whole frame (as across a
-    band's margin; and invalid pixels add nothing to the refinement's sums)."""
-    w = valid.shape[1]
-    cols = np.flatnonzero(valid.any(axis=0))
-    if cols.size == 0:
-        return slice(0, w)
-    return slice(max(0, int(cols[0]) - margin), min(w, int(cols[-1]) + 1 + margin))
-
-
 def _gray(img: U8) -> U8:
     if img.ndim == 2:
         return img
@@ -227,8 +160,7 @@ class DepthPipeline:
         params = stereo or StereoParams()
         self._check_params(params)
         self._matcher = StereoMatcher(params)
-        self._temporal = TemporalFilter(params.temporal_alpha, params.temporal_reset)
-        self._temporal_owner: StereoMatcher | None = self._matcher
+        self._finish = FinishStage(self.pair.fx, self.baseline_m, self._matcher)
 
     # ----- configuration -----------------------------------------------------------------------
     @property
@@ -379,92 +311,15 @@ class DepthPipeline:
 
     def finish(self, matched: MatchedPair, seq: int = 0, ts_ns: int = 0) -> DepthFrame:
         """Stage 3 of :meth:`process`: the matcher's speckle removal, then refinement, filters,
-        confidence and depth with the parameters of the matcher that made ``matched``. Call in
-        frame order (the temporal filter's history); callers are serialised.
-
-        Everything but the temporal filter is row-local, so it runs in horizontal bands across
-        the cores (:func:`rig.bands.run_in_bands`, margins so every row sees what one pass would
-        see): this stage is on every frame's critical path. A stage's time is its longest band's.
-        Only the columns around the valid pixels are worked on (:func:`_active_columns`).
-        """
+        confidence and depth with the parameters of the matcher that made ``matched``
+        (:class:`rig.finish.FinishStage`, in row bands across the cores). Call in frame order
+        (the temporal filter's history); callers are serialised."""
+        rect = matched.rectified
         with self._finish_lock:
-            p = matched.matcher.params
-            rect = matched.rectified
-            pool = refine_pool()
-            refine = p.subpixel or p.confidence
-            t0 = time.perf_counter()
-            # The refinement's image normalisation needs no disparity: it runs on the pool
-            # while this thread removes the matcher's speckles (single-threaded).
-            normalised = Normalisation(rect.left_gray, rect.right_gray, pool) if refine else None
-            t_norm = time.perf_counter()
-            raw = self._disparity(matched)
-            disparity, valid = raw.disparity, raw.valid
-            h = disparity.shape[0]
-            t_raw = time.perf_counter()
-            match_ms = matched.match_ms + (t_raw - t_norm) * 1e3
-            margin = (p.subpixel_window // 2 if refine else 0) + p.median // 2
-            cols = _active_columns(valid, margin)
-            inputs = None
-            if refine:
-                inputs = refinement_inputs(
-                    rect.left_gray, rect.right_gray, disparity, cols=cols, normalised=normalised
-                )
-            # The refinement's preparation: starting the normalisation, and the inputs after
-            # the speckle pass (which counts as the match stage's, above).
-            prep_ms = ((t_norm - t0) + (time.perf_counter() - t_raw)) * 1e3
-            temporal = p.temporal_alpha > 0.0
-            if matched.matcher is not self._temporal_owner:
-                # New parameters: history made under the old ones is not averaged in.
-                self._temporal = TemporalFilter(p.temporal_alpha, p.temporal_reset)
-                self._temporal_owner = matched.matcher
-            out = _FinishOutputs.empty(disparity.shape, with_confidence=p.confidence, cols=cols)
-            band_ms: list[dict[str, float]] = []
-
-            def band(a: int, b: int, r0: int, r1: int) -> None:
-                rows, keep, dst = slice(a, b), slice(r0 - a, r1 - a), (slice(r0, r1), cols)
-                b0 = time.perf_counter()
-                d, v, sigma = disparity[rows, cols], valid[rows, cols], None
-                if inputs is not None:
-                    ref = refine_rows(
-                        inputs.rows(rows),
-                        d,
-                        v,
-                        p.subpixel_window,
-                        apply=p.subpixel,
-                        want_sigma=p.confidence,
-                    )
-                    d, sigma = ref.disparity, ref.sigma
-                b1 = time.perf_counter()
-                if p.median:
-                    d, v = median_filter(d, v, p.median)
-                out.disparity[dst] = d[keep]
-                out.valid[dst] = v[keep]
-                if out.confidence is not None and sigma is not None:
-                    # Here, not after the temporal filter: it keeps the valid mask. σ is inf
-                    # (confidence 0) where the refinement's input was invalid; the median
-                    # invalidates a few more: NaN there (0·NaN disparity), then 0.
-                    # (Contiguous, then copied: numpy is 2-3× slower on a column window.)
-                    confidence = confidence_from_sigma(sigma[keep], p.confidence_sigma)
-                    if p.median:
-                        cv2.scaleAdd(d[keep], 0.0, confidence, dst=confidence)
-                        cv2.patchNaNs(confidence, 0.0)
-                    out.confidence[dst] = confidence
-                b2 = time.perf_counter()
-                times = {"refine": (b1 - b0) * 1e3, "filters": (b2 - b1) * 1e3}
-                if not temporal:
-                    times.update(self._depth_rows(out, r0, r1))
-                band_ms.append(times)
-
-            run_in_bands(band, h, _REFINE_THREADS, margin, pool)
-            stage = {k: max(t.get(k, 0.0) for t in band_ms) for k in ("refine", "filters", "depth")}
-            stage["refine"] += prep_ms
-            if temporal:
-                t3 = time.perf_counter()
-                out.disparity = self._temporal(out.disparity, out.valid)
-                stage["filters"] += (time.perf_counter() - t3) * 1e3
-                for key, ms in self._depth_rows(out, 0, h).items():
-                    stage[key] += ms
-        timings = {"remap": rect.remap_ms, "match": match_ms, **stage}
+            out, speckle_ms, stage = self._finish(
+                matched.matcher, rect.left_gray, rect.right_gray, lambda: self._disparity(matched)
+            )
+        timings = {"remap": rect.remap_ms, "match": matched.match_ms + speckle_ms, **stage}
         # Processing time, not wall time: pipelined stages may wait between each other.
         timings["total"] = sum(timings.values())
         return DepthFrame(
@@ -478,22 +333,6 @@ class DepthPipeline:
             rect.right_vpc,
             timings,
         )
-
-    def _depth_rows(self, out: _FinishOutputs, r0: int, r1: int) -> dict[str, float]:
-        """Depth of rows ``[r0, r1)`` of ``out`` (in place; whole rows: numpy is 2-3× slower on
-        a column window than on contiguous rows); its time."""
-        t0 = time.perf_counter()
-        disparity, valid = out.disparity[r0:r1], out.valid[r0:r1]
-        depth = disparity_to_depth(disparity, self.pair.fx, self.baseline_m, out=out.depth[r0:r1])
-        # d <= 0 has no depth: invalid everywhere, so the arrays agree pixel for pixel.
-        gone = ~np.isfinite(depth)
-        gone &= valid
-        if gone.any():
-            valid ^= gone  # gone ⊂ valid: clears them
-            fill_where(disparity, np.nan, gone)
-            if out.confidence is not None:
-                fill_where(out.confidence[r0:r1], 0.0, gone)
-        return {"depth": (time.perf_counter() - t0) * 1e3}
 
     def process(self, left: U8, right: U8, seq: int = 0, ts_ns: int = 0) -> DepthFrame:
         """Depth for one fisheye pair (see :class:`DepthFrame`): :meth:`rectify`, :meth:`match`

@@ -1,5 +1,5 @@
-"""Recording directories (DESIGN §7): written by ``rig record`` and the renderer, read by the
-file cameras and ``rig process``.
+"""Recording directories (docs/design.md, "Recording directory"): written by ``rig record`` and
+the renderer, read by the file cameras and ``rig process``.
 
 Layout::
 

@@ -5,7 +5,7 @@ of ROS ``stereo_image_proc``'s disparity node, plus our own stages: subpixel ref
 and a confidence map (:mod:`rig.subpixel`), a full left-right check, median and temporal
 filters (:mod:`rig.filters`). Every stage is configuration; none is a code fork.
 
-Default choices (measured on the virtual environment; tables in the README and printed by
+Default choices (measured on the virtual environment; tables in docs/stereo.md, printed by
 ``pytest -s tests/rig/test_stereo_render.py tests/rig/test_filters.py``): SGBM_3WAY (as accurate
 as full SGBM and HH on the prototype plane and room renders, ~2× faster than SGBM on 2 cores),
 7 px window (fewer >1 px errors in the room than 5, same on planes), 128 disparities (depth from

@@ -1,4 +1,4 @@
-"""Virtual pinhole camera (VPC) pair cut out of the overlap of two fisheye cameras (DESIGN §5).
+"""Virtual pinhole camera (VPC) pair cut out of the overlap of two fisheye cameras (docs/design.md).
 
 The pair is derived from the calibrated extrinsics, not from the mount's nominal angles: the VPC x
 axis is the baseline direction, so rows align exactly even on a mount that is 87° instead of 90°
@@ -28,7 +28,7 @@ F64 = NDArray[np.float64]
 
 
 class VpcConfig(BaseModel):
-    """Size, field of view and look direction of the VPC pair (degrees in config, DESIGN §3)."""
+    """Size, field of view and look direction of the VPC pair (degrees in config, docs/design.md)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -62,7 +62,7 @@ class VpcPair:
         return self.camera.fx
 
     def as_json(self) -> dict[str, float | int]:
-        """``vpc.json`` of ``rig process`` (DESIGN §7)."""
+        """``vpc.json`` of ``rig process`` (docs/design.md)."""
         c = self.camera
         return {
             "width": c.width,
@@ -84,7 +84,7 @@ def vpc_intrinsics(config: VpcConfig) -> PinholeModel:
 
 
 def design_vpc_pair(rig: Rig, config: VpcConfig | None = None) -> VpcPair:
-    """Rectified VPC pair for ``rig`` (DESIGN §5).
+    """Rectified VPC pair for ``rig`` (docs/design.md, "The VPC pair").
 
     x = baseline direction (left centre to right centre); z = mean of the two optical axes made
     orthogonal to x, then pitched about x; y = z × x.

@@ -91,7 +91,7 @@ def _frame_meta(response: httpx.Response) -> tuple[int, int]:
 
 
 def _load_npy(data: bytes) -> NDArray[Any]:
-    return np.load(io.BytesIO(data), allow_pickle=False)
+    return np.lib.format.read_array(io.BytesIO(data), allow_pickle=False)
 
 
 def _decode_image(data: bytes, url: str) -> NDArray[Any]:

@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,7 +40,7 @@ from service.settings import Settings
 from service.store import PublishedResult, ResultStore
 from service.worker import DepthWorker, WorkerStats
 
-__all__ = ["HealthReport", "Runtime", "resolve_calibration"]
+__all__ = ["HealthReport", "HealthSnapshot", "Runtime", "resolve_calibration"]
 
 log = logging.getLogger("service.runtime")
 
@@ -79,7 +79,9 @@ def _check_sizes(settings_cams: CaptureConfig, capture: StereoCapture, rig: Rig)
 
 
 HealthStatus = Literal["ok", "degraded", "down"]
-_T = TypeVar("_T")
+HealthSnapshot = tuple[bytes, int]
+"""A rendered health report, shared by the callers of :meth:`Runtime.health_snapshot`: the
+``/health`` body and its HTTP status."""
 
 
 @dataclass(frozen=True)
@@ -149,7 +151,7 @@ class Runtime:
         self.calibration_doc: Any = None  # /calibration's response, made on first request
         self._running = False
         self._health_lock = threading.Lock()
-        self._health_memo: tuple[float, object, Any] | None = None
+        self._health_memo: tuple[float, object, HealthSnapshot] | None = None
 
     @classmethod
     def build(cls, settings: Settings) -> Runtime:
@@ -239,7 +241,9 @@ class Runtime:
             rectification=None if self.rectification is None else self.rectification.status(),
         )
 
-    def health_snapshot(self, render: Callable[[HealthReport], _T], max_age_s: float) -> _T:
+    def health_snapshot(
+        self, render: Callable[[HealthReport], HealthSnapshot], max_age_s: float
+    ) -> HealthSnapshot:
         """``render(self.health())``, shared by callers within ``max_age_s`` and built by one of
         them at a time: under many clients ``/health`` costs one build per interval, not one per
         request (each build holds the GIL the depth worker needs). Starting or stopping a
@@ -252,7 +256,7 @@ class Runtime:
                 self._health_memo = (time.monotonic(), self._health_key(), value)
             return value
 
-    def fresh_health_snapshot(self, max_age_s: float) -> Any:
+    def fresh_health_snapshot(self, max_age_s: float) -> HealthSnapshot | None:
         """The last :meth:`health_snapshot` if it is still fresh (no I/O, never blocks), else None."""
         memo = self._health_memo
         if memo is not None and time.monotonic() - memo[0] <= max_age_s and memo[1] == self._health_key():

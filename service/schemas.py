@@ -6,7 +6,6 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal, Optional, get_args, g
 
 from annotated_types import MultipleOf
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model, field_validator
-from pydantic.json_schema import JsonDict
 
 from rig.capture.faults import Fault
 from rig.counters import CounterSpec, CounterValue, Group, Kind, counters_of
@@ -107,8 +106,10 @@ def _counter_field(spec: CounterSpec) -> tuple[Any, Any]:
     optional: Any = Optional
     annotation = optional[spec.value] if spec.optional else spec.value
     description = f"{spec.help} ({spec.kind}, {spec.unit})"
-    extra: JsonDict = {"x-kind": spec.kind, "x-unit": spec.unit, "x-metric": spec.metric_selector}
-    return annotation, Field(description=description, json_schema_extra=extra)
+    return annotation, Field(
+        description=description,
+        json_schema_extra={"x-kind": spec.kind, "x-unit": spec.unit, "x-metric": spec.metric_selector},
+    )
 
 
 def _with_counters(base: type[_CounterFields], group: Group, doc: str) -> Any:
@@ -313,12 +314,16 @@ def _is_integer_field(annotation: Any) -> bool:
 
 
 # StereoParams checks these in a model validator; stated per field so the schema says it too.
-_ODD: JsonDict = {"not": {"multipleOf": 2}}
+def _odd() -> Any:
+    """A field's constraint, for its JSON schema: the value is odd."""
+    return Field(json_schema_extra={"not": {"multipleOf": 2}})
+
+
 _EXTRA_CONSTRAINTS: dict[str, list[Any]] = {
     "disparity_range": [MultipleOf(16)],
-    "correlation_window_size": [Field(json_schema_extra=_ODD)],
-    "prefilter_size": [Field(json_schema_extra=_ODD)],
-    "subpixel_window": [Field(json_schema_extra=_ODD)],
+    "correlation_window_size": [_odd()],
+    "prefilter_size": [_odd()],
+    "subpixel_window": [_odd()],
 }
 
 

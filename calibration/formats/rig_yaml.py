@@ -1,4 +1,4 @@
-"""Our ``rig.yaml`` (DESIGN §7), read and written.
+"""Our ``rig.yaml`` (docs/design.md, "rig.yaml"), read and written.
 
 ``{version: 1, cameras: {name: {model, width, height, params: {...}, [fov_deg], T_rig_cam: 4x4}}}``.
 Floats are written with ``repr`` precision so a save/load round trip is exact.
@@ -86,7 +86,9 @@ def _read_camera(entry: Field) -> CameraModel:
 def dump_rig_yaml(rig: Rig) -> str:
     """The rig.yaml text of ``rig``: ``version`` first, then :meth:`Rig.to_dict`."""
     doc = {"version": RIG_YAML_VERSION, **_plain(rig.to_dict())}
-    header = "# Rig calibration (odfc-rig rig.yaml, DESIGN §7). T_rig_cam maps camera points into the rig.\n"
+    header = (
+        "# Rig calibration (odfc-rig rig.yaml, docs/design.md): T_rig_cam maps camera points into the rig.\n"
+    )
     return header + yaml.dump(doc, Dumper=_Dumper, sort_keys=False, allow_unicode=True, width=110)
 
 

@@ -1,4 +1,4 @@
-"""The one surface every camera model has (DESIGN §4), in the style of basalt-headers.
+"""The one surface every camera model has (docs/design.md, "Camera models"), in the style of basalt-headers.
 
 Shapes: points (N, 3) float64 in the camera frame (x right, y down, z forward); pixels (N, 2)
 float64 (u, v) with (0, 0) the centre of the top-left pixel; rays (N, 3) unit vectors; masks (N,).

@@ -122,8 +122,8 @@ class ScaramuzzaModel(CameraModel):
                 f"{self.name}: stretch matrix determinant c - d*e must be at least "
                 f"{self.MIN_STRETCH_DET:g}, got {det:.6g}"
             )
-        self.A = np.array([[self.c, self.d], [self.e, 1.0]])
-        self.A_inv = np.linalg.inv(self.A)
+        self.A = np.array([[self.c, self.d], [self.e, 1.0]], dtype=np.float64)
+        self.A_inv = np.linalg.inv(self.A).astype(np.float64, copy=False)
         corners = np.array([[-0.5, -0.5], [w - 0.5, -0.5], [-0.5, h - 0.5], [w - 0.5, h - 0.5]])
         rho_corner = float(np.linalg.norm(self._undistorted(corners), axis=1).max())
         # dθ/dρ ∝ poly(ρ) − ρ·poly'(ρ) = Σ (1 − i) a_i ρ^i: θ increases until its first root.
@@ -168,7 +168,7 @@ class ScaramuzzaModel(CameraModel):
 
     def _undistorted(self, pixels: F64) -> F64:
         """(N, 2) pixels -> (N, 2) (u', v') = A⁻¹ (p − centre)."""
-        return (pixels - np.array([self.cx, self.cy])) @ self.A_inv.T
+        return (pixels - np.array([self.cx, self.cy], dtype=np.float64)) @ self.A_inv.T
 
     def theta_of_rho(self, rho: F64) -> F64:
         """Angle off the optical axis θ(ρ) = atan2(ρ, poly(ρ)) for (N,) radii."""

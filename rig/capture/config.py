@@ -73,7 +73,7 @@ class V4L2CameraConfig(BaseModel):
 
 
 class FileCameraConfig(BaseModel):
-    """One camera of a recording directory (DESIGN §7) replayed through the camera protocol."""
+    """One camera of a recording directory (docs/design.md) replayed through the camera protocol."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 

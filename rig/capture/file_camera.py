@@ -1,4 +1,4 @@
-"""A camera that replays one camera of a recording directory (DESIGN §7) or of a ROS bag
+"""A camera that replays one camera of a recording directory (docs/cameras.md) or of a ROS bag
 (:mod:`rig.capture.recorded`), with fault injection.
 
 It goes through the same protocol, supervisor and pairing as a V4L2 camera. Timing:

@@ -1,4 +1,4 @@
-"""`rig evaluate`: the paper's analysis (its §IV) reproduced on the virtual environment (issue #7).
+"""`rig evaluate`: the paper's analysis (its §IV) reproduced on the virtual environment (docs/evaluation.md).
 
 1. Calibration quality (Table I): chessboards rendered through the preset's true lens, corners
    detected, every model calibrated — :mod:`rig.evaluate.calibration_quality`.

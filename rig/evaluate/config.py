@@ -33,7 +33,7 @@ __all__ = [
     "stereo_for",
 ]
 
-#: The six calibrated models of issue #7 (the paper's three, its "atan", and two modern ones).
+#: The six calibrated models (the paper's three, its "atan", and two modern ones).
 DEFAULT_MODELS: tuple[str, ...] = (
     "kannala_brandt",
     "mei",

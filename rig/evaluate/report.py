@@ -1,11 +1,11 @@
 """Files of an evaluation run in its output directory.
 
-``results.json`` (issue #7's keys: preset, calibration, image_difference, depth, matchers;
-and extrinsics, the chain of docs/rectification.md; NaN written as null), ``run.json``
-(settings, σd of the theory, fits, failures, timings, the git commit of the code, versions), the
-tables as CSV, the figures as PNG, ``difference/`` (the VPC images and contrast-enhanced
-difference images) and ``report.md`` (tables, figures, agreement with the paper).
-``results.json`` is written last, atomically: its presence marks a complete run.
+``results.json`` (keys: preset, calibration, image_difference, depth, matchers, and extrinsics,
+the chain of docs/rectification.md; NaN written as null), ``run.json`` (settings, σd of the
+theory, fits, failures, timings, the git commit of the code, versions), the tables as CSV, the
+figures as PNG, ``difference/`` (the VPC images and contrast-enhanced difference images) and
+``report.md`` (tables, figures, agreement with the paper). ``results.json`` is written last,
+atomically: its presence marks a complete run.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ def _num(x: float | None) -> float | None:
 def _clean(obj: Any) -> Any:
     """JSON-safe: NaN/inf -> None, tuples -> lists, numpy scalars -> Python."""
     if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
+        return _clean_document(obj)
     if isinstance(obj, list | tuple):
         return [_clean(v) for v in obj]
     if isinstance(obj, np.generic):
@@ -66,6 +66,11 @@ def _clean(obj: Any) -> Any:
     if isinstance(obj, float):
         return _num(obj)
     return obj
+
+
+def _clean_document(doc: dict[Any, Any]) -> dict[str, Any]:
+    """A JSON-safe copy of ``doc`` (see :func:`_clean`), keys as strings."""
+    return {str(k): _clean(v) for k, v in doc.items()}
 
 
 def _params(params: dict[str, Any]) -> dict[str, Any]:
@@ -157,7 +162,7 @@ def _extrinsics(run: EvaluationRun) -> dict[str, Any] | None:
 
 
 def results_document(run: EvaluationRun) -> dict[str, Any]:
-    """The content of results.json (issue #7's keys, and ``extrinsics``)."""
+    """The content of results.json (with ``extrinsics``, the chain of docs/rectification.md)."""
     depth = {name: [_point(p, name == THEORY) for p in pts] for name, pts in run.depth.items()}
     matchers = {
         name: {
@@ -184,13 +189,12 @@ def results_document(run: EvaluationRun) -> dict[str, Any]:
         "matchers": matchers,
         "extrinsics": _extrinsics(run),
     }
-    cleaned: dict[str, Any] = _clean(doc)
-    return cleaned
+    return _clean_document(doc)
 
 
 def _run_document(run: EvaluationRun) -> dict[str, Any]:
     cal = run.calibration
-    return _clean(
+    return _clean_document(
         {
             "settings": run.config.describe(),
             "preset_description": run.preset.description,

@@ -1,7 +1,7 @@
 """The virtual environment: textured scenes, a ray-cast renderer for any camera model, simulated
-rigs (presets) and recordings with exact ground truth (issue #3).
+rigs (presets) and recordings with exact ground truth (docs/evaluation.md).
 
-World frame = rig frame (DESIGN §3: x right, y down, z forward), metres.
+World frame = rig frame (docs/design.md, "Conventions": x right, y down, z forward), metres.
 """
 
 from rig.sim.mount import divergent_rig

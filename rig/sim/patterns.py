@@ -43,7 +43,7 @@ def spectral_noise(rng: np.random.Generator, size: int, beta: float = 0.85) -> F
 def _finish(img: NDArray[np.floating], mean: float = 128.0, std: float = 55.0) -> F32:
     """Normalise contrast to mean/std grey levels and clip to [0, 255]."""
     a = img.astype(np.float64)
-    a = (a - a.mean()) / (a.std() + 1e-12) * std + mean
+    a = (a - float(a.mean())) / (float(a.std()) + 1e-12) * std + mean
     return np.clip(a, 0.0, 255.0).astype(np.float32)
 
 

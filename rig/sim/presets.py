@@ -1,4 +1,4 @@
-"""Simulated rigs: the paper's virtual rig and our prototype (DESIGN §8).
+"""Simulated rigs: the paper's virtual rig and our prototype (docs/evaluation.md).
 
 ``paper-sim``: two identical ideal 180° equidistant lenses, 20 cm baseline, 90° between the axes
 (the paper's Unity set-up, §IV-B), 1024×1024 with the image circle inscribed.
@@ -44,7 +44,7 @@ class Preset:
 
 def scale_camera(camera: CameraModel, factor: float) -> CameraModel:
     """``camera`` resampled to ``factor`` × its size: fx, fy scale, and the principal point keeps
-    its place relative to the pixel edges (pixel (0, 0) is a pixel centre, DESIGN §3)."""
+    its place relative to the pixel edges (pixel (0, 0) is a pixel centre, docs/design.md)."""
     f = float(factor)
     if not (math.isfinite(f) and 0.01 <= f <= 8.0):
         raise ConfigError(f"camera scale factor must be in [0.01, 8], got {factor!r}")

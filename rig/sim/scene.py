@@ -1,10 +1,11 @@
 """Scenes of textured rectangles, and the ray casting the renderer does against them.
 
-World frame = rig frame (DESIGN §3: x right, y down, z forward), metres. A :class:`TexturedRect`
-lies in the z = 0 plane of its own frame ``T_world_rect``, centred on its origin, spanning
-``size_m = (width along its x, height along its y)``; it is seen from both sides. Its texture
-coordinates (s, t) run from the corner at local (-w/2, -h/2), so a rectangle with the identity
-rotation in front of a camera with the identity rotation shows its texture upright, unmirrored.
+World frame = rig frame (docs/design.md, "Conventions": x right, y down, z forward), metres. A
+:class:`TexturedRect` lies in the z = 0 plane of its own frame ``T_world_rect``, centred on its
+origin, spanning ``size_m = (width along its x, height along its y)``; it is seen from both
+sides. Its texture coordinates (s, t) run from the corner at local (-w/2, -h/2), so a rectangle
+with the identity rotation in front of a camera with the identity rotation shows its texture
+upright, unmirrored.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Rendered recordings with ground truth (``rig sim``): DESIGN §7's recording layout plus
+"""Rendered recordings with ground truth (``rig sim``): the recording layout (docs/design.md) plus
 ``calibration.yaml`` and ``ground_truth/``.
 
 Layout written under ``out``::

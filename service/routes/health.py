@@ -66,8 +66,7 @@ async def get_health(runtime: RuntimeDep, settings: SettingsDep) -> Response:
 def fresh_health(runtime: Runtime, settings: Settings) -> tuple[bytes, int] | None:
     """The shared ``/health`` body and status if one younger than ``server.health_max_age_s``
     exists (no I/O; also answered by :mod:`service.fast_path`), else None."""
-    snapshot: tuple[bytes, int] | None = runtime.fresh_health_snapshot(settings.server.health_max_age_s)
-    return snapshot
+    return runtime.fresh_health_snapshot(settings.server.health_max_age_s)
 
 
 def health_body(runtime: Runtime, settings: Settings) -> tuple[bytes, int]:

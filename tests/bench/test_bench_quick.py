@@ -1,5 +1,5 @@
-"""A quick run of every benchmark, only to keep the scripts working (DESIGN §9: benchmarks are
-not tests). Nothing here asserts a time: only that each script runs end to end, measures what it
+"""A quick run of every benchmark, only to keep the scripts working (docs/performance.md: benchmarks
+are not tests). Nothing here asserts a time: only that each script runs end to end, measures what it
 says (positive rates, no failed frames or requests) and writes its JSON document."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The speed work's fast paths give what the reference paths give (issue #8): component-wise
+"""The speed work's fast paths give what the reference paths give: component-wise
 projection against ``project``, Scaramuzza's table seed against its invpol seed, the cache's
 zero-copy load, the pipeline's stages against ``process``, and the pipelined worker."""
 
@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
+import rig.finish as finish_module
 import rig.lut_cache as lut_cache
-import rig.pipeline as pipeline_module
 from calibration.geometry import rot_x, rot_y
 from calibration.models import ScaramuzzaModel, create
 from rig.capture.frame import Frame, FramePair
@@ -169,14 +169,14 @@ def test_banded_finish_is_one_pass(
 
     def finish(pool: bool) -> list[DepthFrame]:
         if not pool:
-            monkeypatch.setattr(pipeline_module, "refine_pool", lambda: None)
+            monkeypatch.setattr(finish_module, "refine_pool", lambda: None)
         pipe = DepthPipeline(shot.rig, VpcConfig(width=320, height=240), params, cache_dir=lut_cache)
         rect = pipe.rectify(shot.left, shot.right)
         # Two frames: the second one through the temporal filter's history when it is on.
         return [pipe.finish(pipe.match(rect), i, 0) for i in range(2)]
 
     banded, whole = finish(True), finish(False)
-    assert pipeline_module._REFINE_THREADS >= 2, "this machine has one core: nothing is banded"
+    assert finish_module._REFINE_THREADS >= 2, "this machine has one core: nothing is banded"
     for b, w in zip(banded, whole, strict=True):
         assert np.array_equal(b.valid, w.valid)
         assert b.valid.mean() > 0.5

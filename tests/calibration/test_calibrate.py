@@ -257,7 +257,7 @@ def test_real_fisheye_images_calibrate_from_no_guess(side: str) -> None:
         [obj.reshape(1, -1, 3)] * len(found), [d.corners.reshape(1, -1, 2) for d in found], (960, 600),
         guess, np.zeros(4), flags=flags, criteria=criteria,
     )  # fmt: skip
-    # OpenCV without a guess: an assertion, or a fit far from the lens (the README's "nonsense").
+    # OpenCV without a guess: an assertion, or a fit far from the lens (docs/calibration.md's "nonsense").
     try:
         bare = cv2.fisheye.calibrate(
             [obj.reshape(1, -1, 3)] * len(found), [d.corners.reshape(1, -1, 2) for d in found], (960, 600),
@@ -272,5 +272,5 @@ def test_real_fisheye_images_calibrate_from_no_guess(side: str) -> None:
         f"OpenCV without one: {no_guess}"
     )
     assert ours.rms <= cv_rms + 0.001
-    assert ours.rms == pytest.approx({"left": 0.1798, "right": 0.2060}[side], rel=0.01)  # the README's
+    assert ours.rms == pytest.approx({"left": 0.1798, "right": 0.2060}[side], rel=0.01)  # docs/calibration.md
     assert ours.camera.param_dict["fx"] == pytest.approx(K[0, 0], rel=1e-3)

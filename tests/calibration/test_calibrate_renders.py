@@ -1,4 +1,4 @@
-"""Issue #4 on renders of the virtual environment: every model, calibrated from rendered images
+"""Calibration on renders of the virtual environment: every model, calibrated from rendered images
 of its own true lens (render → ``findChessboardCornersSB`` → calibration from no guess → corner
 refinement → recalibration), recovers that lens to ≤ 0.1 px over its whole image circle,
 corners past 90° off axis included.
@@ -20,7 +20,7 @@ from tests.helpers.boards import BOARD, image_difference, rendered_views, true_l
 
 MODELS = sorted(true_lenses(480))
 X = board_object_points(*BOARD, 0.05)
-#: Measured (the README's corner refinement table): corner RMS px detector -> refined, and the
+#: Measured (docs/calibration.md, corner refinement table): corner RMS px detector -> refined, and the
 #: recovered lens against the true one over the whole image, RMS px, detector -> refined corners.
 MEASURED = {
     "double_sphere": (0.0967, 0.0193, 0.2440, 0.0256),

@@ -280,7 +280,7 @@ def test_detector_error_against_angle_off_axis() -> None:
     )
     print("\n" + "\n".join(table))
     assert rms(all_ref) <= 0.03 and rms(all_ref) < rms(all_raw) / 3
-    # The README's figures: 0.088 px (-0.068 px radial at 75-90°) -> 0.019 px (-0.003 px).
+    # docs/calibration.md's figures: 0.088 px (-0.068 px radial at 75-90°) -> 0.019 px (-0.003 px).
     rim = (a >= 75) & (a < 90)
     assert rms(all_raw) == pytest.approx(0.0883, rel=0.15)
     assert float(np.concatenate(raw_r)[rim].mean()) == pytest.approx(-0.0679, rel=0.15)
@@ -314,7 +314,7 @@ def test_real_images_refinement_does_not_regress(side: str) -> None:
         f"{report.mean_shift_px:.3f} px, {len(report.rejected)} corners left out"
     )
     assert report.converged and report.rms_after < report.rms_before
-    # The README's figures: 0.180 / 0.206 px -> 0.161 / 0.170 px.
+    # docs/calibration.md's figures: 0.180 / 0.206 px -> 0.161 / 0.170 px.
     before, after = {"left": (0.1798, 0.1605), "right": (0.2060, 0.1702)}[side]
     assert report.rms_before == pytest.approx(before, rel=0.01)
     assert report.rms_after == pytest.approx(after, rel=0.03)

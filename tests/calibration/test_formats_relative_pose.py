@@ -1,4 +1,4 @@
-"""Rig.from_relative_pose: the canonical rig frame built from T_right_left (DESIGN §3)."""
+"""Rig.from_relative_pose: the canonical rig frame built from T_right_left (docs/design.md, "Conventions")."""
 
 from __future__ import annotations
 

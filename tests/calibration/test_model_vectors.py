@@ -102,7 +102,7 @@ def basalt_valid(vector: Vector, pts: np.ndarray) -> np.ndarray:
         a, b = p["alpha"], p["beta"]
         w = (1 - a) / a if a > 0.5 else a / (1 - a)
         return z > -w * np.sqrt(b * (x * x + y * y) + z * z)
-    # KB4: basalt accepts every point but the origin; ours (DESIGN §4) stops where θd(θ) stops
+    # KB4: basalt accepts every point but the origin; ours (docs/design.md) stops where θd(θ) stops
     # increasing: the first root of dθd/dθ = 1 + 3k1 t + 5k2 t² + 7k3 t³ + 9k4 t⁴ (t = θ²).
     roots = np.roots([9 * p["k4"], 7 * p["k3"], 5 * p["k2"], 3 * p["k1"], 1.0])
     real = roots[np.abs(roots.imag) < 1e-12].real

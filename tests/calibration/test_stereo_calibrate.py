@@ -188,7 +188,7 @@ def _stereo(pair: RenderedPair, refine: bool, **kw: object) -> tuple[float, floa
 
 
 MOUNTS = [(90, 0), (87, 2)]
-#: Measured (the README's corner refinement table), per mount: rotation error (°) and translation
+#: Measured (docs/calibration.md, corner refinement table), per mount: rotation error (°) and translation
 #: error (mm) from the detector's corners, refined with the lenses fixed, and refined jointly.
 OWN_INTRINSICS = {
     (90, 0): ((0.0287, 0.313), (0.0110, 0.170), (0.0044, 0.024)),
@@ -199,7 +199,7 @@ OWN_INTRINSICS = {
 @pytest.mark.slow
 @pytest.mark.parametrize(("angle", "pitch"), MOUNTS)
 def test_divergent_pair_with_intrinsics_from_each_cameras_own_images(angle: float, pitch: float) -> None:
-    """Issue #4's 0.05° / 0.5 mm, as a user gets there: each camera's lens calibrated from its
+    """0.05° / 0.5 mm, as a user gets there: each camera's lens calibrated from its
     own images, then the pair from the wedge images (corners refined with those lenses), the
     lenses held fixed or refined jointly."""
     pair = rendered_pair(angle, pitch)

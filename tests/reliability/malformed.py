@@ -327,47 +327,60 @@ _RECORDING_META = st.one_of(
 
 
 def _edit_recording(draw: st.DrawFn, root: Path) -> str:
+    """One edit of the recording at ``root``: its metadata, a removed part, a frame file or
+    its index; returns what was done."""
     target = draw(st.sampled_from(("meta", "index", "index", "index", "frame", "remove")))
     if target == "meta":
         (root / "recording.json").write_text(draw(_RECORDING_META))
         return "recording.json"
-    index = root / "frames.csv"
     if target == "remove":
-        victim = draw(st.sampled_from(["recording.json", "frames.csv", "left"]))
-        p = root / victim
-        if p.is_dir():
-            shutil.rmtree(p)
-        else:
-            p.unlink(missing_ok=True)
-        return f"removed {victim}"
+        return _remove_part(draw, root)
     if target == "frame":
-        frames = (
-            sorted((root / "left").glob("*")) + sorted((root / "right").glob("*"))
-            if (root / "left").is_dir()
-            else []
+        return _edit_frame(draw, root)
+    return _edit_index(draw, root / "frames.csv")
+
+
+def _remove_part(draw: st.DrawFn, root: Path) -> str:
+    victim = draw(st.sampled_from(["recording.json", "frames.csv", "left"]))
+    p = root / victim
+    if p.is_dir():
+        shutil.rmtree(p)
+    else:
+        p.unlink(missing_ok=True)
+    return f"removed {victim}"
+
+
+def _edit_frame(draw: st.DrawFn, root: Path) -> str:
+    frames = (
+        sorted((root / "left").glob("*")) + sorted((root / "right").glob("*"))
+        if (root / "left").is_dir()
+        else []
+    )
+    if not frames:
+        return "no frame to edit"
+    frame = draw(st.sampled_from(frames))
+    op = draw(st.sampled_from(("empty", "truncate", "garbage", "directory", "delete")))
+    if frame.is_dir():  # made a directory by an earlier edit
+        frame.rmdir()
+        return f"frame {frame.name}: removed"
+    data = frame.read_bytes()
+    if op == "directory":
+        frame.unlink()
+        frame.mkdir()
+    elif op == "delete":
+        frame.unlink()
+    else:
+        frame.write_bytes(
+            b""
+            if op == "empty"
+            else data[: len(data) // 2]
+            if op == "truncate"
+            else draw(st.binary(max_size=64))
         )
-        if not frames:
-            return "no frame to edit"
-        frame = draw(st.sampled_from(frames))
-        op = draw(st.sampled_from(("empty", "truncate", "garbage", "directory", "delete")))
-        if frame.is_dir():  # made a directory by an earlier edit
-            frame.rmdir()
-            return f"frame {frame.name}: removed"
-        data = frame.read_bytes()
-        if op == "directory":
-            frame.unlink()
-            frame.mkdir()
-        elif op == "delete":
-            frame.unlink()
-        else:
-            frame.write_bytes(
-                b""
-                if op == "empty"
-                else data[: len(data) // 2]
-                if op == "truncate"
-                else draw(st.binary(max_size=64))
-            )
-        return f"frame {frame.name}: {op}"
+    return f"frame {frame.name}: {op}"
+
+
+def _edit_index(draw: st.DrawFn, index: Path) -> str:
     if not index.is_file():
         return "no index"
     raw = index.read_bytes()

@@ -1,7 +1,7 @@
 """Camera faults injected at runtime into a RUNNING service (real uvicorn on loopback, file cameras
 replaying a JPEG recording at 10 fps), watched through the API the way a robot would watch it.
 
-For every fault of issue #9 (stall 3 s, disconnect and reappear, corrupt JPEG, truncated frame,
+For every fault (stall 3 s, disconnect and reappear, corrupt JPEG, truncated frame,
 timestamp jump forward and back, one camera at half rate):
 
 - the service never goes down: every ``/livez`` answers 200 and the worker keeps running;

@@ -159,7 +159,7 @@ def _measure(pipe: DepthPipeline, shot: StereoShot, noise_seed: int = 1, **param
     return pipe.process(add_noise(shot.left, 1.5, noise_seed), add_noise(shot.right, 1.5, noise_seed + 1))
 
 
-#: Measured (the README's post-filter table): valid fraction, RMS of errors < 3 px, median error,
+#: Measured (docs/stereo.md, post-filter table): valid fraction, RMS of errors < 3 px, median error,
 #: fractions of errors > 1 px and > 3 px.
 ROOM_FIGURES = {
     "all filters off": (0.782, 0.346, 0.194, 0.0190, 0.00363),
@@ -249,7 +249,7 @@ def test_confidence_ranks_errors_in_the_room(pipe: DepthPipeline, room: StereoSh
     assert all(a > b for a, b in itertools.pairwise(med))
     assert all(a > b for a, b in itertools.pairwise(rms3))
     assert bad1[0] > 5 * bad1[-1] and med[0] > 1.5 * med[-1]
-    assert (med[0], med[-1]) == pytest.approx((0.154, 0.058), rel=0.15)  # measured, in the README
+    assert (med[0], med[-1]) == pytest.approx((0.154, 0.058), rel=0.15)  # measured, in docs/stereo.md
 
 
 def test_temporal_filter_measured_on_noisy_frames(lut_cache: Path) -> None:

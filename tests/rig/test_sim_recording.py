@@ -1,4 +1,4 @@
-"""``simulate_recording`` and ``rig sim``: DESIGN §7 layout, calibration, exact ground truth,
+"""``simulate_recording`` and ``rig sim``: the recording layout, calibration, exact ground truth,
 and one-line errors from the real console script."""
 
 from __future__ import annotations

@@ -59,7 +59,7 @@ def test_divergent_rig_non_ideal_mount() -> None:
     np.testing.assert_allclose(
         rig.T_rig_cam["left"], divergent_rig(_lens(), _lens(), 0.072, 87.0).T_rig_cam["left"]
     )
-    # The VPC design (DESIGN §5) still rectifies it: the VPC x axis is the baseline.
+    # The VPC design (docs/design.md) still rectifies it: the VPC x axis is the baseline.
     pair = design_vpc_pair(rig)
     assert pair.baseline_m == pytest.approx(0.072)
 

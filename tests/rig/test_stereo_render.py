@@ -20,7 +20,7 @@ from tests.helpers.shots import central_box, plane_shot, prototype_rig
 
 VPC = VpcConfig(width=320, height=240)
 TRUE_DISPARITIES = (12.1, 16.25, 20.4, 24.5, 28.6, 33.75)  # fx·B/Z with fx = 160 px
-#: Measured disparity RMS (px) at those disparities (the README's table).
+#: Measured disparity RMS (px) at those disparities (docs/stereo.md's table).
 PLAIN_RMS = (0.069, 0.156, 0.226, 0.236, 0.264, 0.213)
 OURS_RMS = (0.028, 0.031, 0.037, 0.034, 0.044, 0.038)
 

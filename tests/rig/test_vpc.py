@@ -76,7 +76,7 @@ def test_yaw_is_a_principal_point_shift_and_pitch_a_rotation_about_the_baseline(
     R = straight.T_rig_vpc["left"][:3, :3].T @ pitched.T_rig_vpc["left"][:3, :3]
     assert math.degrees(rotation_angle(R)) == pytest.approx(10.0)
     assert np.allclose(R[:, 0], [1.0, 0.0, 0.0]), "a rotation about the baseline (VPC x)"
-    # Pitch up: the optical axis tilts towards -y (y points down, DESIGN §3).
+    # Pitch up: the optical axis tilts towards -y (y points down, docs/design.md).
     z_straight, z_up = straight.T_rig_vpc["left"][:3, 2], pitched.T_rig_vpc["left"][:3, 2]
     y_straight = straight.T_rig_vpc["left"][:3, 1]
     assert z_up @ y_straight == pytest.approx(-math.sin(math.radians(10.0)))
@@ -125,7 +125,7 @@ def _vertical_disparity(shot: StereoShot, pair: VpcPair) -> tuple[NDArray[np.flo
 
 
 SMALL = VpcConfig(width=320, height=240)
-#: Measured |dy| median and 95th percentile (px) on the 87°/2° mount (3 B: the README's figure).
+#: Measured |dy| median and 95th percentile (px) on the 87°/2° mount (3 B: docs/stereo.md's figure).
 PLANE_DY = {3.0: (0.017, 0.053), 6.0: (0.018, 0.059)}
 
 

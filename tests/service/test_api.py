@@ -76,7 +76,7 @@ def test_disparity_formats_and_relation_to_depth(shared_server: LiveServer) -> N
         cal = c.calibration()
         png = c.disparity("png")
     ok = np.isfinite(depth.depth)
-    # depth = fx·B/d (DESIGN §6), independently of how the server computed it.
+    # depth = fx·B/d (docs/design.md), independently of how the server computed it.
     np.testing.assert_allclose(depth.depth[ok], cal.vpc.fx * cal.baseline_m / disp.disparity[ok], rtol=1e-5)
     valid_png = np.isfinite(png.disparity)
     assert valid_png.any() and np.all(png.disparity[valid_png] * 16 == np.rint(png.disparity[valid_png] * 16))

@@ -12,7 +12,7 @@ from collections.abc import Iterator
 
 import pytest
 
-import rig.pipeline as pipeline_module
+import rig.finish as finish_module
 from rig import priority
 from tests.helpers.service import StartServer
 
@@ -49,8 +49,8 @@ def test_depth_threads_take_the_nice_value_http_keeps_its_own(
     depth = _nices("rig-depth-") | _nices("rig-left-") | _nices("rig-right-")
     assert {"rig-depth-prepare", "rig-depth-match", "rig-depth-worker", "rig-left-capture"} <= set(depth)
     # The finish stage's pool (shared by the process) is made anew for a new nice value.
-    pool = pipeline_module.refine_pool()
-    if pipeline_module._REFINE_THREADS >= 2:  # else there is no pool (one core)
+    pool = finish_module.refine_pool()
+    if finish_module._REFINE_THREADS >= 2:  # else there is no pool (one core)
         assert pool is not None and pool._threads, "no frame went through the banded finish"
         depth |= {t.name: priority.thread_nice(t.native_id) for t in pool._threads if t.native_id is not None}
     assert live.thread.native_id is not None
