@@ -44,6 +44,7 @@ from rig.depth import depth_to_png_mm, write_ply
 from rig.errors import ConfigError, PipelineError, RecordingError
 from rig.lut import percent_valid
 from rig.pipeline import DepthPipeline
+from rig.settings_model import describe_field_errors, field_errors
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
 
@@ -65,9 +66,7 @@ def load_stereo_params(path: Path) -> StereoParams:
     try:
         return StereoParams(**doc)
     except ValidationError as err:
-        first = err.errors()[0]
-        field = ".".join(str(x) for x in first["loc"]) or "(document)"
-        raise ConfigError(f"{path}: field '{field}': {first['msg']}") from None
+        raise ConfigError(f"{path}: {describe_field_errors(field_errors(err))}") from None
 
 
 StereoOption = Annotated[

@@ -12,6 +12,7 @@ from pydantic import ValidationError
 from calibration import load_rig
 from calibration.rig import Rig
 from rig.errors import ConfigError
+from rig.settings_model import field_errors
 from rig.vpc import VpcConfig
 
 __all__ = [
@@ -78,9 +79,8 @@ def make_vpc_config(size: str, hfov_deg: float, yaw_deg: float = 0.0, pitch_deg:
     try:
         return VpcConfig(**values)
     except ValidationError as err:
-        first = err.errors()[0]
-        field = str(first["loc"][0]) if first["loc"] else ""
-        raise ConfigError(f"{names.get(field, field)}: {first['msg']} (got {values.get(field)!r})") from None
+        problems = [f"{names.get(f, f)}: {msg} (got {values.get(f)!r})" for f, msg in field_errors(err)]
+        raise ConfigError("; ".join(problems)) from None
 
 
 def load_calibration(path: Path | None, fallback: Path | None = None) -> tuple[Rig, Path]:

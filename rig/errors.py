@@ -17,6 +17,7 @@ __all__ = [
     "PipelineError",
     "RecordingError",
     "RectificationError",
+    "ResourceExhausted",
     "RigError",
     "SimulationError",
     "UsbError",
@@ -77,6 +78,11 @@ class SimulationError(RigError):
 
 class EvaluationError(RigError):
     """``rig evaluate`` could not complete a step."""
+
+
+class ResourceExhausted(RigError):
+    """The process ran out of a system resource (file descriptors): the device or file is fine,
+    the process cannot open it now."""
 
 
 class CorruptFrameError(RigError):

@@ -28,10 +28,11 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from rig.errors import PipelineError
 from rig.filters import fill_where, left_right_consistent
+from rig.settings_model import SettingsModel
 
 __all__ = [
     "SGBM_MODES",
@@ -56,7 +57,7 @@ SGBM_MODES: dict[str, int] = {
 _ROS_SGBM_MODE = ("sgbm", "hh", "3way", "hh4")
 
 
-class StereoParams(BaseModel):
+class StereoParams(SettingsModel):
     """Matcher and post-filter configuration. Names and meanings follow ROS stereo_image_proc
     (``stereo_algorithm`` 0 = BM, 1 = SGBM; ``full_dp`` = SGBM's full 8-path HH mode); the
     fields after ``full_dp`` are ours."""
@@ -98,17 +99,21 @@ class StereoParams(BaseModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> StereoParams:
-        for name in ("correlation_window_size", "prefilter_size", "subpixel_window"):
-            if getattr(self, name) % 2 == 0:
-                raise ValueError(f"{name} must be odd, got {getattr(self, name)}")
+        problems = [
+            f"{name} must be odd, got {getattr(self, name)}"
+            for name in ("correlation_window_size", "prefilter_size", "subpixel_window")
+            if getattr(self, name) % 2 == 0
+        ]
         if self.disparity_range % 16:
-            raise ValueError(f"disparity_range must be a multiple of 16, got {self.disparity_range}")
+            problems.append(f"disparity_range must be a multiple of 16, got {self.disparity_range}")
         if self.stereo_algorithm == 0 and self.correlation_window_size < 5:
-            raise ValueError("correlation_window_size must be >= 5 for block matching (BM)")
+            problems.append("correlation_window_size must be >= 5 for block matching (BM)")
         if self.full_dp and self.sgbm_mode not in ("sgbm", "hh"):
-            raise ValueError(f"full_dp conflicts with sgbm_mode {self.sgbm_mode!r} (full_dp means 'hh')")
+            problems.append(f"full_dp conflicts with sgbm_mode {self.sgbm_mode!r} (full_dp means 'hh')")
         if self.P2 and self.P1 and self.P2 <= self.P1:
-            raise ValueError(f"P2 ({self.P2}) must be larger than P1 ({self.P1})")
+            problems.append(f"P2 ({self.P2}) must be larger than P1 ({self.P1})")
+        if problems:  # all of them: one answer lists every mistake
+            raise ValueError("; ".join(problems))
         return self
 
     @property

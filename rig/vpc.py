@@ -15,19 +15,20 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from calibration.geometry import make_transform, rot_x
 from calibration.models import PinholeModel
 from calibration.rig import Rig
 from rig.errors import ConfigError
+from rig.settings_model import SettingsModel
 
 __all__ = ["VpcConfig", "VpcPair", "design_vpc_pair"]
 
 F64 = NDArray[np.float64]
 
 
-class VpcConfig(BaseModel):
+class VpcConfig(SettingsModel):
     """Size, field of view and look direction of the VPC pair (degrees in config, docs/design.md)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)

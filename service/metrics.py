@@ -39,6 +39,7 @@ class MetricsSnapshot:
     recording: RecordingStatus | None
     heap: HeapStats
     rectification: RectificationStatus | None = None
+    memory_budget_bytes: int | None = None
 
 
 class _RuntimeCollector(Collector):
@@ -84,6 +85,12 @@ class _RuntimeCollector(Collector):
             "memory blocks held by Python's object allocator",
             value=h.python_blocks,
         )
+        if s.memory_budget_bytes is not None:
+            yield GaugeMetricFamily(
+                "rig_memory_budget_bytes",
+                "the resident size the service's settings allow (estimated at start-up; service.memory)",
+                value=s.memory_budget_bytes,
+            )
 
         r = s.recording
         yield GaugeMetricFamily(

@@ -29,11 +29,13 @@ from rig.capture.health import CaptureHealth
 from rig.capture.recorded import open_recording
 from rig.errors import CorruptFrameError
 from rig.heap import heap_stats
+from rig.memory_budget import MIB
 from rig.pipeline import DepthPipeline
 from rig.rectification.monitor import RectificationMonitor, RectificationStatus
 from service.encoders import confidence_png, depth_png, disparity_png, npy_bytes
 from service.errors import SettingsError
 from service.host import HostInfo, host_info
+from service.memory import check_memory, service_estimate
 from service.metrics import MetricsSnapshot, ServiceMetrics
 from service.recordings import RecordingManager, RecordingStatus
 from service.settings import Settings
@@ -116,6 +118,7 @@ class Runtime:
         self.recordings = RecordingManager(
             settings.server.recordings_dir, queue_size=settings.server.recording_queue, rig=rig
         )
+        self.memory_budget = service_estimate(settings, rig)
         self.metrics = ServiceMetrics(self.metrics_snapshot)
         scale, level = settings.server.depth_scale_m, settings.server.png_compression
         # The /depth, /disparity and /confidence bodies by cache key: the routes encode them on
@@ -152,6 +155,11 @@ class Runtime:
         self._running = False
         self._health_lock = threading.Lock()
         self._health_memo: tuple[float, object, HealthSnapshot] | None = None
+        # Configuration changes are serialised (read, validate, apply, answer as one step) and
+        # counted: the revision is /config's ETag.
+        self.config_lock = threading.Lock()
+        self.config_revision = 1
+        self.streams_open = 0  # /stream.mjpg responses running (read and changed on the event loop)
 
     @classmethod
     def build(cls, settings: Settings) -> Runtime:
@@ -167,6 +175,8 @@ class Runtime:
                 raise SettingsError(
                     f"{calibration}: the rig has no camera {name!r} (has {', '.join(rig.names)})"
                 )
+        # Before any table is built: a size that cannot fit is refused with the reason.
+        check_memory(settings, service_estimate(settings, rig))
         pipeline = DepthPipeline(rig, vpc=settings.vpc, stereo=settings.stereo, cache_dir=settings.cache_dir)
         for name in CAMERA_NAMES:
             cam = settings.cameras.camera(name)
@@ -196,9 +206,11 @@ class Runtime:
         if self.rectification is not None:
             self.rectification.start()
         log.info(
-            "depth service running: VPC %s, baseline %.4f m",
+            "depth service running: VPC %s, baseline %.4f m; memory budget %.0f MiB (%s)",
             self.pipeline.pair.as_json(),
             self.pipeline.baseline_m,
+            self.memory_budget.total / MIB,
+            self.memory_budget.largest(),
         )
 
     def stop(self) -> None:
@@ -239,6 +251,7 @@ class Runtime:
             recording=self.recordings.active,
             heap=heap_stats(),
             rectification=None if self.rectification is None else self.rectification.status(),
+            memory_budget_bytes=self.memory_budget.total,
         )
 
     def health_snapshot(

@@ -343,9 +343,12 @@ def _optional_fields(model: type[BaseModel]) -> dict[str, Any]:
 
 
 #: Every StereoParams field, optional: the fields given replace the current ones. Strict, as
-#: the schema says (JSON 0 is not false); the merged set is validated again as StereoParams.
+#: the schema says (JSON 0 is not false), and finite; the merged set is validated again as
+#: StereoParams.
 StereoPatch: Any = create_model(
-    "StereoPatch", __config__=ConfigDict(extra="forbid", strict=True), **_optional_fields(StereoParams)
+    "StereoPatch",
+    __config__=ConfigDict(extra="forbid", strict=True, allow_inf_nan=False),
+    **_optional_fields(StereoParams),
 )
 
 

@@ -9,10 +9,11 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field, model_validator
 
 from rig.counters import Counts
 from rig.rectification.measure import VerticalDisparity
+from rig.settings_model import SettingsModel
 
 __all__ = [
     "CheckResult",
@@ -28,7 +29,7 @@ F64 = NDArray[np.float64]
 RectificationState = Literal["waiting", "ok", "not enough matches", "degraded"]
 
 
-class RectificationConfig(BaseModel):
+class RectificationConfig(SettingsModel):
     """The ``rectification`` settings (see :mod:`rig.rectification.monitor`): the live measure,
     its bounds and the online refinement (lengths in VPC pixels, angles in degrees)."""
 

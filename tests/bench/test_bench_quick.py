@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench import api_load, lut_build, memory, rectification, startup, worker
+from bench import api_load, hostile, lut_build, memory, rectification, startup, worker
 from calibration.models import MODELS, KannalaBrandtModel
 from rig.sim import get_preset
 
@@ -138,3 +138,15 @@ def test_rectification_bench_times_a_check_and_the_worker_with_and_without(
     impact = doc["worker_impact"]
     assert len(impact["fps_on"]) == len(impact["fps_off"]) == 1 and impact["fps_off"][0] > 0
     assert impact["checks_per_window"][0] >= 1 and impact["ratio"] > 0
+
+
+def test_hostile_bench_runs_its_attacks(bench_env: Path, tmp_path: Path) -> None:
+    out = tmp_path / "h.json"
+    doc = _written(
+        out, hostile.main(["--quick", "--attack", "patch", "--attack", "headers", "--json", str(out)])
+    )
+    patch = doc["patch"]
+    assert patch["acknowledged"] == patch["different_fields"] > 0 and patch["lost_updates"] == 0
+    assert patch["same_field_last_wins"] is True
+    assert doc["headers"]["lines"]["status"] == doc["headers"]["giant"]["status"] == 431
+    assert doc["headers"]["lines"]["health"]["failures"] == 0

@@ -1,6 +1,7 @@
 """Load: 32 concurrent loopback clients for 30 s against ``rig serve`` (a real subprocess, so the
 clients do not share its interpreter) on ``/depth``, ``/health`` and ``/stream.mjpg``: no errors,
-health stays ok, the depth worker keeps producing, and the server's memory stays bounded.
+health stays ok, the depth worker keeps producing, and the server's memory stays bounded and under
+the memory budget it exports (``rig_memory_budget_bytes``).
 
 Memory bound: the service keeps the latest result and its encoded bodies (a few hundred kB at
 320x240), per-connection buffers and the allocator's working set; after a warm-up with every
@@ -145,12 +146,19 @@ def test_32_clients_for_30_s(served: Served) -> None:
         tally = asyncio.run(run_clients(base, DURATION_S))
         after_mb = rss_mb(pid)
         h = httpx.get(base + "/health", timeout=10).json()
+        metrics = httpx.get(base + "/metrics", timeout=10).text
+        budget_mb = next(
+            float(line.split()[1]) / 2**20
+            for line in metrics.splitlines()
+            if line.startswith("rig_memory_budget_bytes ")
+        )
         assert served.proc.poll() is None  # still running
     finally:
         text = served.stop()
     print(
         f"\n{sum(tally.requests.values())} requests in {DURATION_S:.0f} s {tally.requests}, "
-        f"{tally.parts} stream parts, {len(tally.errors)} errors; RSS {before_mb:.1f} -> {after_mb:.1f} MB; "
+        f"{tally.parts} stream parts, {len(tally.errors)} errors; RSS {before_mb:.1f} -> {after_mb:.1f} MiB "
+        f"(budget {budget_mb:.0f} MiB); "
         f"worker {h['worker']['frames_processed'] - worker_before} frames at {h['worker']['fps']:.1f} fps"
     )
     assert not tally.errors, tally.errors[:10]
@@ -159,4 +167,5 @@ def test_32_clients_for_30_s(served: Served) -> None:
     assert h["status"] == "ok" and h["worker"]["alive"] and h["worker"]["fps"] > 0
     assert h["worker"]["frames_processed"] > worker_before  # it kept producing under load
     assert after_mb - before_mb < MAX_RSS_GROWTH_MB
+    assert after_mb < budget_mb  # the budget rig serve exports (service.memory)
     assert served.proc.returncode == 0 and "Traceback" not in text
