@@ -6,7 +6,8 @@ Input: a recording of 1280×960 MJPEG fisheye frames (:mod:`bench.recordings`, b
 calls the depth needs: ``cv2.imdecode`` ×2 to gray (what :attr:`rig.capture.frame.Frame.gray`,
 the worker's decode, does: depth needs only luma), ``cv2.remap`` ×2 with the pipeline's own
 fixed-point maps, and ``compute`` of a ``cv2.StereoSGBM`` built with the same parameters
-(checked to give the identical disparity as the pipeline's matcher). Per-frame time = one
+(checked to give the identical disparity as the pipeline's matcher), run a second time on the
+mirrored pair when the left-right check is on (``lr_check``, a default). Per-frame time = one
 iteration; throughput = frames / time.
 
 **Ours** — the service itself minus HTTP: :meth:`service.runtime.Runtime.build` on settings whose
@@ -49,6 +50,7 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
+import yaml
 from numpy.typing import NDArray
 from rich.table import Table
 
@@ -127,12 +129,16 @@ def run_floor(
     decode: Any = cv2.imdecode  # typed loosely: the floor is the bare calls, no checks
     remap: Any = cv2.remap
 
+    mirrored = pipeline.stereo.lr_check
+
     def step(bl: Any, br: Any) -> None:
         left = decode(bl, flags)
         right = decode(br, flags)
         lv = remap(left, lm1, lm2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         rv = remap(right, rm1, rm2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         sgbm.compute(lv, rv)
+        if mirrored:  # the left-right check's second run, on the mirrored pair
+            sgbm.compute(np.ascontiguousarray(rv[:, ::-1]), np.ascontiguousarray(lv[:, ::-1]))
 
     return _timed_loop(pairs, frames, step)
 
@@ -211,6 +217,16 @@ def bench_settings(
     )
 
 
+def _stereo_overrides(text: str | None) -> dict[str, Any]:
+    """``KEY=VALUE,...`` → a mapping (values read as YAML scalars: false, 20, 0.5)."""
+    out: dict[str, Any] = {}
+    for item in (text or "").split(","):
+        if item.strip():
+            key, _, value = item.partition("=")
+            out[key.strip()] = yaml.safe_load(value)
+    return out
+
+
 def _configs(quick: bool) -> list[tuple[int, int, int]]:
     if quick:
         return [(160, 120, 32)]
@@ -269,11 +285,12 @@ def measure_config(
     tmp: Path,
     m: Measure,
     cpus: int,
+    overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """One row of the table: throughput (cameras unpaced) and latency (cameras paced) each in
     alternating windows with the floor, then the same-work loop ``m.repeat`` times."""
     vpc = VpcConfig(width=w, height=h)
-    stereo = StereoParams(disparity_range=disp, **STAGES[stages])
+    stereo = StereoParams(**{"disparity_range": disp, **STAGES[stages], **(overrides or {})})
     pipeline = DepthPipeline(rig, vpc, stereo, cache_dir=tmp / "lut")
     sgbm = floor_matcher(stereo)
     check_floor_matcher(pairs, pipeline, sgbm)
@@ -305,6 +322,7 @@ def measure_config(
     return {
         "vpc": [w, h],
         "disparities": disp,
+        "stereo": stereo.model_dump(),
         "floor_ms_per_frame": median(median(f.frame_ms) for f, _ in windows),
         "floor_fps": median(f.fps for f, _ in windows),
         "same_work_ms_per_frame": same_ms,
@@ -409,6 +427,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument(
         "--sizes", default=None, help="VPC sizes and disparities, e.g. 640x480/128,320x240/64"
     )
+    parser.add_argument(
+        "--stereo",
+        default=None,
+        metavar="KEY=VALUE,...",
+        help="stereo parameters over the stages' (YAML values), e.g. lr_check=false: the defaults before",
+    )
     args = parser.parse_args(argv)
     quick = args.quick
     m = Measure(
@@ -442,7 +466,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         f"{args.decode}; throughput and latency: {m.windows} alternating window pairs of {m.window_s:g} s "
         f"each; same work: {m.repeat} run(s) of {m.seconds:g} s"
     )
-    table = Table(title=f"per pair: floor (bare OpenCV) vs ours (service worker, {args.stages} stages)")
+    extra = f", {args.stereo}" if args.stereo else ""
+    table = Table(
+        title=f"per pair: floor (bare OpenCV) vs ours (service worker, {args.stages} stages{extra})"
+    )
     for col in TABLE_COLUMNS:
         table.add_column(col, justify="right")
     rows = []
@@ -460,6 +487,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 tmp=Path(tmp_name),
                 m=m,
                 cpus=info["cpus_usable"],
+                overrides=_stereo_overrides(args.stereo),
             )
             rows.append(row)
             table.add_row(*_table_row(row))

@@ -68,7 +68,7 @@ def register(app: typer.Typer) -> None:
         for name in (pair.left, pair.right):
             model, R = rig.cameras[name], pair.R_cam_vpc[name]
             if rebuild:
-                cache.path(lut_key(model, R, pair.camera)).unlink(missing_ok=True)
+                cache.discard(lut_key(model, R, pair.camera))
             t0 = time.perf_counter()
             got = cache.get(model, R, pair.camera)
             ms = got.build_ms if not got.hit else (time.perf_counter() - t0) * 1e3

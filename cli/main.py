@@ -11,14 +11,14 @@ from typing import Annotated
 
 import typer
 
-from cli import calibrate, devices, evaluate, export, lut, process, record, serve, sim
+from cli import calibrate, check, devices, evaluate, export, lut, process, record, serve, sim
 from cli.errors import MappedErrorsGroup
 
 __all__ = ["DISTRIBUTION", "build_app", "main", "package_version"]
 
 DISTRIBUTION = "odfc-rig"
 #: Command groups in the order ``rig -h`` lists them.
-COMMAND_MODULES = (serve, process, record, export, devices, calibrate, lut, sim, evaluate)
+COMMAND_MODULES = (serve, process, record, export, check, devices, calibrate, lut, sim, evaluate)
 
 
 def package_version() -> str:

@@ -7,6 +7,11 @@ Output: ``DIR/depth/NNNNNN.png`` (uint16 mm, 0 = invalid, aligned with the left 
 (``width, height, fx, fy, cx, cy, baseline_m``); with ``--ply`` also ``DIR/cloud/NNNNNN.ply``
 (rig frame), with ``--preview`` ``DIR/preview/NNNNNN.png`` (left VPC beside colour depth).
 
+Before the first pair is processed, the calibration is checked against the first readable pair
+(:mod:`rig.calibration_check`): frames of another size, or cameras that look swapped, stop the
+command with one line naming the likely cause; a poor fit (rows apart, little overlap or depth)
+is a warning, said once.
+
 A pair whose frame file is missing or not a readable image is reported on stderr by sequence
 number and skipped. Exit status: 0 when at least one pair was processed (a summary names how
 many were skipped), 2 when the calibration, recording or options are bad or no pair could be
@@ -40,10 +45,13 @@ from cli.vpc_options import (
     load_calibration,
     make_vpc_config,
 )
+from rig.calibration_check import check_calibration, check_frame_sizes
+from rig.capture.recorded import RecordedPairs
 from rig.depth import depth_to_png_mm, write_ply
 from rig.errors import ConfigError, PipelineError, RecordingError
 from rig.lut import percent_valid
 from rig.pipeline import DepthPipeline
+from rig.recording import PairRecord
 from rig.settings_model import describe_field_errors, field_errors
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
@@ -92,6 +100,43 @@ def build_pipeline(
     return pipeline, cal_path
 
 
+# Pairs tried for the calibration check before giving up on finding a readable one.
+_CHECK_TRIES = 10
+
+
+def _first_readable(
+    rec: RecordedPairs,
+) -> tuple[PairRecord, np.ndarray[Any, Any], np.ndarray[Any, Any]] | None:
+    for pair in rec.pairs[:_CHECK_TRIES]:
+        try:
+            left = rec.read_frame(pair, "left").pipeline_image()
+            right = rec.read_frame(pair, "right").pipeline_image()
+        except RecordingError:
+            continue
+        return pair, left, right
+    return None
+
+
+def check_against_frames(pipeline: DepthPipeline, rec: RecordedPairs) -> None:
+    """The calibration against the recording's first readable pair: an error stops the command
+    (one line, exit status 2), each warning is printed once."""
+    first = _first_readable(rec)
+    if first is None:
+        return  # the loop reports every unreadable pair
+    pair, left, right = first
+    sizes = {
+        pipeline.pair.left: (int(left.shape[1]), int(left.shape[0])),
+        pipeline.pair.right: (int(right.shape[1]), int(right.shape[0])),
+    }
+    for problem in check_frame_sizes(pipeline.rig, sizes, f"frames of {rec.root}"):
+        fail(problem.message)
+    result = check_calibration(pipeline, left, right)
+    for problem in result.errors:
+        fail(f"calibration check on pair {pair.seq}: {problem.message}")
+    for problem in result.warnings:
+        warn(f"calibration check on pair {pair.seq}: {problem.message}")
+
+
 def _write_png(path: Path, image: np.ndarray[Any, Any]) -> None:
     if not cv2.imwrite(str(path), image):
         raise RecordingError(f"{path}: could not write image")
@@ -126,11 +171,19 @@ def register(app: typer.Typer) -> None:
         left_topic: LeftTopicOption = None,
         right_topic: RightTopicOption = None,
         max_skew_ms: MaxSkewOption = None,
+        no_check: Annotated[
+            bool,
+            typer.Option(
+                "--no-calibration-check", help="Skip the check of the calibration against the frames."
+            ),
+        ] = False,
     ) -> None:
         """Depth for every pair of RECORDING into --out: depth/, left/, right/ PNGs and vpc.json."""
         rec = open_source(recording, left_topic, right_topic, max_skew_ms)
         config = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
         pipeline, cal_path = build_pipeline(calibration, rec.calibration_path, config, stereo, cache_dir)
+        if not no_check:
+            check_against_frames(pipeline, rec)
         extra = (("cloud",) if ply else ()) + (("preview",) if preview else ())
         dirs = {k: out / k for k in ("depth", "left", "right", *extra)}
         try:

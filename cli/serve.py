@@ -30,7 +30,13 @@ from service.demo import (
 from service.errors import ServiceError
 from service.settings import Settings, load_settings
 
-__all__ = ["register", "serve_settings"]
+__all__ = ["ServiceConfigOption", "register", "serve_settings"]
+
+#: The service's config file (``rig serve``, ``rig check``).
+ServiceConfigOption = Annotated[
+    Path | None,
+    typer.Option("--config", "-c", metavar="FILE", help="YAML config file.", show_default="$RIG_CONFIG"),
+]
 
 
 def _deep_merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
@@ -182,12 +188,7 @@ def run_serve(
 def register(app: typer.Typer) -> None:
     @app.command("serve")
     def serve(
-        config: Annotated[
-            Path | None,
-            typer.Option(
-                "--config", "-c", metavar="FILE", help="YAML config file.", show_default="$RIG_CONFIG"
-            ),
-        ] = None,
+        config: ServiceConfigOption = None,
         demo: Annotated[
             bool, typer.Option("--demo", help="Serve the built-in simulated rig (rendered once, cached).")
         ] = False,

@@ -185,6 +185,31 @@ COUNTERS: tuple[CounterSpec, ...] = (
         "frames refused because a host-clock timestamp was more than max_clock_offset_ms from "
         "the arrival time or did not increase; each triggers a reconnect",
     ),
+    _camera(
+        "corrupt_per_s",
+        "gauge",
+        "frames/s",
+        "frames found corrupt per second over the last cameras.supervisor.rate_window_s "
+        "(null until the window holds enough frames)",
+        value=float,
+        optional=True,
+    ),
+    _camera(
+        "undecodable_per_s",
+        "gauge",
+        "frames/s",
+        "frames found undecodable per second over the same window",
+        value=float,
+        optional=True,
+    ),
+    _camera(
+        "dropped_per_s",
+        "gauge",
+        "frames/s",
+        "frames dropped (lost, unpaired or evicted) per second over the same window",
+        value=float,
+        optional=True,
+    ),
     _camera("reconnects", "counter", "reconnects", "successful re-opens of the camera after an outage"),
     _camera("reconnect_attempts", "counter", "attempts", "re-opens of the camera tried after an outage"),
     _camera("usb_resets", "counter", "resets", "USB resets of the device after failed reconnects"),

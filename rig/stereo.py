@@ -5,19 +5,15 @@ of ROS ``stereo_image_proc``'s disparity node, plus our own stages: subpixel ref
 and a confidence map (:mod:`rig.subpixel`), a full left-right check, median and temporal
 filters (:mod:`rig.filters`). Every stage is configuration; none is a code fork.
 
-Default choices (measured on the virtual environment; tables in docs/stereo.md, printed by
-``pytest -s tests/rig/test_stereo_render.py tests/rig/test_filters.py``): SGBM_3WAY (as accurate
-as full SGBM and HH on the prototype plane and room renders, ~2× faster than SGBM on 2 cores),
-7 px window (fewer >1 px errors in the room than 5, same on planes), 128 disparities (depth from
-2.5 baselines out at the default 640×480 / 90° VPC: fx·B/Z = 320/2.5), speckle removal
-(100 px, 2 px range: without it the room's disparity RMS rose from 0.23 to 1.16 px), our subpixel
-refinement with a 15 px window, a 5×5 median, and the confidence map on. The full left-right
-check is off: it runs the matcher a second time (~2× match time); on the full-size prototype
-room it removed about half of the gross (>10 %) errors that the repetitive back-wall texture
-causes, for ~4 % of the valid pixels; turn it on where a phantom near obstacle costs more than
-the time. (OpenCV 5.0's own ``disp12_max_diff`` check changed fewer than 10 of 307k pixels
-there: its second view comes from the same aggregated costs.) The temporal filter is off (it
-lags moving scenes).
+Default choices (measured on the virtual environment; see docs/stereo.md, whose tables
+``python -m bench.phantoms`` and ``pytest -s tests/rig/test_stereo_render.py tests/rig/test_filters.py``
+print): SGBM_3WAY, a 7 px window, speckle removal, our subpixel refinement with a 15 px window, a
+5×5 median and the confidence map on, as measured for accuracy; 96 disparities and the full
+left-right check on, chosen against *phantom obstacles*: a repetitive or weak texture matched with
+its next repeat gives a disparity one period too large, a near surface that is not there. Fewer
+disparities leave fewer wrong periods within reach, and the left-right check removes most of
+the rest; the price is the nearest depth (fx·B/96 at the VPC's fx) and a second matcher run
+(both measured in docs/stereo.md). The temporal filter is off (it lags moving scenes).
 """
 
 from __future__ import annotations
@@ -70,7 +66,9 @@ class StereoParams(SettingsModel):
     prefilter_cap: int = Field(31, ge=1, le=63, description="bound on prefiltered pixel values")
     correlation_window_size: int = Field(7, ge=1, le=255, description="matching window (odd, px)")
     min_disparity: int = Field(0, ge=-2048, le=2048, description="smallest disparity searched (px)")
-    disparity_range: int = Field(128, ge=16, le=4096, description="disparities searched (multiple of 16)")
+    disparity_range: int = Field(
+        96, ge=16, le=4096, description="disparities searched (multiple of 16); nearest depth fx·B/range"
+    )
     # OpenCV 5.0 SGBM_3WAY divides by zero (SIGFPE, the process dies) at a ratio of 100.
     uniqueness_ratio: float = Field(10.0, ge=0.0, lt=99.5, description="best must beat 2nd by this %")
     texture_threshold: int = Field(10, ge=0, le=10000, description="BM: minimum window texture")
@@ -82,7 +80,7 @@ class StereoParams(SettingsModel):
     full_dp: bool = Field(False, description="SGBM full 8-direction dynamic programming (= mode hh)")
     subpixel: bool = Field(True, description="gradient-based subpixel refinement (rig.subpixel)")
     subpixel_window: int = Field(15, ge=3, le=31, description="refinement window (odd, px)")
-    lr_check: bool = Field(False, description="full left-right consistency check (2nd matcher run)")
+    lr_check: bool = Field(True, description="full left-right consistency check (2nd matcher run)")
     lr_max_diff: float = Field(1.0, gt=0.0, le=16.0, description="LR check tolerance (px)")
     median: Literal[0, 3, 5] = Field(5, description="median filter on disparity (0 = off)")
     temporal_alpha: float = Field(0.0, ge=0.0, lt=1.0, description="weight of the past frame (0 = off)")

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from calibration import load_rig
 from calibration.rig import Rig
 from rig import priority
+from rig.calibration_check import CalibrationCheck, check_calibration
 from rig.capture.capture import CAMERA_NAMES, StereoCapture
 from rig.capture.config import CaptureConfig, FileCameraConfig
 from rig.capture.health import CaptureHealth
@@ -137,7 +138,7 @@ class Runtime:
             pipeline,
             self.store,
             on_pair=self.recordings.offer,
-            on_result=self.metrics.observe,
+            on_result=self._observe,
             prefetch=self.frame_bodies,
         )
         self.rectification: RectificationMonitor | None = None
@@ -152,6 +153,10 @@ class Runtime:
             )
         self.started_ns = time.monotonic_ns()
         self.calibration_doc: Any = None  # /calibration's response, made on first request
+        # The calibration checked against the first processed pair (rig.calibration_check).
+        self.calibration_check: CalibrationCheck | None = None
+        self._check_started = False
+        self._check_lock = threading.Lock()
         self._running = False
         self._health_lock = threading.Lock()
         self._health_memo: tuple[float, object, HealthSnapshot] | None = None
@@ -223,6 +228,30 @@ class Runtime:
         self.capture.stop()
         self._running = False
 
+    # ----- the calibration against the first pair ----------------------------------------------
+    def _observe(self, result: PublishedResult, timings_ms: dict[str, float]) -> None:
+        """Each published result: metrics; the first one also starts the calibration check."""
+        self.metrics.observe(result, timings_ms)
+        with self._check_lock:
+            first, self._check_started = not self._check_started, True
+        if first:
+            threading.Thread(
+                target=self._check_calibration, args=(result,), name="rig-calibration-check", daemon=True
+            ).start()
+
+    def _check_calibration(self, result: PublishedResult) -> None:
+        """Off the worker's threads (feature matching takes a while): errors are logged once and
+        stay in /health's reasons; warnings are logged once."""
+        try:
+            check = check_calibration(self.pipeline, result.left.gray, result.right.gray, result.frame)
+        except Exception as err:  # a diagnostic must never stop the service
+            log.warning("calibration check against the first pair failed: %s", err)
+            return
+        self.calibration_check = check
+        for finding in check.findings:
+            level = logging.ERROR if finding.severity == "error" else logging.WARNING
+            log.log(level, "calibration check on pair %d: %s", result.frame.seq, finding.message)
+
     # ----- rectification -----------------------------------------------------------------------
     def _latest_gray_pair(self) -> tuple[NDArray[np.uint8], NDArray[np.uint8]] | None:
         """The newest published pair's luma (decoded by the worker already), for the monitor."""
@@ -282,8 +311,10 @@ class Runtime:
 
     def health(self) -> HealthReport:
         """``down``: no camera delivers, the worker or the capture is not running; ``degraded``:
-        one camera out, no depth yet, depth older than ``server.stale_after_s``, the active
-        recording has stopped writing or the rectification is off its bound; else ``ok``."""
+        one camera out, a camera losing more frames than its limits allow over the rate window
+        (:mod:`rig.capture.rates`), a calibration that failed its check against the first pair
+        (:mod:`rig.calibration_check`), no depth yet, depth older than ``server.stale_after_s``, the
+        active recording has stopped writing or the rectification is off its bound; else ``ok``."""
         cap = self.capture.health()
         worker = self.worker.stats()
         reasons: list[str] = []
@@ -291,6 +322,8 @@ class Runtime:
             if not cam.connected:
                 why = cam.reason or cam.last_error or "no frames yet"
                 reasons.append(f"camera {name} {cam.state}: {why}")
+            elif cam.degraded_reason is not None:
+                reasons.append(f"camera {name}: {cam.degraded_reason}")
         if not worker.alive:
             reasons.append("depth worker not running")
         stale_ms = self.settings.server.stale_after_s * 1e3
@@ -305,6 +338,9 @@ class Runtime:
             and worker.last_error_age_ms < stale_ms
         ):
             reasons.append(f"depth worker error: {worker.last_error}")
+        check = self.calibration_check
+        if check is not None:
+            reasons += [f"calibration check: {f.message}" for f in check.errors]
         recording = self.recordings.active
         if recording is not None and recording.error is not None:
             # The operator asked for this recording and it has stopped writing (e.g. disk full).

@@ -128,6 +128,10 @@ class CameraHealthBase(_CounterFields):
     device: str
     state: str = Field(description="starting, available, unavailable, ended or stopped")
     reason: str | None = Field(description="why the camera is not available")
+    degraded_reason: str | None = Field(
+        description="what is wrong with an available camera's frames: corrupt, undecodable or dropped "
+        "frames above a share of cameras.supervisor's limits over its rate window"
+    )
     nominal_fps: float | None
     last_seq: int | None
     last_error: str | None

@@ -13,7 +13,7 @@ cameras:                         # rig.capture.CaptureConfig; omitted = no camer
   right: {kind: v4l2, device: /dev/rig/right}
 calibration: {path: rig.yaml}    # rig.yaml or Kalibr camchain.yaml
 vpc: {width: 640, height: 480, hfov_deg: 90}
-stereo: {disparity_range: 128}   # rig.stereo.StereoParams
+stereo: {disparity_range: 96}    # rig.stereo.StereoParams
 ros: {namespace: /rig}           # rig.ros.RosNames: topic names and frame ids (Foxglove, MCAP)
 rectification: {check_interval_s: 10, auto_refine: false}   # rig.rectification.RectificationConfig
 cache_dir: null                  # LUT cache (default: $RIG_CACHE_DIR or the user cache dir)

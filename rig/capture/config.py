@@ -160,6 +160,23 @@ class SupervisorConfig(SettingsModel):
         ),
     )
     fps_window_s: float = Field(2.0, gt=0.0)
+    rate_window_s: float = Field(
+        10.0, ge=1.0, le=3600.0, description="window of the frame-loss rates that drive health (s)"
+    )
+    max_broken_fraction: float = Field(
+        0.05,
+        ge=0.0,
+        le=1.0,
+        description="corrupt + undecodable frames above this share of a camera's frames over the rate "
+        "window → health degraded, naming the camera and the share",
+    )
+    max_dropped_fraction: float = Field(
+        0.1,
+        ge=0.0,
+        le=1.0,
+        description="dropped frames (lost, unpaired, evicted) above this share of a camera's frames "
+        "over the rate window → health degraded",
+    )
 
 
 class CaptureConfig(SettingsModel):

@@ -156,7 +156,9 @@ function showHealth(h) {
     const state = $(`cam-${name}-state`);
     state.textContent = cam.state;
     state.className = cam.state;
-    $(`cam-${name}-reason`).textContent = cam.connected ? "" : (cam.reason || cam.last_error || "");
+    $(`cam-${name}-reason`).textContent = cam.connected
+      ? (cam.degraded_reason || "")
+      : (cam.reason || cam.last_error || "");
     for (const col of columns || []) $(`cam-${name}-${col.id}`).textContent = columnText(cam, col);
     $(`banner-${name}`).hidden = cam.connected;
   }

@@ -32,6 +32,10 @@ def quick(tmp_path_factory: pytest.TempPathFactory) -> Path:
     res = run("evaluate", "--preset", "paper-sim", "--quick", "--out", out)
     assert res.returncode == 0, res.stderr
     assert "wrote" in res.stdout and "report.md" in res.stdout
+    timings = json.loads((out / "run.json").read_text())["timings_s"]
+    # docs/evaluation.md's figure for --quick: the sum of the stages' times run.json records.
+    print(f"\nrig evaluate --preset paper-sim --quick: {sum(timings.values()):.1f} s ({timings})")
+    assert set(timings) >= {"calibration", "depth_pipelines"} and all(t > 0 for t in timings.values())
     return out
 
 
