@@ -69,6 +69,7 @@ from bench.recordings import MjpegSpec, ensure_mjpeg_recording, load_jpeg_pairs
 from calibration import load_rig
 from rig.capture.config import CaptureConfig, FileCameraConfig, PairingConfig, SupervisorConfig
 from rig.pipeline import DepthPipeline
+from rig.rectification import RectificationConfig
 from rig.stereo import StereoMatcher, StereoParams, create_opencv_matcher
 from rig.vpc import VpcConfig
 from service.settings import CalibrationSettings, ServerSettings, Settings
@@ -210,6 +211,9 @@ def bench_settings(
         vpc=vpc,
         stereo=stereo,
         cache_dir=lut_dir,
+        # The rectification monitor's check (every 10 s, low priority) would also run while the
+        # floor has the machine: both sides do the same work here; bench.rectification times it.
+        rectification=RectificationConfig(enabled=False),
     )
 
 

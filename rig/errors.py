@@ -16,6 +16,7 @@ __all__ = [
     "LutError",
     "PipelineError",
     "RecordingError",
+    "RectificationError",
     "ResourceExhausted",
     "RigError",
     "SimulationError",
@@ -65,6 +66,10 @@ class LutError(RigError):
 
 class PipelineError(RigError):
     """The depth pipeline was given inputs it cannot process."""
+
+
+class RectificationError(RigError):
+    """The scene does not support a rectification measurement or refinement (too few matches)."""
 
 
 class SimulationError(RigError):

@@ -12,7 +12,10 @@ temporal filter).
 
 Thread safety: ``process`` may be called from several threads (a lock serialises them);
 ``update_stereo`` may be called from any thread: it builds a new matcher and swaps it in
-atomically, and the next frame to reach :meth:`match` uses it.
+atomically, and the next frame to reach :meth:`match` uses it. ``replace_rig`` likewise builds
+the lookup tables of a corrected calibration (the online rectification refinement) on the
+calling thread and swaps them in as one :class:`VpcGeometry`: a pair is rectified and finished
+with one geometry, whichever it started with, so no frame mixes two or is dropped.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -38,9 +41,9 @@ from rig.heap import tune_allocator
 from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
 from rig.stereo import MatchedDisparity, StereoMatcher, StereoParams, UnfilteredDisparity
-from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
+from rig.vpc import RectifiedCamera, VpcConfig, VpcPair, design_vpc_pair
 
-__all__ = ["DepthFrame", "DepthPipeline", "MatchedPair", "RectifiedPair", "tune_allocator"]
+__all__ = ["DepthFrame", "DepthPipeline", "MatchedPair", "RectifiedPair", "VpcGeometry", "tune_allocator"]
 
 log = logging.getLogger(__name__)
 
@@ -72,16 +75,61 @@ class DepthFrame:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class VpcGeometry:
+    """What the calibration fixes for the depth pipeline: the rig, its VPC pair, one lookup table
+    per camera (and where it came from) and the masks the finish stage applies (None where a
+    table sees its whole VPC)."""
+
+    rig: Rig
+    pair: VpcPair
+    lut_info: dict[str, CachedLut]
+    left_mask: NDArray[np.bool_] | None
+    right_mask: NDArray[np.bool_] | None
+
+    @property
+    def luts(self) -> dict[str, Lut]:
+        return {n: info.lut for n, info in self.lut_info.items()}
+
+    @classmethod
+    def build(
+        cls,
+        rig: Rig,
+        config: VpcConfig,
+        cache: LutCache,
+        blind_band_px: int = 0,
+        camera: RectifiedCamera | None = None,
+    ) -> VpcGeometry:
+        """The pair of ``rig`` for ``config`` (a lat-lon field's default widened by the matcher's
+        ``blind_band_px`` unmatched columns), tables from (or built into) ``cache``. ``camera``
+        keeps a given rectified image grid (a corrected calibration moves the lenses' overlap,
+        and with it a lat-lon field's size, which frames in flight and the finish stage share)."""
+        pair = design_vpc_pair(rig, config, blind_band_px=blind_band_px)
+        if camera is not None:
+            pair = replace(pair, camera=camera)
+        info = {n: cache.get(rig.cameras[n], pair.R_cam_vpc[n], pair.camera) for n in (pair.left, pair.right)}
+        left, right = info[pair.left].lut, info[pair.right].lut
+        return cls(
+            rig,
+            pair,
+            info,
+            None if left.valid_fraction == 1.0 else left.valid,
+            None if right.valid_fraction == 1.0 else right.valid,
+        )
+
+
 @dataclass
 class RectifiedPair:
     """Output of :meth:`DepthPipeline.rectify`: the VPC images (H, W[, 3]) uint8, their gray
-    versions (H, W) uint8 (the same arrays for gray input) and the stage's time."""
+    versions (H, W) uint8 (the same arrays for gray input), the stage's time and the geometry
+    that made them (None: the pipeline's current one)."""
 
     left_vpc: U8
     right_vpc: U8
     left_gray: U8
     right_gray: U8
     remap_ms: float
+    geometry: VpcGeometry | None = None
 
 
 @dataclass
@@ -117,28 +165,14 @@ class DepthPipeline:
     ) -> None:
         if tune_malloc:
             tune_allocator()
-        self.rig = rig
         self.vpc_config = vpc or VpcConfig()
         params = stereo or StereoParams()
         # A lat-lon field's default leaves room for the matcher's unmatched columns.
-        self.pair: VpcPair = design_vpc_pair(rig, self.vpc_config, blind_band_px=params.blind_band_px)
-        self.baseline_m = self.pair.baseline_m
-        self.cache = LutCache(cache_dir)
-        self.names = (self.pair.left, self.pair.right)
-        self.lut_info: dict[str, CachedLut] = {}
-        for name in self.names:
-            self.lut_info[name] = self.cache.get(
-                rig.cameras[name], self.pair.R_cam_vpc[name], self.pair.camera
-            )
-        self.luts: dict[str, Lut] = {n: info.lut for n, info in self.lut_info.items()}
-        self.valid_fraction = {n: lut.valid_fraction for n, lut in self.luts.items()}
-        self._latlon = isinstance(self.pair.camera, LatLonModel)
         self._blind_band_px = params.blind_band_px
-        self._report_field()
-        left_lut, right_lut = self.luts[self.pair.left], self.luts[self.pair.right]
-        # Masks are only applied when they exclude something (the usual VPC sees all valid).
-        self._left_mask = None if left_lut.valid_fraction == 1.0 else left_lut.valid
-        self._right_mask = None if right_lut.valid_fraction == 1.0 else right_lut.valid
+        self.cache = LutCache(cache_dir)
+        self._geometry = VpcGeometry.build(rig, self.vpc_config, self.cache, self._blind_band_px)
+        self.names = (self.pair.left, self.pair.right)
+        self._report_field(self._geometry)
         self._swap_lock = threading.Lock()
         self._process_lock = threading.Lock()
         self._match_lock = threading.Lock()
@@ -149,17 +183,48 @@ class DepthPipeline:
 
     # ----- configuration -----------------------------------------------------------------------
     @property
-    def stereo(self) -> StereoParams:
-        return self._matcher.params
+    def geometry(self) -> VpcGeometry:
+        """The current geometry (take it once per pair: :meth:`replace_rig` may swap it)."""
+        return self._geometry
 
-    def _report_field(self) -> None:
+    @property
+    def rig(self) -> Rig:
+        return self._geometry.rig
+
+    @property
+    def pair(self) -> VpcPair:
+        return self._geometry.pair
+
+    @property
+    def baseline_m(self) -> float:
+        return self._geometry.pair.baseline_m
+
+    @property
+    def lut_info(self) -> dict[str, CachedLut]:
+        return self._geometry.lut_info
+
+    @property
+    def luts(self) -> dict[str, Lut]:
+        return self._geometry.luts
+
+    @property
+    def valid_fraction(self) -> dict[str, float]:
+        return {n: lut.valid_fraction for n, lut in self.luts.items()}
+
+    @property
+    def _latlon(self) -> bool:
+        return isinstance(self.pair.camera, LatLonModel)
+
+    def _report_field(self, geometry: VpcGeometry) -> None:
         """Log what the rectified view leaves out: for the pinhole pair the share of its pixels a
         lens does not see (an unusual VPC); the lat-lon field is the lenses' overlap by design,
         an explicit field wider than it is clipped (:attr:`VpcPair.field_note`)."""
-        c = self.pair.camera
-        if self.pair.field_note:
-            log.warning("%s", self.pair.field_note)
-        if self._latlon:
+        pair = geometry.pair
+        c = pair.camera
+        fractions = {n: info.lut.valid_fraction for n, info in geometry.lut_info.items()}
+        if pair.field_note:
+            log.warning("%s", pair.field_note)
+        if isinstance(c, LatLonModel):
             log.info(
                 "lat-lon pair %dx%d, %.3f px/deg, %d unmatched columns on the left; the lenses see "
                 "%s / %s of its pixels",
@@ -167,22 +232,43 @@ class DepthPipeline:
                 c.height,
                 np.radians(c.fx),
                 self._blind_band_px,
-                *(percent_valid(self.valid_fraction[n]) for n in self.names),
+                *(percent_valid(fractions[n]) for n in (pair.left, pair.right)),
             )
             return
-        for name, frac in self.valid_fraction.items():
+        v = self.vpc_config
+        for name, frac in fractions.items():
             if frac < 1.0:
                 log.warning(
                     "VPC (%dx%d, hfov %.1f°, yaw %.1f°, pitch %.1f°) leaves camera '%s''s field: "
                     "only %s of its pixels are valid",
-                    self.vpc_config.width,
-                    self.vpc_config.height,
-                    self.vpc_config.hfov_deg,
-                    self.vpc_config.yaw_deg,
-                    self.vpc_config.pitch_deg,
-                    name,
-                    percent_valid(frac),
+                    v.width, v.height, v.hfov_deg, v.yaw_deg, v.pitch_deg, name, percent_valid(frac),
+                )  # fmt: skip
+
+    def replace_rig(self, rig: Rig) -> VpcGeometry:
+        """Swap in a corrected calibration of the same cameras and baseline length (the online
+        rectification refinement): its tables are built (or read from the cache) here, then
+        swapped in at once; pairs already rectified finish with the geometry they began with.
+        ConfigError when the lenses or the baseline's length differ (depth would change scale)."""
+        old = self._geometry
+        for name in self.names:
+            if name not in rig.cameras or rig.cameras[name].to_dict() != old.rig.cameras[name].to_dict():
+                raise ConfigError(
+                    f"replace_rig: camera {name!r} is not the same lens; restart with the new calibration"
                 )
+        geometry = VpcGeometry.build(rig, self.vpc_config, self.cache, self._blind_band_px, old.pair.camera)
+        if abs(geometry.pair.baseline_m - old.pair.baseline_m) > 1e-9 * old.pair.baseline_m:
+            raise ConfigError(
+                f"replace_rig: the baseline changes from {old.pair.baseline_m:.6f} m to "
+                f"{geometry.pair.baseline_m:.6f} m; restart with the new calibration"
+            )
+        self._report_field(geometry)
+        with self._swap_lock:
+            self._geometry = geometry
+        return geometry
+
+    @property
+    def stereo(self) -> StereoParams:
+        return self._matcher.params
 
     def _check_params(self, params: StereoParams) -> None:
         width = self.pair.camera.width
@@ -222,25 +308,30 @@ class DepthPipeline:
                 f"{model.width}x{model.height}"
             )
 
-    def rectify_camera(self, name: str, image: U8) -> tuple[U8, U8]:
+    def rectify_camera(self, name: str, image: U8, geometry: VpcGeometry | None = None) -> tuple[U8, U8]:
         """One camera's VPC image (gray or BGR like ``image``) and its gray version, which is
-        the same array for gray input. Thread-safe: reads only the camera's LUT."""
+        the same array for gray input, through ``geometry``'s table (default: the current one).
+        Thread-safe: reads only the camera's LUT."""
         self._check_input(name, image)
-        vpc = self.luts[name].remap(image)
+        vpc = (geometry or self._geometry).lut_info[name].lut.remap(image)
         return vpc, _gray(vpc)
 
     def remap(self, left: U8, right: U8) -> tuple[U8, U8]:
         """The VPC pair from a fisheye pair (fixed-point bilinear remap, black outside the lens)."""
-        self._check_input(self.pair.left, left)
-        self._check_input(self.pair.right, right)
-        return self.luts[self.pair.left].remap(left), self.luts[self.pair.right].remap(right)
+        geometry = self._geometry
+        pair = geometry.pair
+        self._check_input(pair.left, left)
+        self._check_input(pair.right, right)
+        return geometry.lut_info[pair.left].lut.remap(left), geometry.lut_info[pair.right].lut.remap(right)
 
     def rectify(self, left: U8, right: U8) -> RectifiedPair:
         """Stage 1 of :meth:`process`: the VPC pair and its gray images (thread-safe)."""
         t0 = time.perf_counter()
-        left_vpc, left_gray = self.rectify_camera(self.pair.left, left)
-        right_vpc, right_gray = self.rectify_camera(self.pair.right, right)
-        return RectifiedPair(left_vpc, right_vpc, left_gray, right_gray, (time.perf_counter() - t0) * 1e3)
+        geometry = self._geometry
+        left_vpc, left_gray = self.rectify_camera(geometry.pair.left, left, geometry)
+        right_vpc, right_gray = self.rectify_camera(geometry.pair.right, right, geometry)
+        ms = (time.perf_counter() - t0) * 1e3
+        return RectifiedPair(left_vpc, right_vpc, left_gray, right_gray, ms, geometry)
 
     def match(self, rect: RectifiedPair) -> MatchedPair:
         """Stage 2 of :meth:`process`: the current matcher's OpenCV call (its parallel part; the
@@ -257,11 +348,13 @@ class DepthPipeline:
         """The matcher's disparity of ``matched`` (speckles removed), LUT masks applied."""
         raw = matched.matcher.finish(matched.unfiltered)
         disparity, valid = raw.disparity, raw.valid
-        if self._left_mask is not None:
-            valid &= self._left_mask
-        if self._right_mask is not None:
-            valid = visible_in_right(disparity, valid, self._right_mask)
-        if self._left_mask is not None or self._right_mask is not None:
+        geometry = matched.rectified.geometry or self._geometry
+        left_mask, right_mask = geometry.left_mask, geometry.right_mask
+        if left_mask is not None:
+            valid &= left_mask
+        if right_mask is not None:
+            valid = visible_in_right(disparity, valid, right_mask)
+        if left_mask is not None or right_mask is not None:
             fill_where(disparity, np.nan, ~valid)
         return MatchedDisparity(disparity, valid)
 
@@ -304,7 +397,8 @@ class DepthPipeline:
         """Points (N, 3) float32 in the rig frame and their colours (N, 3) uint8 RGB (gray
         images give gray colours), every ``stride``-th pixel of each axis. Colours come from
         ``image`` (the left VPC image, (H, W[, 3]) uint8) or else ``frame.left_vpc``."""
-        pts, idx = range_points(frame.range, self.pair.camera, self.pair.T_rig_vpc[self.pair.left], stride)
+        pair = self.pair
+        pts, idx = range_points(frame.range, pair.camera, pair.T_rig_vpc[pair.left], stride)
         img = frame.left_vpc if image is None else image
         if img.shape[:2] != frame.depth.shape:
             raise PipelineError(
@@ -323,16 +417,18 @@ class DepthPipeline:
         image border (top, right, bottom, left edges, ``samples`` points each); the lat-lon
         pair's, whose image corners no lens sees, the border of the overlap (where both lenses
         see, ``4·samples`` points). For the dashboard overlay."""
-        if camera not in self.luts:
+        geometry = self._geometry
+        if camera not in geometry.lut_info:
             raise ConfigError(f"footprint: no camera {camera!r} in the VPC pair ({', '.join(self.names)})")
         if samples < 2:
             raise ConfigError(f"footprint: samples must be >= 2, got {samples}")
-        c = self.pair.camera
-        if self._latlon:
-            both = self.luts[self.pair.left].valid & self.luts[self.pair.right].valid
-            outline = region_outline(both, 4 * samples)
+        pair = geometry.pair
+        c = pair.camera
+        if isinstance(c, LatLonModel):
+            luts = geometry.luts
+            outline = region_outline(luts[pair.left].valid & luts[pair.right].valid, 4 * samples)
         else:
             outline = image_border(c.width, c.height, samples)
         rays, _ = c.unproject(outline, in_image=False)
-        pix, ok = self.rig.cameras[camera].project(rays @ self.pair.R_cam_vpc[camera].T, in_image=False)
+        pix, ok = geometry.rig.cameras[camera].project(rays @ pair.R_cam_vpc[camera].T, in_image=False)
         return pix[ok]

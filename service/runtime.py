@@ -17,6 +17,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+from numpy.typing import NDArray
+
 from calibration import load_rig
 from calibration.rig import Rig
 from rig import priority
@@ -25,9 +28,11 @@ from rig.capture.capture import CAMERA_NAMES, StereoCapture
 from rig.capture.config import CaptureConfig, FileCameraConfig
 from rig.capture.health import CaptureHealth
 from rig.capture.recorded import open_recording
+from rig.errors import CorruptFrameError
 from rig.heap import heap_stats
 from rig.memory_budget import MIB
 from rig.pipeline import DepthPipeline
+from rig.rectification.monitor import RectificationMonitor, RectificationStatus
 from service.encoders import confidence_png, depth_png, disparity_png, npy_bytes
 from service.errors import SettingsError
 from service.host import HostInfo, host_info
@@ -91,6 +96,7 @@ class HealthReport:
     worker: WorkerStats
     host: HostInfo
     recording: RecordingStatus | None
+    rectification: RectificationStatus | None = None
 
 
 class Runtime:
@@ -137,6 +143,16 @@ class Runtime:
             on_result=self._observe,
             prefetch=self.frame_bodies,
         )
+        self.rectification: RectificationMonitor | None = None
+        if settings.rectification.enabled:
+            self.rectification = RectificationMonitor(
+                rig,
+                settings.vpc,
+                self._latest_gray_pair,
+                settings.rectification,
+                apply=self._apply_corrected_rig,
+                calibration_path=calibration_path,
+            )
         self.started_ns = time.monotonic_ns()
         self.calibration_doc: Any = None  # /calibration's response, made on first request
         # The calibration checked against the first processed pair (rig.calibration_check).
@@ -194,6 +210,8 @@ class Runtime:
         self.capture.start()
         self.worker.start()
         priority.prioritise_native_threads()  # OpenCV's pool, if the main thread started it
+        if self.rectification is not None:
+            self.rectification.start()
         log.info(
             "depth service running: VPC %s, baseline %.4f m; memory budget %.0f MiB (%s)",
             self.pipeline.pair.as_json(),
@@ -203,7 +221,10 @@ class Runtime:
         )
 
     def stop(self) -> None:
-        """Join the worker, finish a running recording, join the capture threads; idempotent."""
+        """Join the rectification monitor and the worker, finish a running recording, join the
+        capture threads; idempotent."""
+        if self.rectification is not None:
+            self.rectification.stop()
         self.worker.stop()
         self.recordings.close()
         self.capture.stop()
@@ -233,6 +254,25 @@ class Runtime:
             level = logging.ERROR if finding.severity == "error" else logging.WARNING
             log.log(level, "calibration check on pair %d: %s", result.frame.seq, finding.message)
 
+    # ----- rectification -----------------------------------------------------------------------
+    def _latest_gray_pair(self) -> tuple[NDArray[np.uint8], NDArray[np.uint8]] | None:
+        """The newest published pair's luma (decoded by the worker already), for the monitor."""
+        result = self.store.latest
+        if result is None:
+            return None
+        try:
+            return result.left.gray, result.right.gray
+        except CorruptFrameError:
+            return None
+
+    def _apply_corrected_rig(self, rig: Rig) -> None:
+        """An online correction: new lookup tables swapped into the running pipeline (built on
+        the monitor's thread, the worker keeps going), and the rig everything else reports."""
+        self.pipeline.replace_rig(rig)
+        self.rig = rig
+        self.recordings.rig = rig
+        self.calibration_doc = None
+
     # ----- state -------------------------------------------------------------------------------
     def metrics_snapshot(self) -> MetricsSnapshot:
         return MetricsSnapshot(
@@ -241,6 +281,7 @@ class Runtime:
             encodes=self.store.counter.snapshot(),
             recording=self.recordings.active,
             heap=heap_stats(),
+            rectification=None if self.rectification is None else self.rectification.status(),
             memory_budget_bytes=self.memory_budget.total,
         )
 
@@ -274,8 +315,8 @@ class Runtime:
         """``down``: no camera delivers, the worker or the capture is not running; ``degraded``:
         one camera out, a camera losing more frames than its limits allow over the rate window
         (:mod:`rig.capture.rates`), a calibration that failed its check against the first pair
-        (:mod:`rig.calibration_check`), no depth yet, depth older than ``server.stale_after_s`` or the active
-        recording has stopped writing; else ``ok``."""
+        (:mod:`rig.calibration_check`), no depth yet, depth older than ``server.stale_after_s``, the
+        active recording has stopped writing or the rectification is off its bound; else ``ok``."""
         cap = self.capture.health()
         worker = self.worker.stats()
         reasons: list[str] = []
@@ -306,6 +347,9 @@ class Runtime:
         if recording is not None and recording.error is not None:
             # The operator asked for this recording and it has stopped writing (e.g. disk full).
             reasons.append(f"recording {recording.name} stopped writing: {recording.error}")
+        rectification = None if self.rectification is None else self.rectification.status()
+        if rectification is not None and rectification.state == "degraded":
+            reasons.append(f"rectification: {rectification.reason}")
         down = not cap.running or not worker.alive or not any(c.connected for c in cap.cameras.values())
         if not cap.running:
             reasons.append("capture not running")
@@ -318,4 +362,5 @@ class Runtime:
             worker=worker,
             host=host_info(self.settings.server.recordings_dir),
             recording=recording,
+            rectification=rectification,
         )

@@ -32,6 +32,8 @@ __all__ = [
     "ProbeModel",
     "RecordingInfo",
     "RecordingStart",
+    "RectificationHealthBase",
+    "RectificationHealthModel",
     "ServerPublicModel",
     "StereoPatch",
     "VpcModel",
@@ -151,16 +153,32 @@ class PairingHealthBase(_CounterFields):
     skew_gate_ms: float = Field(description="frames further apart than this are not paired")
 
 
+class RectificationHealthBase(_CounterFields):
+    state: Literal["waiting", "ok", "not enough matches", "degraded"] = Field(
+        description="the rectification measured from the frames (docs/rectification.md): degraded "
+        "when over its bound; 'not enough matches' is no verdict"
+    )
+    reason: str | None = Field(description="why degraded, or why there is no measurement")
+    auto_refine: bool = Field(description="online corrections on (rectification.auto_refine)")
+    refinement: str | None = Field(description="what the online refinement did last, or why it did not")
+    measured_age_s: float | None = Field(description="age of the last check with enough matches")
+    check_wall_ms: float | None = Field(description="wall time of the last check (a low-priority thread)")
+
+
 # Generated from the table (rig.counters) when this module is imported, so the OpenAPI document
 # describes every figure; a test that extends the table does so before importing the service.
 if TYPE_CHECKING:
     CameraHealthModel = CameraHealthBase
     WorkerHealthModel = WorkerHealthBase
     PairingHealthModel = PairingHealthBase
+    RectificationHealthModel = RectificationHealthBase
 else:
     CameraHealthModel = _with_counters(CameraHealthBase, "camera", "One camera's state and figures.")
     WorkerHealthModel = _with_counters(WorkerHealthBase, "worker", "The depth worker's figures.")
     PairingHealthModel = _with_counters(PairingHealthBase, "pairing", "Stereo pairing's figures.")
+    RectificationHealthModel = _with_counters(
+        RectificationHealthBase, "rectification", "The rectified pair's measured vertical disparity."
+    )
 
 
 class CounterModel(BaseModel):
@@ -227,6 +245,9 @@ class HealthModel(BaseModel):
     pairing: PairingHealthModel
     host: HostModel
     recording: RecordingInfo | None
+    rectification: RectificationHealthModel | None = Field(
+        None, description="null while rectification.enabled is false"
+    )
 
 
 class VpcModel(BaseModel):

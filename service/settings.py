@@ -15,6 +15,7 @@ calibration: {path: rig.yaml}    # rig.yaml or Kalibr camchain.yaml
 vpc: {projection: latlon, px_per_deg: 5.585}  # or {projection: pinhole, width: 640, height: 480}
 stereo: {disparity_range: 96}    # rig.stereo.StereoParams
 ros: {namespace: /rig}           # rig.ros.RosNames: topic names and frame ids (Foxglove, MCAP)
+rectification: {check_interval_s: 10, auto_refine: false}   # rig.rectification.RectificationConfig
 cache_dir: null                  # LUT cache (default: $RIG_CACHE_DIR or the user cache dir)
 ```
 
@@ -47,6 +48,7 @@ from pydantic_core import ErrorDetails
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
 from rig.capture.config import CAMERA_KINDS, CaptureConfig
+from rig.rectification.monitor import RectificationConfig
 from rig.ros.names import RosNames
 from rig.settings_model import SettingsModel, describe_field_errors, field_errors
 from rig.stereo import StereoParams
@@ -278,6 +280,9 @@ class Settings(BaseSettings):
     stereo: StereoParams = Field(default_factory=StereoParams)
     ros: RosNames = Field(default_factory=RosNames)
     cache_dir: Path | None = Field(None, description="LUT cache directory (env RIG_CACHE_DIR)")
+    rectification: RectificationConfig = Field(
+        default_factory=RectificationConfig, description="live rectification measure and online refinement"
+    )
 
     @classmethod
     def settings_customise_sources(
@@ -298,7 +303,12 @@ class Settings(BaseSettings):
 
 
 # ----- loading ---------------------------------------------------------------------------------
-_PATH_FIELDS = (("server", "recordings_dir"), ("calibration", "path"), ("cache_dir",))
+_PATH_FIELDS = (
+    ("server", "recordings_dir"),
+    ("calibration", "path"),
+    ("cache_dir",),
+    ("rectification", "persist_path"),
+)
 
 
 def _resolve_relative(doc: dict[str, Any], base: Path) -> dict[str, Any]:

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from rig.capture.frame import Frame, FramePair
 from rig.counters import Counts, Tally, complete
 from rig.errors import CorruptFrameError, RigError
-from rig.pipeline import DepthFrame, DepthPipeline, MatchedPair, RectifiedPair
+from rig.pipeline import DepthFrame, DepthPipeline, MatchedPair, RectifiedPair, VpcGeometry
 from rig.priority import apply_to_current_thread
 from service.store import PublishedResult, ResultStore
 
@@ -295,19 +295,28 @@ class DepthWorker:
             return pipe.rectify(left, right), decode_ms
         # Each frame decoded (unless the capture did) and remapped on its own thread: JPEG
         # decoding is single-threaded, and two remaps at once beat one parallelised after another.
+        # One geometry for both frames: a corrected calibration swapped in meanwhile
+        # (DepthPipeline.replace_rig) starts with the next pair.
+        geometry = pipe.geometry
         future: Future[tuple[NDArray[Any], NDArray[Any], float, float]] = self._decoder.submit(
-            self._decode_rectify, left_name, pair.left
+            self._decode_rectify, left_name, pair.left, geometry
         )
-        right_vpc, right_gray, right_decode, right_remap = self._decode_rectify(right_name, pair.right)
+        right_vpc, right_gray, right_decode, right_remap = self._decode_rectify(
+            right_name, pair.right, geometry
+        )
         left_vpc, left_gray, left_decode, left_remap = future.result()
-        rect = RectifiedPair(left_vpc, right_vpc, left_gray, right_gray, max(left_remap, right_remap))
+        rect = RectifiedPair(
+            left_vpc, right_vpc, left_gray, right_gray, max(left_remap, right_remap), geometry
+        )
         return rect, max(left_decode, right_decode)
 
-    def _decode_rectify(self, name: str, frame: Frame) -> tuple[NDArray[Any], NDArray[Any], float, float]:
+    def _decode_rectify(
+        self, name: str, frame: Frame, geometry: VpcGeometry
+    ) -> tuple[NDArray[Any], NDArray[Any], float, float]:
         t0 = time.perf_counter()
         image = self._luma(frame)
         t1 = time.perf_counter()
-        vpc, gray = self.pipeline.rectify_camera(name, image)
+        vpc, gray = self.pipeline.rectify_camera(name, image, geometry)
         t2 = time.perf_counter()
         return vpc, gray, (t1 - t0) * 1e3, (t2 - t1) * 1e3
 

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rig.depth import depth_to_png_mm, pack_xyzrgb
-from rig.pipeline import DepthFrame, DepthPipeline
+from rig.pipeline import DepthFrame, DepthPipeline, VpcGeometry
 from rig.recording import StoredFrame
 from rig.ros.camera_info import CameraInfo, raw_camera_info, rectified_camera_info
 from rig.ros.images import RawPixels, raw_pixels
@@ -114,12 +114,36 @@ class MessageBuilder:
     rectified_images: bool = True
 
     def __post_init__(self) -> None:
-        pair = self.pipeline.pair
-        rig = self.pipeline.rig
+        self._built_for: VpcGeometry | None = None
+        self._refresh()
+
+    def _refresh(self) -> None:
+        """Camera infos and transforms of the pipeline's current geometry: an online
+        rectification correction (:meth:`DepthPipeline.replace_rig`) changes them."""
+        geometry = self.pipeline.geometry
+        if geometry is self._built_for:
+            return
+        pair, rig = geometry.pair, geometry.rig
         self.cameras = (pair.left, pair.right)
-        self.raw_infos = {c: raw_camera_info(rig.cameras[c], pair, c, self.names) for c in self.cameras}
-        self.rect_infos = {c: rectified_camera_info(pair, c, self.names) for c in self.cameras}
-        self.transforms = static_transforms(rig, pair, self.names)
+        self._raw_infos = {c: raw_camera_info(rig.cameras[c], pair, c, self.names) for c in self.cameras}
+        self._rect_infos = {c: rectified_camera_info(pair, c, self.names) for c in self.cameras}
+        self._transforms = static_transforms(rig, pair, self.names)
+        self._built_for = geometry
+
+    @property
+    def raw_infos(self) -> dict[str, CameraInfo]:
+        self._refresh()
+        return self._raw_infos
+
+    @property
+    def rect_infos(self) -> dict[str, CameraInfo]:
+        self._refresh()
+        return self._rect_infos
+
+    @property
+    def transforms(self) -> list[StaticTransform]:
+        self._refresh()
+        return self._transforms
 
     # ----- static ------------------------------------------------------------------------------
     def static(self, stamp_ns: int) -> list[Message]:

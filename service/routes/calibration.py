@@ -50,7 +50,7 @@ def calibration_model(runtime: Runtime) -> CalibrationModel:
 
 @router.get("/calibration", response_model=CalibrationModel, summary="Rig and VPC calibration")
 def get_calibration(runtime: RuntimeDep) -> CalibrationModel:
-    # Fixed for the life of the runtime (the VPC does not change): computed once.
+    # Computed once, and again after an online rectification correction (Runtime drops it).
     cached: CalibrationModel | None = runtime.calibration_doc
     if cached is None:
         cached = calibration_model(runtime)

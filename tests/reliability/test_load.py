@@ -5,7 +5,8 @@ the memory budget it exports (``rig_memory_budget_bytes``).
 
 Memory bound: the service keeps the latest result and its encoded bodies (a few hundred kB at
 320x240), per-connection buffers and the allocator's working set; after a warm-up with every
-client connected once, that is its steady state. 50 MB over 30 s is several times what a
+client connected once and the rectification monitor's first check done (it builds its epipolar
+views once; docs/rectification.md), that is its steady state. 50 MB over 30 s is several times what a
 steady state moves by (allocator high-water marks) and far below what a per-request leak of
 even 1 kB would add at the request rates measured here (tens of thousands of requests).
 """
@@ -22,6 +23,7 @@ import pytest
 
 from tests.helpers.command import Served, clean_env, start_serve, wait_healthy
 from tests.helpers.service import write_serve_config
+from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
@@ -112,6 +114,11 @@ async def run_clients(base: str, seconds: float) -> Tally:
     return tally
 
 
+def monitor_checked(base: str) -> bool:
+    rect = httpx.get(base + "/health", timeout=10).json()["rectification"]
+    return rect is None or rect["checks"] >= 1
+
+
 @pytest.fixture
 def served(jpeg_recording: Path, lut_cache: Path, tmp_path: Path) -> Served:
     # The supervisor as deployed (defaults), not the tests' fast-reacting one.
@@ -133,6 +140,7 @@ def test_32_clients_for_30_s(served: Served) -> None:
     try:
         warm = asyncio.run(run_clients(base, WARMUP_S))
         assert not warm.errors, warm.errors[:5]
+        wait_for(lambda: monitor_checked(base), 60, "the rectification monitor's first check", poll_s=0.5)
         before_mb = rss_mb(pid)
         worker_before = httpx.get(base + "/health", timeout=10).json()["worker"]["frames_processed"]
         tally = asyncio.run(run_clients(base, DURATION_S))

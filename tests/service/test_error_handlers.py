@@ -53,6 +53,7 @@ EXPECTED: dict[str, int] = {
     "PipelineError": 500,
     "SimulationError": 500,
     "EvaluationError": 500,
+    "RectificationError": 500,
     "CorruptFrameError": 500,
     "ResourceExhausted": 500,
     "EndOfStream": 500,
