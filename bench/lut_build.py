@@ -1,7 +1,7 @@
 """LUT build per camera model against ``cv2.fisheye.initUndistortRectifyMap`` (docs/performance.md,
 "LUT build per model").
 
-Grid: the default VPC (640×480, 90° horizontal FOV) of the prototype rig's left camera
+Grid: the pinhole VPC (640×480, 90° horizontal FOV) of the prototype rig's left camera
 (1280×960 Kannala-Brandt 190°, rotated 45° off the lens axis, as the service builds it). Every
 other model is the prototype lens converted to that model (least squares over the lens's field,
 :func:`calibration.initial_guess.convert_model`); the pinhole (which cannot see a fisheye's field) is fitted
@@ -40,7 +40,7 @@ from rich.table import Table
 
 from bench.common import add_common_arguments, console, finish, machine_info, median, print_machine
 from calibration.initial_guess import convert_model, seed_model
-from calibration.models import MODELS, CameraModel, KannalaBrandtModel
+from calibration.models import MODELS, CameraModel, KannalaBrandtModel, PinholeModel
 from rig.lut import build_vpc_lut
 from rig.lut_cache import LutCache, lut_key
 from rig.pipeline import tune_allocator
@@ -93,13 +93,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     info = machine_info()
     print_machine(info, "VPC LUT build per model vs cv2.fisheye.initUndistortRectifyMap")
     preset = get_preset("prototype")
-    vpc_cfg = VpcConfig(width=160, height=120) if args.quick else VpcConfig()
+    vpc_cfg = VpcConfig(width=160, height=120) if args.quick else VpcConfig(projection="pinhole")
     pair = design_vpc_pair(preset.rig, vpc_cfg)
     lens = preset.rig.cameras[pair.left]
     if not isinstance(lens, KannalaBrandtModel):
         raise SystemExit("the prototype preset's lens is expected to be Kannala-Brandt")
     R = pair.R_cam_vpc[pair.left]
     vpc = pair.camera
+    if not isinstance(vpc, PinholeModel):
+        raise SystemExit("OpenCV's fisheye map is a pinhole view's: the benchmark needs the pinhole pair")
     K = np.array([[lens.fx, 0.0, lens.cx], [0.0, lens.fy, lens.cy], [0.0, 0.0, 1.0]])
     D = np.array(lens.k, dtype=np.float64)
     size = (vpc.width, vpc.height)

@@ -6,7 +6,8 @@ Input: a recording of 1280×960 MJPEG fisheye frames (:mod:`bench.recordings`, b
 calls the depth needs: ``cv2.imdecode`` ×2 to gray (what :attr:`rig.capture.frame.Frame.gray`,
 the worker's decode, does: depth needs only luma), ``cv2.remap`` ×2 with the pipeline's own
 fixed-point maps, and ``compute`` of a ``cv2.StereoSGBM`` built with the same parameters
-(checked to give the identical disparity as the pipeline's matcher). Per-frame time = one
+(checked to give the identical disparity as the pipeline's matcher), run a second time on the
+mirrored pair when the left-right check is on (``lr_check``, a default). Per-frame time = one
 iteration; throughput = frames / time.
 
 **Ours** — the service itself minus HTTP: :meth:`service.runtime.Runtime.build` on settings whose
@@ -49,6 +50,7 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
+import yaml
 from numpy.typing import NDArray
 from rich.table import Table
 
@@ -67,6 +69,7 @@ from bench.recordings import MjpegSpec, ensure_mjpeg_recording, load_jpeg_pairs
 from calibration import load_rig
 from rig.capture.config import CaptureConfig, FileCameraConfig, PairingConfig, SupervisorConfig
 from rig.pipeline import DepthPipeline
+from rig.rectification import RectificationConfig
 from rig.stereo import StereoMatcher, StereoParams, create_opencv_matcher
 from rig.vpc import VpcConfig
 from service.settings import CalibrationSettings, ServerSettings, Settings
@@ -126,12 +129,16 @@ def run_floor(
     decode: Any = cv2.imdecode  # typed loosely: the floor is the bare calls, no checks
     remap: Any = cv2.remap
 
+    mirrored = pipeline.stereo.lr_check
+
     def step(bl: Any, br: Any) -> None:
         left = decode(bl, flags)
         right = decode(br, flags)
         lv = remap(left, lm1, lm2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         rv = remap(right, rm1, rm2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         sgbm.compute(lv, rv)
+        if mirrored:  # the left-right check's second run, on the mirrored pair
+            sgbm.compute(np.ascontiguousarray(rv[:, ::-1]), np.ascontiguousarray(lv[:, ::-1]))
 
     return _timed_loop(pairs, frames, step)
 
@@ -204,13 +211,43 @@ def bench_settings(
         vpc=vpc,
         stereo=stereo,
         cache_dir=lut_dir,
+        # The rectification monitor's check (every 10 s, low priority) would also run while the
+        # floor has the machine: both sides do the same work here; bench.rectification times it.
+        rectification=RectificationConfig(enabled=False),
     )
 
 
-def _configs(quick: bool) -> list[tuple[int, int, int]]:
+def _stereo_overrides(text: str | None) -> dict[str, Any]:
+    """``KEY=VALUE,...`` → a mapping (values read as YAML scalars: false, 20, 0.5)."""
+    out: dict[str, Any] = {}
+    for item in (text or "").split(","):
+        if item.strip():
+            key, _, value = item.partition("=")
+            out[key.strip()] = yaml.safe_load(value)
+    return out
+
+
+def _configs(quick: bool) -> list[tuple[VpcConfig, int]]:
     if quick:
-        return [(160, 120, 32)]
-    return [(w, h, d) for (w, h) in FULL_SIZES for d in FULL_DISPARITIES]
+        return [(VpcConfig(width=160, height=120), 32)]
+    return [(VpcConfig(width=w, height=h), d) for (w, h) in FULL_SIZES for d in FULL_DISPARITIES]
+
+
+def parse_config(item: str) -> tuple[VpcConfig, int]:
+    """``640x480/128`` (a pinhole pair), ``latlon/128`` (the lat-lon pair at its default
+    resolution) or ``latlon@4.5/128`` (at 4.5 px/deg): the rectified pair and its disparities."""
+    view, disp = item.split("/")
+    view = view.strip().lower()
+    if view.startswith("latlon"):
+        ppd = float(view.split("@", 1)[1]) if "@" in view else None
+        return VpcConfig(projection="latlon", px_per_deg=ppd), int(disp)
+    w, h = (int(v) for v in view.split("x"))
+    return VpcConfig(width=w, height=h), int(disp)
+
+
+def _label(row: dict[str, Any]) -> str:
+    w, h = row["vpc"]
+    return f"{w}×{h}" + (f" lat-lon {row['px_per_deg']:.2f} px/deg" if row["projection"] == "latlon" else "")
 
 
 def _quartiles(values: list[float]) -> tuple[float, float]:
@@ -253,8 +290,7 @@ def alternate_windows(
 
 
 def measure_config(
-    w: int,
-    h: int,
+    vpc: VpcConfig,
     disp: int,
     *,
     stages: str,
@@ -265,11 +301,11 @@ def measure_config(
     tmp: Path,
     m: Measure,
     cpus: int,
+    overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """One row of the table: throughput (cameras unpaced) and latency (cameras paced) each in
     alternating windows with the floor, then the same-work loop ``m.repeat`` times."""
-    vpc = VpcConfig(width=w, height=h)
-    stereo = StereoParams(disparity_range=disp, **STAGES[stages])
+    stereo = StereoParams(**{"disparity_range": disp, **STAGES[stages], **(overrides or {})})
     pipeline = DepthPipeline(rig, vpc, stereo, cache_dir=tmp / "lut")
     sgbm = floor_matcher(stereo)
     check_floor_matcher(pairs, pipeline, sgbm)
@@ -299,8 +335,11 @@ def measure_config(
     latencies = [x for _, o in paced for x in o.latency_ms]
     stage_keys = paced[0][1].stage_ms if paced else {}
     return {
-        "vpc": [w, h],
+        "vpc": [pipeline.pair.camera.width, pipeline.pair.camera.height],
+        "projection": pipeline.pair.projection,
+        "px_per_deg": math.radians(pipeline.pair.fx),
         "disparities": disp,
+        "stereo": stereo.model_dump(),
         "floor_ms_per_frame": median(median(f.frame_ms) for f, _ in windows),
         "floor_fps": median(f.fps for f, _ in windows),
         "same_work_ms_per_frame": same_ms,
@@ -336,7 +375,6 @@ def measure_config(
 
 
 def _table_row(row: dict[str, Any]) -> list[str]:
-    w, h = row["vpc"]
     q1, q3 = row["throughput_ratio_iqr"]
     l1, l3 = row["latency_ratio_iqr"]
     lat = row["ours_latency_ms"]
@@ -344,7 +382,7 @@ def _table_row(row: dict[str, Any]) -> list[str]:
         f"{k[:3]} {v:.1f}" for k, v in row["ours_stage_ms"].items() if k != "total" and not math.isnan(v)
     )
     return [
-        f"{w}×{h}",
+        _label(row),
         str(row["disparities"]),
         f"{row['floor_ms_per_frame']:.1f}",
         f"{row['floor_fps']:.1f}",
@@ -403,7 +441,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "with only the floor's work (plain SGBM: the pipelining and glue overhead alone)",
     )
     parser.add_argument(
-        "--sizes", default=None, help="VPC sizes and disparities, e.g. 640x480/128,320x240/64"
+        "--sizes",
+        default=None,
+        help="rectified pairs and disparities, e.g. 640x480/128,320x240/64 (pinhole pairs), latlon/128 "
+        "(the lat-lon pair at its default resolution), latlon@4.5/128",
+    )
+    parser.add_argument(
+        "--stereo",
+        default=None,
+        metavar="KEY=VALUE,...",
+        help="stereo parameters over the stages' (YAML values), e.g. lr_check=false: the defaults before",
     )
     args = parser.parse_args(argv)
     quick = args.quick
@@ -426,11 +473,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rig = load_rig(recording / "calibration.yaml")
     configs = _configs(quick)
     if args.sizes:
-        configs = []
-        for item in args.sizes.split(","):
-            size, disp = item.split("/")
-            w, h = (int(v) for v in size.lower().split("x"))
-            configs.append((w, h, int(disp)))
+        configs = [parse_config(item) for item in args.sizes.split(",")]
     kind = "colour 4:2:2" if spec.color else "gray"
     console.print(
         f"input: {recording} ({len(pairs)} pairs, {kind} JPEG q{spec.quality}, "
@@ -438,15 +481,17 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         f"{args.decode}; throughput and latency: {m.windows} alternating window pairs of {m.window_s:g} s "
         f"each; same work: {m.repeat} run(s) of {m.seconds:g} s"
     )
-    table = Table(title=f"per pair: floor (bare OpenCV) vs ours (service worker, {args.stages} stages)")
+    extra = f", {args.stereo}" if args.stereo else ""
+    table = Table(
+        title=f"per pair: floor (bare OpenCV) vs ours (service worker, {args.stages} stages{extra})"
+    )
     for col in TABLE_COLUMNS:
         table.add_column(col, justify="right")
     rows = []
     with tempfile.TemporaryDirectory(prefix="rig-bench-worker-") as tmp_name:
-        for w, h, disp in configs:
+        for vpc, disp in configs:
             row = measure_config(
-                w,
-                h,
+                vpc,
                 disp,
                 stages=args.stages,
                 decode=DECODE_MODES[args.decode],
@@ -456,12 +501,15 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 tmp=Path(tmp_name),
                 m=m,
                 cpus=info["cpus_usable"],
+                overrides=_stereo_overrides(args.stereo),
             )
             rows.append(row)
             table.add_row(*_table_row(row))
             if row["worker_errors"]:
                 failed = row["worker_errors"]
-                console.print(f"[red]warning:[/red] the worker reported {failed} failed frame(s) at {w}×{h}")
+                console.print(
+                    f"[red]warning:[/red] the worker reported {failed} failed frame(s) at {_label(row)}"
+                )
     console.print(
         "throughput × = ours fps / floor fps per window pair, median (interquartile range) (target ≥ 1.0, "
         "aim 1.3), and ours' median fps / the same-work loop's; CPU ceiling × = the fps ours' CPU per "

@@ -1,4 +1,5 @@
-"""`rig calibrate intrinsics|stereo`: chessboard images -> calibration file (see docs/calibration.md).
+"""`rig calibrate intrinsics|stereo`: chessboard images -> calibration file (see docs/calibration.md);
+`rig calibrate refine` (:mod:`cli.calibrate_refine`, docs/rectification.md).
 
 ``intrinsics`` writes a rig.yaml with one camera (identity pose); ``stereo`` writes the rig.yaml
 of a pair. Both detect the board in every image (progress bar), list the images they skip and
@@ -29,6 +30,7 @@ from calibration.models import MODELS, CameraModel
 from calibration.rig import Rig
 from calibration.stereo_calibrate import StereoCalibration, calibrate_stereo
 from calibration.targets import BoardSpec, Detection, detect_chessboard_files, parse_board
+from cli.calibrate_refine import register_refine
 from cli.console import console, err_console, progress_bar, warn
 from cli.errors import fail
 from rig.calibration_report import ResidualPanel, save_residual_plot
@@ -210,7 +212,10 @@ RefineOpt = Annotated[
 
 
 def register(app: typer.Typer) -> None:
-    cal = typer.Typer(help="Calibrate cameras and the rig from chessboard images.", no_args_is_help=True)
+    cal = typer.Typer(
+        help="Calibrate cameras and the rig from chessboard images; refine the pair from a scene.",
+        no_args_is_help=True,
+    )
 
     @cal.command("intrinsics")
     def intrinsics(
@@ -366,6 +371,7 @@ def register(app: typer.Typer) -> None:
             warn(result.message)
         console.print(f"wrote {out} and {picture}", highlight=False)
 
+    register_refine(cal)
     app.add_typer(cal, name="calibrate")
 
 

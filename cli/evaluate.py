@@ -4,7 +4,11 @@
 compares each model's VPC image with the Reference camera's, measures the depth error of a
 textured plane at 2…20 baselines through every model's pipeline, compares the matchers, and
 writes results.json, CSV tables, PNG figures and report.md into DIR (see rig.evaluate.report).
-``--quick`` runs a reduced version (half-size images, 3 distances, 2 textures) in under a minute.
+``--quick`` runs a reduced version (half-size images, 3 distances, 2 textures).
+
+``rig evaluate --study wide-pair --preset prototype --out DIR`` measures instead how much of what
+both lenses see the pinhole and lat-lon pairs turn into range, and how accurate (see
+rig.evaluate.wide_pair and docs/wide-pair.md).
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ from rig.evaluate import DEFAULT_MODELS, EvaluationRun, make_config, run_evaluat
 from rig.evaluate.agreement import mean_ratio
 from rig.evaluate.config import FULL_DISTANCES, QUICK_DISTANCES
 from rig.evaluate.depth_quality import REFERENCE, THEORY
+from rig.evaluate.wide_pair import WideStudy, make_wide_config, run_wide_study, study_steps
+from rig.evaluate.wide_pair_report import write_wide_outputs
 from rig.sim.presets import PRESETS
 
 __all__ = ["register"]
@@ -113,21 +119,41 @@ def register(app: typer.Typer) -> None:
             typer.Option(metavar="N", help="Textures averaged per distance.", show_default="3; quick 2"),
         ] = None,
         quick: Annotated[
-            bool, typer.Option("--quick", help="Reduced run (under a minute): half-size images.")
+            bool, typer.Option("--quick", help="Reduced run: half-size images, 3 distances, 2 textures.")
         ] = False,
         seed: Annotated[
             int, typer.Option(metavar="SEED", help="Seed of board poses, textures, noise and point sampling.")
         ] = 0,
         force: Annotated[bool, typer.Option("--force", help="Write into a non-empty --out.")] = False,
+        study: Annotated[
+            str,
+            typer.Option(
+                metavar="STUDY",
+                help="paper (the paper's analysis) or wide-pair (coverage and range error of the "
+                "pinhole and lat-lon pairs over the lenses' overlap, in the room).",
+            ),
+        ] = "paper",
     ) -> None:
-        """Reproduce the paper's evaluation on a simulated rig.
+        """Reproduce the paper's evaluation on a simulated rig (or the wide-pair study).
 
         Calibration of every model, distortion removal, depth error against distance, matcher
         comparison: results.json, CSV tables, figures and report.md in --out.
         """
         if preset not in PRESETS:
             fail(f"--preset must be one of {', '.join(PRESETS)}, got {preset!r}")
+        if study not in ("paper", "wide-pair"):
+            fail(f"--study must be paper or wide-pair, got {study!r}")
         _check_out(out, force)
+        if study == "wide-pair":
+            given = [
+                o
+                for o, v in (("--models", models), ("--distances", distances), ("--textures", textures))
+                if v
+            ]
+            if given:
+                fail(f"{', '.join(given)} apply to --study paper, not wide-pair")
+            _wide_pair(out, preset, quick, seed)
+            return
         config = make_config(
             preset,
             quick=quick,
@@ -145,3 +171,42 @@ def register(app: typer.Typer) -> None:
         console.print(_summary(run))
         total = sum(run.timings_s.values())
         console.print(f"wrote {report} and the results next to it ({total:.0f} s)", highlight=False)
+
+
+def _wide_pair(out: Path, preset: str, quick: bool, seed: int) -> None:
+    config = make_wide_config(preset, quick=quick, seed=seed)
+    logging.getLogger("rig.pipeline").setLevel(logging.ERROR)  # each variant's notes: in the report
+    with progress_bar() as progress:
+        task = progress.add_task("wide pair", total=study_steps(config))
+        result = run_wide_study(config, lambda what: progress.update(task, advance=1, description=what))
+    report = write_wide_outputs(result, out)
+    console.print(_wide_summary(result))
+    console.print(
+        f"wrote {report} and the results next to it ({result.timings_s['total']:.0f} s)", highlight=False
+    )
+
+
+def _wide_summary(result: WideStudy) -> Table:
+    table = Table(
+        title=f"rig evaluate --study wide-pair {result.config.preset}: overlap {result.overlap_sr:.2f} sr"
+    )
+    for col in (
+        "rectified pair",
+        "pixels",
+        "valid sr",
+        "within 3 % sr (of overlap)",
+        "median error",
+        "shared rays",
+    ):
+        table.add_column(col, justify="left" if col == "rectified pair" else "right")
+    for r in result.results:
+        shared = "–" if r.shared is None else f"{100 * r.shared[0]:.2f} % / {100 * r.shared[1]:.2f} %"
+        table.add_row(
+            r.variant.label,
+            str(r.pixels),
+            f"{r.valid_sr:.2f}",
+            f"{r.within_sr[0.03]:.2f} ({100 * r.within_sr[0.03] / result.overlap_sr:.0f} %)",
+            f"{100 * r.median_error:.2f} %",
+            shared,
+        )
+    return table

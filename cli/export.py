@@ -22,7 +22,10 @@ from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption,
 from cli.vpc_options import (
     CacheDirOption,
     CalibrationOption,
+    FieldOption,
     PitchOption,
+    ProjectionOption,
+    PxPerDegOption,
     VpcHfovOption,
     VpcSizeOption,
     YawOption,
@@ -66,10 +69,13 @@ def register(app: typer.Typer) -> None:
         left_topic: LeftTopicOption = None,
         right_topic: RightTopicOption = None,
         max_skew_ms: MaxSkewOption = None,
-        vpc_hfov: VpcHfovOption = 90.0,
-        vpc_size: VpcSizeOption = "640x480",
-        yaw: YawOption = 0.0,
-        pitch: PitchOption = 0.0,
+        projection: ProjectionOption = None,
+        vpc_hfov: VpcHfovOption = None,
+        vpc_size: VpcSizeOption = None,
+        px_per_deg: PxPerDegOption = None,
+        field: FieldOption = None,
+        yaw: YawOption = None,
+        pitch: PitchOption = None,
         stereo: StereoOption = None,
         depth_encoding: Annotated[
             DepthEncoding,
@@ -104,7 +110,9 @@ def register(app: typer.Typer) -> None:
         """Depth and everything around it for every pair of REC, as a ROS 2 MCAP file."""
         names = _names(namespace, frame_prefix, depth_encoding)
         rec = open_source(recording, left_topic, right_topic, max_skew_ms)
-        config = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
+        config = make_vpc_config(
+            vpc_size, vpc_hfov, yaw, pitch, projection=projection, px_per_deg=px_per_deg, field=field
+        )
         pipeline, cal_path = build_pipeline(calibration, rec.calibration_path, config, stereo, cache_dir)
         with progress_bar(TimeRemainingColumn()) as progress:
             task = progress.add_task("export", total=len(rec.pairs))

@@ -12,7 +12,10 @@ from cli.console import console, warn
 from cli.vpc_options import (
     CacheDirOption,
     CalibrationOption,
+    FieldOption,
     PitchOption,
+    ProjectionOption,
+    PxPerDegOption,
     VpcHfovOption,
     VpcSizeOption,
     YawOption,
@@ -22,6 +25,7 @@ from cli.vpc_options import (
 from rig.errors import ConfigError
 from rig.lut import percent_valid
 from rig.lut_cache import LutCache, lut_key
+from rig.stereo import StereoParams
 from rig.vpc import design_vpc_pair
 
 __all__ = ["register"]
@@ -43,32 +47,44 @@ def register(app: typer.Typer) -> None:
     @lut.command("build")
     def build(
         calibration: CalibrationOption = None,
-        vpc_hfov: VpcHfovOption = 90.0,
-        vpc_size: VpcSizeOption = "640x480",
-        yaw: YawOption = 0.0,
-        pitch: PitchOption = 0.0,
+        projection: ProjectionOption = None,
+        vpc_hfov: VpcHfovOption = None,
+        vpc_size: VpcSizeOption = None,
+        px_per_deg: PxPerDegOption = None,
+        field: FieldOption = None,
+        yaw: YawOption = None,
+        pitch: PitchOption = None,
         cache_dir: CacheDirOption = None,
         rebuild: Annotated[bool, typer.Option("--rebuild", help="Rebuild even if cached.")] = False,
     ) -> None:
-        """Build (or find) the LUT of each camera for the VPC pair.
+        """Build (or find) the LUT of each camera for the rectified pair.
 
-        Prints each table's path, key, valid fraction and build time.
+        Prints each table's path, key, valid fraction and build time. A lat-lon field leaves room
+        for the default stereo settings' unmatched columns, as the service and rig process do.
         """
         if calibration is None:
             raise ConfigError("rig lut build: --calibration FILE is required")
         rig, _ = load_calibration(calibration)
-        config = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
-        pair = design_vpc_pair(rig, config)
-        cache = LutCache(cache_dir)
-        table = Table(
-            title=f"VPC {config.width}x{config.height}, hfov {config.hfov_deg:g}°, B {pair.baseline_m:.4f} m"
+        config = make_vpc_config(
+            vpc_size, vpc_hfov, yaw, pitch, projection=projection, px_per_deg=px_per_deg, field=field
         )
+        pair = design_vpc_pair(rig, config, blind_band_px=StereoParams().blind_band_px)
+        if pair.field_note:
+            warn(pair.field_note)
+        cache = LutCache(cache_dir)
+        cam = pair.camera
+        view = (
+            f"VPC {cam.width}x{cam.height}, hfov {config.hfov_deg:g}°"
+            if pair.projection == "pinhole"
+            else f"lat-lon {cam.width}x{cam.height}, {config.resolution_px_per_deg:.3f} px/deg"
+        )
+        table = Table(title=f"{view}, B {pair.baseline_m:.4f} m")
         for col in ("camera", "path", "key", "valid", "build ms", "source"):
             table.add_column(col)
         for name in (pair.left, pair.right):
             model, R = rig.cameras[name], pair.R_cam_vpc[name]
             if rebuild:
-                cache.path(lut_key(model, R, pair.camera)).unlink(missing_ok=True)
+                cache.discard(lut_key(model, R, pair.camera))
             t0 = time.perf_counter()
             got = cache.get(model, R, pair.camera)
             ms = got.build_ms if not got.hit else (time.perf_counter() - t0) * 1e3
@@ -81,7 +97,7 @@ def register(app: typer.Typer) -> None:
                 f"{ms:.1f}",
                 "cache (load)" if got.hit else "built",
             )
-            if frac < 1.0:
+            if frac < 1.0 and pair.projection == "pinhole":  # a lat-lon field spans the overlap by design
                 valid = percent_valid(frac)
                 warn(f"the VPC leaves camera '{name}''s field: only {valid} of its pixels are valid")
         console.print(table)

@@ -30,6 +30,7 @@ COMMANDS = {
     "process": "cli.process",
     "record": "cli.record",
     "export": "cli.export",
+    "check": "cli.check",
     "devices": "cli.devices",
     "calibrate": "cli.calibrate",
     "lut": "cli.lut",

@@ -1,12 +1,18 @@
-"""`rig process REC... --out DIR`: depth for every pair of one or many recordings, headless, on
-the staged pipeline the service runs, here or on a Dask cluster (see docs/offline.md).
+"""`rig process REC... --out DIR`: range (and the pinhole pair's depth) for every pair of one or
+many recordings, headless, on the staged pipeline the service runs, here or on a Dask cluster (see
+docs/offline.md); the rectified projections: docs/wide-pair.md.
 
 RECORDING is a recording directory (see docs/cameras.md) or a ROS bag with ``--left-topic`` and
 ``--right-topic`` (see docs/ros.md); several may be given, or a quoted glob (``'recs/*'``). One
 recording's outputs go to DIR, those of several (or of a glob) to ``DIR/NAME/`` (NAME = the
-recording folder's name), each in the layout of :mod:`rig.outputs`: ``depth/``, ``left/``,
-``right/`` PNGs, ``vpc.json`` and ``run.json``; with ``--ply`` ``cloud/``, with ``--preview``
-``preview/``.
+recording folder's name), each in the layout of :mod:`rig.outputs`: ``range/`` (and for the
+pinhole pair ``depth/``), ``left/``, ``right/`` PNGs, ``vpc.json`` and ``run.json``; with
+``--ply`` ``cloud/``, with ``--preview`` ``preview/``.
+
+Before any pair is processed, each calibration is checked against its recording's first readable
+pair (:mod:`rig.calibration_check`): frames of another size, or cameras that look swapped, stop the
+command with one line naming the likely cause; a poor fit (rows apart, little overlap or depth)
+is a warning, said once.
 
 ``--scheduler``: ``none`` (this process, one recording after another; the default for one
 recording), ``local`` (a Dask LocalCluster on this machine; the default for several) or a Dask
@@ -24,9 +30,11 @@ from __future__ import annotations
 import glob
 import hashlib
 import json
+import logging
+import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
@@ -36,7 +44,10 @@ from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption
 from cli.vpc_options import (
     CacheDirOption,
     CalibrationOption,
+    FieldOption,
     PitchOption,
+    ProjectionOption,
+    PxPerDegOption,
     VpcHfovOption,
     VpcSizeOption,
     YawOption,
@@ -46,8 +57,12 @@ from cli.vpc_options import (
 from rig.errors import ConfigError
 
 if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
+    from rig.capture.recorded import RecordedPairs
     from rig.pipeline import DepthPipeline
     from rig.process import PairFailure, ProcessOptions, RecordingJob, RecordingSource, RecordingSummary
+    from rig.recording import PairRecord
     from rig.stereo import StereoParams
     from rig.vpc import VpcConfig
 
@@ -62,6 +77,7 @@ def load_stereo_params(path: Path) -> StereoParams:
     import yaml
     from pydantic import ValidationError
 
+    from rig.settings_model import describe_field_errors, field_errors
     from rig.stereo import StereoParams
 
     try:
@@ -75,9 +91,7 @@ def load_stereo_params(path: Path) -> StereoParams:
     try:
         return StereoParams(**doc)
     except ValidationError as err:
-        first = err.errors()[0]
-        field = ".".join(str(x) for x in first["loc"]) or "(document)"
-        raise ConfigError(f"{path}: field '{field}': {first['msg']}") from None
+        raise ConfigError(f"{path}: {describe_field_errors(field_errors(err))}") from None
 
 
 StereoOption = Annotated[
@@ -92,17 +106,23 @@ def build_pipeline(
     stereo: Path | None,
     cache_dir: Path | None,
 ) -> tuple[DepthPipeline, Path]:
-    """The depth pipeline of the options (calibration, VPC, stereo file, cache), with a warning
-    when the VPC leaves a camera's field; and the calibration file used."""
+    """The depth pipeline of the options (calibration, rectified pair, stereo file, cache), with a
+    warning line when a pinhole VPC leaves a camera's field or a lat-lon field was clipped to the
+    lenses' overlap; and the calibration file used."""
     from rig.lut import percent_valid
     from rig.pipeline import DepthPipeline
 
     rig, cal_path = load_calibration(calibration, fallback)
     params = load_stereo_params(stereo) if stereo is not None else None
+    # The pipeline logs the same for the service's log: here it is one warning line, below.
+    logging.getLogger("rig.pipeline").setLevel(logging.ERROR)
     pipeline = DepthPipeline(rig, config, params, cache_dir=cache_dir)
-    for name, frac in pipeline.valid_fraction.items():
-        if frac < 1.0:
-            warn(f"the VPC leaves camera '{name}''s field: {percent_valid(frac)} of its pixels are valid")
+    if pipeline.pair.field_note:
+        warn(pipeline.pair.field_note)
+    if pipeline.pair.projection == "pinhole":  # a lat-lon field spans the overlap by design
+        for name, frac in pipeline.valid_fraction.items():
+            if frac < 1.0:
+                warn(f"the VPC leaves camera '{name}''s field: {percent_valid(frac)} of its pixels are valid")
     return pipeline, cal_path
 
 
@@ -158,11 +178,12 @@ class _Pipelines:
 
 
 def _describe(pipeline: DepthPipeline, cal_path: Path) -> str:
-    vpc = pipeline.vpc_config
-    return (
-        f"calibration {cal_path}, VPC {vpc.width}x{vpc.height} fx {pipeline.pair.fx:.1f}, "
-        f"B {pipeline.baseline_m:.4f} m"
-    )
+    cam = pipeline.pair.camera
+    if pipeline.pair.projection == "pinhole":
+        view = f"VPC {cam.width}x{cam.height} fx {cam.fx:.1f}"
+    else:
+        view = f"lat-lon {cam.width}x{cam.height} {math.radians(cam.fx):.3f} px/deg"
+    return f"calibration {cal_path}, {view}, B {pipeline.baseline_m:.4f} m"
 
 
 def _report(summary: RecordingSummary, described: str) -> None:
@@ -242,6 +263,45 @@ def _run(
         )
 
 
+# Pairs tried for the calibration check before giving up on finding a readable one.
+_CHECK_TRIES = 10
+
+
+def _first_readable(rec: RecordedPairs) -> tuple[PairRecord, NDArray[Any], NDArray[Any]] | None:
+    from rig.errors import RecordingError
+
+    for pair in rec.pairs[:_CHECK_TRIES]:
+        try:
+            left = rec.read_frame(pair, "left").pipeline_image()
+            right = rec.read_frame(pair, "right").pipeline_image()
+        except RecordingError:
+            continue
+        return pair, left, right
+    return None
+
+
+def check_against_frames(pipeline: DepthPipeline, rec: RecordedPairs) -> None:
+    """The calibration against the recording's first readable pair: an error stops the command
+    (one line, exit status 2), each warning is printed once."""
+    from rig.calibration_check import check_calibration, check_frame_sizes
+
+    first = _first_readable(rec)
+    if first is None:
+        return  # the loop reports every unreadable pair
+    pair, left, right = first
+    sizes = {
+        pipeline.pair.left: (int(left.shape[1]), int(left.shape[0])),
+        pipeline.pair.right: (int(right.shape[1]), int(right.shape[0])),
+    }
+    for problem in check_frame_sizes(pipeline.rig, sizes, f"frames of {rec.root}"):
+        fail(problem.message)
+    result = check_calibration(pipeline, left, right)
+    for problem in result.errors:
+        fail(f"calibration check on pair {pair.seq}: {problem.message}")
+    for problem in result.warnings:
+        warn(f"calibration check on pair {pair.seq}: {problem.message}")
+
+
 def register(app: typer.Typer) -> None:
     @app.command("process")
     def process(
@@ -255,10 +315,13 @@ def register(app: typer.Typer) -> None:
         ],
         out: Annotated[Path, typer.Option("--out", "-o", metavar="DIR", help="Output directory.")],
         calibration: CalibrationOption = None,
-        vpc_hfov: VpcHfovOption = 90.0,
-        vpc_size: VpcSizeOption = "640x480",
-        yaw: YawOption = 0.0,
-        pitch: PitchOption = 0.0,
+        projection: ProjectionOption = None,
+        vpc_hfov: VpcHfovOption = None,
+        vpc_size: VpcSizeOption = None,
+        px_per_deg: PxPerDegOption = None,
+        field: FieldOption = None,
+        yaw: YawOption = None,
+        pitch: PitchOption = None,
         stereo: StereoOption = None,
         ply: Annotated[
             bool, typer.Option("--ply", help="Also write DIR/cloud/NNNNNN.ply (rig frame).")
@@ -307,18 +370,28 @@ def register(app: typer.Typer) -> None:
             Path | None,
             typer.Option("--summary", metavar="FILE", help="Also write the summary (every failure) as JSON."),
         ] = None,
+        no_check: Annotated[
+            bool,
+            typer.Option(
+                "--no-calibration-check", help="Skip the check of the calibration against the frames."
+            ),
+        ] = False,
     ) -> None:
-        """Depth for every pair of each RECORDING into --out: depth/, left/, right/, vpc.json, run.json."""
+        """Range (and the pinhole pair's depth) for every pair of each RECORDING into --out: range/,
+        depth/, left/, right/, vpc.json, run.json."""
         from rig.process import ProcessOptions, RecordingSource
 
         paths, per_recording = expand_recordings(recordings)
-        config = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
+        config = make_vpc_config(
+            vpc_size, vpc_hfov, yaw, pitch, projection=projection, px_per_deg=px_per_deg, field=field
+        )
         sources = [RecordingSource(p, left_topic, right_topic, max_skew_ms) for p in paths]
         pipelines = _Pipelines(calibration, config, stereo, cache_dir)
-        jobs, described = _jobs(sources, _output_dirs(sources, out, per_recording), pipelines)
+        jobs, described = _jobs(sources, _output_dirs(sources, out, per_recording), pipelines, not no_check)
         where = _scheduler(scheduler, len(jobs))
         extra = (("cloud",) if ply else ()) + (("preview",) if preview else ())
-        products = ("depth", "left", "right", *extra)
+        depth = ("depth",) if config.projection == "pinhole" else ()  # the lat-lon pair's depth is its range
+        products = ("range", *depth, "left", "right", *extra)
         options = ProcessOptions(products=products, resume=resume, chunk_pairs=chunk_size)
         summaries = _run(jobs, options, where, workers, scheduler_timeout)
         for result, text in zip(summaries, described, strict=True):
@@ -334,16 +407,19 @@ def register(app: typer.Typer) -> None:
 
 
 def _jobs(
-    sources: Sequence[RecordingSource], outs: Sequence[Path], pipelines: _Pipelines
+    sources: Sequence[RecordingSource], outs: Sequence[Path], pipelines: _Pipelines, check: bool
 ) -> tuple[list[RecordingJob], list[str]]:
-    """One job per recording (each opened first: a bad one stops the command before any work),
-    and the line describing its calibration and VPC."""
+    """One job per recording (each opened, and its calibration checked against its frames,
+    first: a bad one stops the command before any work), and the line describing its
+    calibration and rectified pair."""
     from rig.process import RecordingJob
 
     opened = [source.open() for source in sources]
     jobs, described = [], []
     for source, recording, out_dir in zip(sources, opened, outs, strict=True):
         pipeline, cal_path = pipelines.for_recording(recording.calibration_path)
+        if check:
+            check_against_frames(pipeline, recording)
         jobs.append(RecordingJob(source, recording, pipeline, out_dir))
         described.append(_describe(pipeline, cal_path))
     return jobs, described

@@ -15,7 +15,7 @@ from typing import Annotated, Any
 
 import typer
 
-from cli.console import console, err_console, progress_bar
+from cli.console import console, err_console, progress_bar, warn
 from cli.errors import fail
 from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption
 from rig.capture.recorded import open_recording
@@ -30,7 +30,13 @@ from service.demo import (
 from service.errors import ServiceError
 from service.settings import Settings, load_settings
 
-__all__ = ["register", "serve_settings"]
+__all__ = ["ServiceConfigOption", "register", "serve_settings"]
+
+#: The service's config file (``rig serve``, ``rig check``).
+ServiceConfigOption = Annotated[
+    Path | None,
+    typer.Option("--config", "-c", metavar="FILE", help="YAML config file.", show_default="$RIG_CONFIG"),
+]
 
 
 def _deep_merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
@@ -84,7 +90,9 @@ def serve_settings(
     calibration: Path | None = None,
     bag: Mapping[str, Any] | None = None,
 ) -> Settings:
-    """The settings ``rig serve`` runs with (renders the demo if it is used and not cached)."""
+    """The settings ``rig serve`` runs with (renders the demo if it is used and not cached).
+    ``--demo`` and ``--recording`` bring their own cameras (and the demo its calibration): the
+    configuration's are still validated, and said to be ignored."""
     if demo and recording is not None:
         fail("--demo and --recording exclude each other")
     overrides: dict[str, Any] = {"server": {}}
@@ -96,14 +104,35 @@ def serve_settings(
         overrides["calibration"] = {"path": str(calibration)}
     base = load_settings(config, overrides)  # validates the bind before any slow work
     if recording is not None:
+        _say_ignored(base, "--recording", calibration_too=False)
         overrides = _deep_merge(overrides, recording_overrides(recording, calibration, bag))
-    elif demo or base.cameras is None:
-        if not demo:
+        return load_settings(config, overrides, replace=("cameras",))
+    if demo or base.cameras is None:
+        if demo:
+            _say_ignored(base, "--demo", calibration_too=calibration is None)
+            if calibration is not None:
+                warn("--calibration is ignored with --demo: the demo brings its rendered rig's calibration")
+        else:
             console.print("no cameras configured: serving the built-in demo (simulated rig)")
         overrides = _deep_merge(overrides, demo_overrides(demo_recording()))
-    else:
-        return base
-    return load_settings(config, overrides)
+        return load_settings(config, overrides, replace=("cameras", "calibration"))
+    return base
+
+
+_REPLACEMENTS = {
+    "--demo": "the demo replays its own rendered rig",
+    "--recording": "file cameras replay the recording",
+}
+
+
+def _say_ignored(base: Settings, flag: str, *, calibration_too: bool) -> None:
+    """One warning naming the configured sections that ``flag`` replaces."""
+    ignored = ["cameras"] if base.cameras is not None else []
+    if calibration_too and base.calibration.path is not None:
+        ignored.append("calibration")
+    if ignored:
+        verb = "is" if ignored == ["calibration"] else "are"
+        warn(f"{flag}: the configured {' and '.join(ignored)} {verb} ignored ({_REPLACEMENTS[flag]})")
 
 
 def run_serve(
@@ -119,7 +148,7 @@ def run_serve(
 ) -> None:
     # FastAPI and uvicorn are imported only when serving (the other commands start faster).
     from service.runtime import Runtime
-    from service.serve import LOG_LEVELS, bind_socket, run_server
+    from service.serve import LOG_LEVELS, bind_socket, ensure_fd_room, run_server
 
     if log_level not in LOG_LEVELS:
         fail(f"--log-level must be one of {', '.join(LOG_LEVELS)}, got {log_level!r}")
@@ -127,6 +156,7 @@ def run_serve(
     # The bind is validated (loopback or token) and taken before any slow work (demo render, LUTs).
     early: dict[str, Any] = {"server": {k: v for k, v in (("host", host), ("port", port)) if v is not None}}
     first = load_settings(config, early)
+    ensure_fd_room(first)
     sock = bind_socket(first.server.host, first.server.port)
     bound_port = sock.getsockname()[1]
     try:
@@ -158,12 +188,7 @@ def run_serve(
 def register(app: typer.Typer) -> None:
     @app.command("serve")
     def serve(
-        config: Annotated[
-            Path | None,
-            typer.Option(
-                "--config", "-c", metavar="FILE", help="YAML config file.", show_default="$RIG_CONFIG"
-            ),
-        ] = None,
+        config: ServiceConfigOption = None,
         demo: Annotated[
             bool, typer.Option("--demo", help="Serve the built-in simulated rig (rendered once, cached).")
         ] = False,

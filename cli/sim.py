@@ -11,6 +11,7 @@ value is one line on stderr and exit status 2.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from pathlib import Path
@@ -21,10 +22,12 @@ from rich.progress import TimeRemainingColumn
 
 from cli.console import console, progress_bar
 from cli.errors import fail
-from cli.vpc_options import make_vpc_config
+from cli.process import load_stereo_params
+from cli.vpc_options import FieldOption, ProjectionOption, PxPerDegOption, VpcSizeOption, make_vpc_config
 from rig.sim.presets import PRESETS, get_preset
 from rig.sim.simulate import DEFAULT_DISTANCES, DEFAULT_ROOM_FRAMES, SCENES, simulate_recording
 from rig.sim.textures import TEXTURES, texture_name
+from rig.stereo import StereoParams
 
 __all__ = ["PresetOption", "parse_distances", "register"]
 
@@ -113,15 +116,30 @@ def register(app: typer.Typer) -> None:
                 metavar="FACTOR", help="Scale the preset cameras' images (e.g. 0.5 for quick runs)."
             ),
         ] = "1",
-        vpc_size: Annotated[
-            str, typer.Option("--vpc-size", metavar="WxH", help="Ground-truth VPC size.")
-        ] = "640x480",
+        projection: ProjectionOption = None,
+        vpc_size: VpcSizeOption = None,
         vpc_hfov: Annotated[
-            str, typer.Option("--vpc-hfov", metavar="DEG", help="Ground-truth VPC horizontal field of view.")
-        ] = "90",
+            str | None,
+            typer.Option(
+                "--vpc-hfov", metavar="DEG", help="Pinhole: horizontal field of view.", show_default="90"
+            ),
+        ] = None,
+        px_per_deg: PxPerDegOption = None,
+        field: FieldOption = None,
+        stereo: Annotated[
+            Path | None,
+            typer.Option(
+                "--stereo",
+                metavar="FILE",
+                help="Stereo parameters rig process will use: a lat-lon field leaves room for their "
+                "unmatched columns.",
+                show_default="the defaults",
+            ),
+        ] = None,
         color: Annotated[bool, typer.Option("--color/--gray", help="Render BGR colour frames.")] = False,
     ) -> None:
-        """Render a simulated recording with ground truth (depth + Reference images)."""
+        """Render a simulated recording with ground truth (range, depth and Reference images of the
+        rectified pair)."""
         if preset not in PRESETS:
             fail(f"unknown --preset {preset!r}; valid presets: {', '.join(PRESETS)}")
         if scene not in SCENES:
@@ -144,7 +162,9 @@ def register(app: typer.Typer) -> None:
         vig = _float("--vignetting", vignetting, 0.0, 1.0) if vignetting is not None else None
         ss = _int("--supersample", supersample, 1, 16)
         factor = _float("--scale", scale, 0.01, 8.0)
-        vpc = make_vpc_config(vpc_size, _float("--vpc-hfov", vpc_hfov, 1.0, 179.0))
+        hfov = _float("--vpc-hfov", vpc_hfov, 1.0, 179.0) if vpc_hfov is not None else None
+        vpc = make_vpc_config(vpc_size, hfov, projection=projection, px_per_deg=px_per_deg, field=field)
+        params = load_stereo_params(stereo) if stereo is not None else StereoParams()
 
         chosen = get_preset(preset)
         if factor != 1.0:
@@ -170,6 +190,7 @@ def register(app: typer.Typer) -> None:
                 supersample=ss,
                 color=color,
                 vpc=vpc,
+                blind_band_px=params.blind_band_px,
                 progress=step,
             )
         elapsed = time.monotonic() - start
@@ -190,8 +211,11 @@ def register(app: typer.Typer) -> None:
             f"to {out} in {elapsed:.1f} s",
             highlight=False,
         )
+        gt = json.loads((out / "ground_truth" / "scene.json").read_text())["vpc"]
+        what = "range and depth" if vpc.projection == "pinhole" else "range"
         console.print(
-            f"ground truth: {out / 'ground_truth'} (left-VPC depth {vpc.width}x{vpc.height} .npy, "
-            "Reference pinhole images, scene.json); calibration: calibration.yaml",
+            f"ground truth: {out / 'ground_truth'} (left {vpc.projection} view's {what} "
+            f"{gt['width']}x{gt['height']} .npy, Reference images, scene.json); "
+            "calibration: calibration.yaml",
             highlight=False,
         )

@@ -1,5 +1,7 @@
-"""VPC options shared by ``rig process`` and ``rig lut build``: size, FOV, look direction,
-calibration loading and the LUT cache directory."""
+"""Rectified-pair options shared by ``rig process``, ``rig lut build`` and ``rig sim``: the
+projection, the pinhole's size and field of view, the lat-lon resolution and field, the look
+direction; calibration loading and the LUT cache directory. Options not given are left to
+:class:`rig.vpc.VpcConfig`'s defaults (see docs/wide-pair.md)."""
 
 from __future__ import annotations
 
@@ -10,14 +12,17 @@ import typer
 
 from rig.errors import ConfigError
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the libraries load when an option is used, not for --help
     from calibration.rig import Rig
     from rig.vpc import VpcConfig
 
 __all__ = [
     "CacheDirOption",
     "CalibrationOption",
+    "FieldOption",
     "PitchOption",
+    "ProjectionOption",
+    "PxPerDegOption",
     "VpcHfovOption",
     "VpcSizeOption",
     "YawOption",
@@ -35,15 +40,44 @@ CalibrationOption = Annotated[
         help="Rig calibration: rig.yaml or Kalibr camchain.yaml (cam0 = left, cam1 = right).",
     ),
 ]
-VpcHfovOption = Annotated[
-    float, typer.Option("--vpc-hfov", metavar="DEG", help="VPC horizontal field of view.")
+ProjectionOption = Annotated[
+    str | None,
+    typer.Option(
+        "--projection",
+        metavar="NAME",
+        help="Rectified projection: pinhole or latlon.",
+        show_default="latlon; pinhole with --vpc-size or --vpc-hfov",
+    ),
 ]
-VpcSizeOption = Annotated[str, typer.Option("--vpc-size", metavar="WxH", help="VPC image size.")]
+VpcHfovOption = Annotated[
+    float | None,
+    typer.Option("--vpc-hfov", metavar="DEG", help="Pinhole: horizontal field of view.", show_default="90"),
+]
+VpcSizeOption = Annotated[
+    str | None, typer.Option("--vpc-size", metavar="WxH", help="Pinhole: image size.", show_default="640x480")
+]
+PxPerDegOption = Annotated[
+    float | None,
+    typer.Option(
+        "--px-per-deg", metavar="PPD", help="Lat-lon: pixels per degree.", show_default="5.585 (320 px/rad)"
+    ),
+]
+FieldOption = Annotated[
+    str | None,
+    typer.Option(
+        "--field",
+        metavar="AZxEL",
+        help="Lat-lon: azimuth x elevation span in degrees, centred on --yaw/--pitch.",
+        show_default="the lenses' overlap and the matcher's unmatched columns",
+    ),
+]
 YawOption = Annotated[
-    float, typer.Option("--yaw", metavar="DEG", help="VPC look direction, right (+) / left (-).")
+    float | None,
+    typer.Option("--yaw", metavar="DEG", help="Look direction, right (+) / left (-).", show_default="0"),
 ]
 PitchOption = Annotated[
-    float, typer.Option("--pitch", metavar="DEG", help="VPC look direction, up (+) / down (-).")
+    float | None,
+    typer.Option("--pitch", metavar="DEG", help="Look direction, up (+) / down (-).", show_default="0"),
 ]
 CacheDirOption = Annotated[
     Path | None,
@@ -56,44 +90,112 @@ CacheDirOption = Annotated[
 ]
 
 
-def parse_size(text: str) -> tuple[int, int]:
-    """``"640x480"`` -> (640, 480); ConfigError naming the option otherwise."""
+def _two_numbers(text: str, kind: type[int] | type[float], option: str, example: str) -> tuple[Any, Any]:
+    """``"AxB"`` (or ``A×B``) as two numbers of ``kind``; ConfigError naming ``option`` otherwise."""
     parts = text.lower().replace("×", "x").split("x")
     try:
         if len(parts) != 2:
             raise ValueError
-        w, h = int(parts[0]), int(parts[1])
+        return kind(parts[0]), kind(parts[1])
     except ValueError:
-        raise ConfigError(f"--vpc-size must look like 640x480, got {text!r}") from None
-    return w, h
+        raise ConfigError(f"{option} must look like {example}, got {text!r}") from None
 
 
-def make_vpc_config(size: str, hfov_deg: float, yaw_deg: float = 0.0, pitch_deg: float = 0.0) -> VpcConfig:
-    """A validated :class:`VpcConfig`; ConfigError naming the offending option."""
+def parse_size(text: str) -> tuple[int, int]:
+    """``"640x480"`` -> (640, 480); ConfigError naming --vpc-size otherwise."""
+    w, h = _two_numbers(text, int, "--vpc-size", "640x480")
+    return int(w), int(h)
+
+
+def _parse_field(text: str) -> tuple[float, float]:
+    """``"100x180"`` -> (100.0, 180.0) degrees; ConfigError naming --field otherwise."""
+    az, el = _two_numbers(text, float, "--field", "100x180 (azimuth x elevation, degrees)")
+    return float(az), float(el)
+
+
+_OPTION_OF = {
+    "projection": "--projection",
+    "width": "--vpc-size",
+    "height": "--vpc-size",
+    "hfov_deg": "--vpc-hfov",
+    "yaw_deg": "--yaw",
+    "pitch_deg": "--pitch",
+    "px_per_deg": "--px-per-deg",
+    "az_span_deg": "--field",
+    "el_span_deg": "--field",
+}
+
+
+def make_vpc_config(
+    size: str | None = None,
+    hfov_deg: float | None = None,
+    yaw_deg: float | None = None,
+    pitch_deg: float | None = None,
+    *,
+    projection: str | None = None,
+    px_per_deg: float | None = None,
+    field: str | None = None,
+) -> VpcConfig:
+    """A validated :class:`VpcConfig` of the options given (None: not given); ConfigError
+    naming the offending option."""
     from pydantic import ValidationError
 
-    from rig.vpc import VpcConfig
+    from rig.settings_model import field_errors
+    from rig.vpc import PROJECTIONS, VpcConfig
 
-    w, h = parse_size(size)
-    names = {"width": "--vpc-size", "height": "--vpc-size", "hfov_deg": "--vpc-hfov"}
-    names |= {"yaw_deg": "--yaw", "pitch_deg": "--pitch"}
-    values: dict[str, Any] = {"width": w, "height": h, "hfov_deg": hfov_deg}
-    values |= {"yaw_deg": yaw_deg, "pitch_deg": pitch_deg}
+    values: dict[str, Any] = {}
+    if projection is not None:
+        if projection not in PROJECTIONS:
+            raise ConfigError(f"--projection must be one of {', '.join(PROJECTIONS)}, got {projection!r}")
+        values["projection"] = projection
+    if size is not None:
+        values["width"], values["height"] = parse_size(size)
+    if field is not None:
+        values["az_span_deg"], values["el_span_deg"] = _parse_field(field)
+    given = {"hfov_deg": hfov_deg, "yaw_deg": yaw_deg, "pitch_deg": pitch_deg, "px_per_deg": px_per_deg}
+    values |= {k: v for k, v in given.items() if v is not None}
+    _check_projection_options(values)
     try:
         return VpcConfig(**values)
     except ValidationError as err:
-        first = err.errors()[0]
-        field = str(first["loc"][0]) if first["loc"] else ""
-        raise ConfigError(f"{names.get(field, field)}: {first['msg']} (got {values.get(field)!r})") from None
+        problems = [
+            f"{_OPTION_OF.get(f, f or 'vpc')}: {msg}" + (f" (got {values[f]!r})" if f in values else "")
+            for f, msg in field_errors(err)
+        ]
+        raise ConfigError("; ".join(problems)) from None
+
+
+def _check_projection_options(values: dict[str, Any]) -> None:
+    """Options of the other projection than the one chosen, a look direction without a lat-lon
+    field: one line naming the options. Sets ``values["projection"]``: as given, else the one
+    whose own options are given, else the default."""
+    from rig.vpc import DEFAULT_PROJECTION
+
+    pinhole = [o for k, o in (("width", "--vpc-size"), ("hfov_deg", "--vpc-hfov")) if k in values]
+    latlon = [o for k, o in (("px_per_deg", "--px-per-deg"), ("az_span_deg", "--field")) if k in values]
+    chosen = values.get("projection") or (
+        "pinhole" if pinhole else "latlon" if latlon else DEFAULT_PROJECTION
+    )
+    values["projection"] = chosen
+    if chosen == "latlon" and pinhole:
+        raise ConfigError(f"{' and '.join(pinhole)} apply to --projection pinhole, not latlon")
+    if chosen == "pinhole" and latlon:
+        raise ConfigError(f"{' and '.join(latlon)} apply to --projection latlon, not pinhole")
+    look = [o for k, o in (("yaw_deg", "--yaw"), ("pitch_deg", "--pitch")) if values.get(k)]
+    if chosen == "latlon" and look and "az_span_deg" not in values:
+        raise ConfigError(
+            f"{' and '.join(look)} centre an explicit lat-lon --field; without one the field is the "
+            "whole overlap of the two lenses"
+        )
 
 
 def load_calibration(path: Path | None, fallback: Path | None = None) -> tuple[Rig, Path]:
     """The rig from ``path`` (or ``fallback`` when no path was given)."""
-    from calibration.formats import load_rig
-
     chosen = path or fallback
     if chosen is None:
         raise ConfigError("--calibration FILE is required (the recording carries no calibration.yaml)")
+    from calibration import load_rig
+
     rig = load_rig(chosen)
     for name in ("left", "right"):
         if name not in rig.cameras:

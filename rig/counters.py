@@ -1,4 +1,4 @@
-"""The counter table: every camera, pairing and depth-worker figure, declared once.
+"""The counter table: every camera, pairing, depth-worker and rectification figure, declared once.
 
 Each :class:`CounterSpec` names one figure (a ``counter`` only ever grows; a ``gauge`` is a
 current value), its unit, its meaning and its group. The table feeds everything that shows the
@@ -9,8 +9,9 @@ camera table (entries with a ``column``), and ``docs/counters.md`` (``python -m 
 
 Adding a figure: add its :class:`CounterSpec` to :data:`COUNTERS` and count it. A plain counter
 of the camera or worker group is kept by a :class:`Tally` (``tally.add(name)`` where it
-happens); a gauge, and the pairing figures, are measured where the snapshot is made
-(``CameraSupervisor.health``, ``StereoCapture.health``, ``DepthWorker.stats``); a counter with
+happens); a gauge, and the pairing and rectification figures, are measured where the snapshot
+is made (``CameraSupervisor.health``, ``StereoCapture.health``, ``DepthWorker.stats``,
+``RectificationMonitor.status``); a counter with
 ``sum_of`` is the sum of others and needs no code. :func:`complete` refuses a snapshot that
 misses a declared figure or has an undeclared one, so the table and the counting code cannot
 drift apart. Then regenerate ``docs/counters.md`` (a test compares it with :func:`markdown`).
@@ -40,14 +41,19 @@ __all__ = [
 ]
 
 Kind = Literal["counter", "gauge"]
-Group = Literal["camera", "pairing", "worker"]
-GROUPS: tuple[Group, ...] = ("camera", "pairing", "worker")
+Group = Literal["camera", "pairing", "worker", "rectification"]
+GROUPS: tuple[Group, ...] = ("camera", "pairing", "worker", "rectification")
 CounterValue = int | float | bool | None
 #: One group's figures by name, in table order (a snapshot's ``counters``).
 Counts = dict[str, CounterValue]
 
 # Prometheus names are this prefix + the name unless an entry names its metric.
-_METRIC_PREFIX: dict[Group, str] = {"camera": "rig_camera_", "pairing": "rig_", "worker": "rig_worker_"}
+_METRIC_PREFIX: dict[Group, str] = {
+    "camera": "rig_camera_",
+    "pairing": "rig_",
+    "worker": "rig_worker_",
+    "rectification": "rig_rectification_",
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,7 +108,12 @@ def _worker(name: str, kind: Kind, unit: str, help: str, **more: Any) -> Counter
     return CounterSpec(name, "worker", kind, unit, help, **more)
 
 
+def _rectification(name: str, kind: Kind, unit: str, help: str, **more: Any) -> CounterSpec:
+    return CounterSpec(name, "rectification", kind, unit, help, **more)
+
+
 _SKEW = "rig_pairing_skew_ms"
+_VERTICAL = "rig_rectification_vertical_disparity_px"
 
 #: The table. Order is the order of ``/health`` fields, ``/metrics`` families, the docs and the
 #: dashboard's columns.
@@ -173,6 +184,31 @@ COUNTERS: tuple[CounterSpec, ...] = (
         "frames",
         "frames refused because a host-clock timestamp was more than max_clock_offset_ms from "
         "the arrival time or did not increase; each triggers a reconnect",
+    ),
+    _camera(
+        "corrupt_per_s",
+        "gauge",
+        "frames/s",
+        "frames found corrupt per second over the last cameras.supervisor.rate_window_s "
+        "(null until the window holds enough frames)",
+        value=float,
+        optional=True,
+    ),
+    _camera(
+        "undecodable_per_s",
+        "gauge",
+        "frames/s",
+        "frames found undecodable per second over the same window",
+        value=float,
+        optional=True,
+    ),
+    _camera(
+        "dropped_per_s",
+        "gauge",
+        "frames/s",
+        "frames dropped (lost, unpaired or evicted) per second over the same window",
+        value=float,
+        optional=True,
     ),
     _camera("reconnects", "counter", "reconnects", "successful re-opens of the camera after an outage"),
     _camera("reconnect_attempts", "counter", "attempts", "re-opens of the camera tried after an outage"),
@@ -258,6 +294,94 @@ COUNTERS: tuple[CounterSpec, ...] = (
         "counter",
         "pairs",
         "pairs that failed to process (a frame that does not decode counts against its camera instead)",
+    ),  # ----- rectification (rig.rectification.monitor; docs/rectification.md) --------------------
+    _rectification(
+        "vertical_disparity_p50_px",
+        "gauge",
+        "px",
+        "median |v_left - v_right| of the last check's consistent matches in the VPC pair (null "
+        "until a check had enough matches; then the last such check's)",
+        value=float,
+        optional=True,
+        metric=_VERTICAL,
+        metric_labels=(("quantile", "0.5"),),
+    ),
+    _rectification(
+        "vertical_disparity_p95_px",
+        "gauge",
+        "px",
+        "95th percentile of the same",
+        value=float,
+        optional=True,
+        metric=_VERTICAL,
+        metric_labels=(("quantile", "0.95"),),
+    ),
+    _rectification(
+        "trend_px_per_hour",
+        "gauge",
+        "px/h",
+        "slope of the median over the checks of rectification.trend_window_s (null with fewer than 3)",
+        value=float,
+        optional=True,
+    ),
+    _rectification(
+        "degraded",
+        "gauge",
+        "bool",
+        "1 while the last rectification.confirm_checks checks were over max_p50_px or max_p95_px",
+        value=bool,
+    ),
+    _rectification(
+        "enough_matches",
+        "gauge",
+        "bool",
+        "1 when the last check had enough consistent, spread-out matches to measure",
+        value=bool,
+    ),
+    _rectification(
+        "matches",
+        "gauge",
+        "matches",
+        "consistent matches inside the VPC pair in the last check (null before the first)",
+        optional=True,
+        value=int,
+    ),
+    _rectification("checks", "counter", "checks", "rectification checks run"),
+    _rectification(
+        "checks_without_enough_matches",
+        "counter",
+        "checks",
+        "checks that could not measure: too few matches, or bunched in one place (never an alarm)",
+    ),
+    _rectification(
+        "corrections_applied",
+        "counter",
+        "corrections",
+        "online rotation corrections applied (rectification.auto_refine), lookup tables swapped",
+    ),
+    _rectification(
+        "last_correction_deg",
+        "gauge",
+        "deg",
+        "angle of the last correction applied online (null before the first)",
+        value=float,
+        optional=True,
+    ),
+    _rectification(
+        "last_check_age_s",
+        "gauge",
+        "s",
+        "time since the last check (null before the first)",
+        value=float,
+        optional=True,
+    ),
+    _rectification(
+        "check_cpu_ms",
+        "gauge",
+        "ms",
+        "CPU time of the last check on the monitor's thread (OpenCV's pool adds some)",
+        value=float,
+        optional=True,
     ),
 )
 
@@ -358,6 +482,7 @@ _GROUP_TITLES: dict[Group, str] = {
     "camera": "Camera (`/health` `cameras.<name>.*`; Prometheus label `camera`)",
     "pairing": "Pairing (`/health` `pairing.*`)",
     "worker": "Depth worker (`/health` `worker.*`)",
+    "rectification": "Rectification (`/health` `rectification.*`; docs/rectification.md)",
 }
 
 
@@ -370,8 +495,9 @@ def markdown() -> str:
         " a test checks it. -->",
         "",
         "Every figure that `GET /health`, `GET /metrics` and the dashboard show about the cameras,",
-        "the stereo pairing and the depth worker, declared once in `rig/counters.py` (also served",
-        "as JSON by `GET /counters`). A *counter* only grows (Prometheus adds `_total` to its name);",
+        "the stereo pairing, the depth worker and the rectification, declared once in",
+        "`rig/counters.py` (also served as JSON by `GET /counters`). A *counter* only grows",
+        "(Prometheus adds `_total` to its name);",
         "a *gauge* is a current value. `bool` gauges are `true`/`false` in `/health` and 1/0 in",
         "`/metrics`; gauges that are null in `/health` (nothing measured yet) have no sample.",
         "Not in this table: the worker's per-stage times (`worker.stage_ms`, `rig_stage_latency_ms`",

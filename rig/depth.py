@@ -1,10 +1,21 @@
-"""Disparity to depth, point clouds and their file formats (docs/design.md, "Depth and point clouds").
+"""Disparity to depth and range, point clouds and their file formats (docs/design.md, "Depth and
+point clouds"; docs/wide-pair.md).
 
 Depth is z in the left VPC frame, metres, float32, NaN invalid; ``Z = fx·B/d``, invalid where
-d ≤ 0. The 16-bit PNG form is millimetres with 0 = invalid (RealSense/DepthAI convention);
-depths beyond 65.535 m do not fit and are written as 0 (invalid), never saturated.
-PLY: binary little-endian, ``x y z`` float32 (+ ``red green blue`` uchar). Range is the
-distance along each pixel's ray (``|ray| · z``), what a lidar or a ROS range image holds.
+d ≤ 0 (the pinhole pair). Range is the distance along each pixel's ray from the left view's
+centre, metres, float32, NaN invalid, for either rectified projection (one function each):
+
+* pinhole: ``range = Z·|(x_n, y_n, 1)|`` with ``x_n = (u − cx)/fx``, ``y_n = (v − cy)/fy``
+  (:func:`depth_to_range`);
+* lat-lon: a disparity is an azimuth difference ``δ = d/fx`` (radians) within the row's epipolar
+  plane; the triangle left centre, right centre, point has the angle ``δ`` at the point and
+  ``90° + α_R`` at the right centre (``α_R = α − δ``, ``α = (u − cx)/fx`` the left ray's
+  azimuth), so by the law of sines ``range = B·cos(α − δ)/sin δ = B·(cos α·cot δ + sin α)``
+  (mrcal's ``stereo_range``); invalid where d ≤ 0 or the triangle does not close (range ≤ 0).
+
+The 16-bit PNG form of depth and range is millimetres with 0 = invalid (RealSense/DepthAI
+convention); values beyond 65.535 m do not fit and are written as 0 (invalid), never saturated.
+PLY: binary little-endian, ``x y z`` float32 (+ ``red green blue`` uchar).
 :func:`pack_xyzrgb` is the one point layout of ROS ``PointCloud2``, Foxglove ``PointCloud`` and
 PCD files (``x y z`` float32, colour as PCL's packed ``rgb``).
 """
@@ -17,9 +28,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from calibration.models import PinholeModel
+from calibration.models import CameraModel, LatLonModel, PinholeModel
 from rig.atomic import write_atomic
 from rig.errors import PipelineError
+from rig.filters import fill_where
 
 __all__ = [
     "XYZRGB_DTYPE",
@@ -28,9 +40,12 @@ __all__ = [
     "depth_to_png_mm",
     "depth_to_range",
     "disparity_to_depth",
+    "disparity_to_range",
+    "latlon_range",
     "pack_xyzrgb",
     "pixel_ray_norms",
     "ply_bytes",
+    "range_points",
     "read_ply",
     "write_ply",
 ]
@@ -49,6 +64,41 @@ def disparity_to_depth(disparity: F32, fx: float, baseline_m: float, *, out: F32
     return depth
 
 
+def latlon_range(disparity: F32, camera: LatLonModel, baseline_m: float, *, out: F32 | None = None) -> F32:
+    """Range (H, W) float32 m along each pixel's ray from disparity (H, W) px (NaN invalid) of
+    the lat-lon view ``camera``: ``B·(cos α·cot δ + sin α)``, δ = d/fx (see the module doc);
+    NaN where d ≤ 0 or the range is not positive. ``out``: an (H, W) float32 array to write it
+    into. (Any rows: the azimuth is per column.)"""
+    az = camera.azimuths()
+    b_cos = (baseline_m * np.cos(az)).astype(np.float32)
+    b_sin = (baseline_m * np.sin(az)).astype(np.float32)
+    d = np.asarray(disparity, dtype=np.float32)
+    r = np.empty(d.shape, dtype=np.float32) if out is None else out
+    with np.errstate(divide="ignore", invalid="ignore"):
+        np.multiply(d, np.float32(1.0 / camera.fx), out=r)
+        np.tan(r, out=r)
+        np.divide(b_cos, r, out=r)
+        r += b_sin
+    ok = d > 0  # False for NaN
+    ok &= r > 0  # the triangle closes
+    ok &= r < np.inf  # δ so small that cot δ overflows float32
+    fill_where(r, np.nan, ~ok)
+    return r
+
+
+def disparity_to_range(
+    disparity: F32, camera: CameraModel, baseline_m: float, *, ray_norms: F32 | None = None
+) -> F32:
+    """Range (H, W) float32 m along each pixel's ray from disparity (H, W) px (NaN invalid) of
+    the rectified view ``camera``: a pinhole (``ray_norms`` as :func:`depth_to_range`: rows of
+    them for rows of disparity) or a lat-lon view (:func:`latlon_range`, any rows)."""
+    if isinstance(camera, LatLonModel):
+        return latlon_range(disparity, camera, baseline_m)
+    if isinstance(camera, PinholeModel):
+        return depth_to_range(disparity_to_depth(disparity, camera.fx, baseline_m), camera, ray_norms)
+    raise PipelineError(f"no disparity-to-range formula for a {camera.name} view")
+
+
 def depth_to_png_mm(depth: F32) -> NDArray[np.uint16]:
     """uint16 millimetres, 0 where invalid (NaN, ≤ 0) or beyond 65.535 m."""
     with np.errstate(invalid="ignore"):
@@ -64,6 +114,23 @@ def depth_from_png_mm(png: NDArray[np.uint16]) -> F32:
     return out
 
 
+def _valid_samples(image: F32, stride: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Rows and columns of the finite, positive pixels of every ``stride``-th row and column."""
+    if stride < 1:
+        raise PipelineError(f"point cloud stride must be >= 1, got {stride}")
+    sub = image[::stride, ::stride]
+    ok = np.isfinite(sub) & (sub > 0)
+    r_idx, c_idx = np.nonzero(ok)
+    return r_idx * stride, c_idx * stride
+
+
+def _to_frame(pts: NDArray[np.float64], T_rig_vpc: ArrayLike | None) -> NDArray[np.float32]:
+    if T_rig_vpc is not None:
+        T = np.asarray(T_rig_vpc, dtype=np.float64)
+        pts = pts @ T[:3, :3].T + T[:3, 3]
+    return pts.astype(np.float32)
+
+
 def depth_points(
     depth: F32,
     camera: PinholeModel,
@@ -76,21 +143,25 @@ def depth_points(
     ``T_rig_vpc`` (4, 4) maps the result into the rig frame (None: stay in the VPC frame).
     Returns points (N, 3) float32 and the flat pixel indices (N,) they came from.
     """
-    if stride < 1:
-        raise PipelineError(f"point cloud stride must be >= 1, got {stride}")
-    h, w = depth.shape
-    rows = np.arange(0, h, stride)
-    cols = np.arange(0, w, stride)
-    sub = depth[::stride, ::stride]
-    ok = np.isfinite(sub) & (sub > 0)
-    r_idx, c_idx = np.nonzero(ok)
-    z = sub[r_idx, c_idx].astype(np.float64)
-    v, u = rows[r_idx].astype(np.float64), cols[c_idx].astype(np.float64)
+    rows, cols = _valid_samples(depth, stride)
+    z = depth[rows, cols].astype(np.float64)
+    v, u = rows.astype(np.float64), cols.astype(np.float64)
     pts = np.stack([(u - camera.cx) / camera.fx * z, (v - camera.cy) / camera.fy * z, z], axis=1)
-    if T_rig_vpc is not None:
-        T = np.asarray(T_rig_vpc, dtype=np.float64)
-        pts = pts @ T[:3, :3].T + T[:3, 3]
-    return pts.astype(np.float32), rows[r_idx] * w + cols[c_idx]
+    return _to_frame(pts, T_rig_vpc), rows * depth.shape[1] + cols
+
+
+def range_points(
+    range_m: F32,
+    camera: CameraModel,
+    T_rig_vpc: ArrayLike | None = None,
+    stride: int = 1,
+) -> tuple[NDArray[np.float32], NDArray[np.intp]]:
+    """3D points of the valid range pixels: the pixel's unit ray (``camera.unproject``, any
+    rectified projection) times its range. Arguments and result as :func:`depth_points`."""
+    rows, cols = _valid_samples(range_m, stride)
+    rays, _ = camera.unproject(np.stack([cols, rows], axis=1).astype(np.float64), in_image=False)
+    pts = rays * range_m[rows, cols].astype(np.float64)[:, None]
+    return _to_frame(pts, T_rig_vpc), rows * range_m.shape[1] + cols
 
 
 def pixel_ray_norms(camera: PinholeModel) -> F32:
@@ -104,7 +175,8 @@ def pixel_ray_norms(camera: PinholeModel) -> F32:
 def depth_to_range(depth: F32, camera: PinholeModel, ray_norms: F32 | None = None) -> F32:
     """Range (H, W) float32 m: distance from the camera centre along each pixel's ray,
     ``depth · |ray|`` (:func:`pixel_ray_norms`); NaN where depth is. ``ray_norms`` may be
-    passed in when the caller keeps them (they depend on the camera only)."""
+    passed in when the caller keeps them (they depend on the camera only), or rows of them for
+    rows of depth."""
     norms = pixel_ray_norms(camera) if ray_norms is None else ray_norms
     d = np.asarray(depth, dtype=np.float32)
     if d.shape != norms.shape:

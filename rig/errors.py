@@ -18,6 +18,8 @@ __all__ = [
     "OutputError",
     "PipelineError",
     "RecordingError",
+    "RectificationError",
+    "ResourceExhausted",
     "RigError",
     "SimulationError",
     "UsbError",
@@ -77,12 +79,21 @@ class PipelineError(RigError):
     """The depth pipeline was given inputs it cannot process."""
 
 
+class RectificationError(RigError):
+    """The scene does not support a rectification measurement or refinement (too few matches)."""
+
+
 class SimulationError(RigError):
     """The virtual environment was asked for something it cannot render."""
 
 
 class EvaluationError(RigError):
     """``rig evaluate`` could not complete a step."""
+
+
+class ResourceExhausted(RigError):
+    """The process ran out of a system resource (file descriptors): the device or file is fine,
+    the process cannot open it now."""
 
 
 class CorruptFrameError(RigError):

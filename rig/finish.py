@@ -3,8 +3,8 @@ speckle removal, then subpixel refinement, filters, confidence and depth of one 
 
 Its sections: the refinement's preparation (image normalisation on the pool while this thread
 removes the matcher's speckles, then the refinement's inputs); per row band, the subpixel
-refinement, the median filter, confidence and (without the temporal filter) depth; then the
-temporal filter and depth of the whole frame; the stage's timings.
+refinement, the median filter, confidence and (without the temporal filter) depth and range; then
+the temporal filter and depth and range of the whole frame; the stage's timings.
 
 Everything but the temporal filter is row-local, so it runs in horizontal bands across the cores
 (:func:`rig.bands.run_in_bands`, margins so every row sees what one pass would see): this stage
@@ -25,9 +25,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from calibration.models import LatLonModel, PinholeModel
 from rig import priority
 from rig.bands import run_in_bands
-from rig.depth import disparity_to_depth
+from rig.depth import disparity_to_depth, latlon_range, pixel_ray_norms
 from rig.filters import TemporalFilter, fill_where, median_filter
 from rig.stereo import MatchedDisparity, StereoMatcher, StereoParams
 from rig.subpixel import (
@@ -79,15 +80,26 @@ class FinishOutputs:
     valid: Mask
     confidence: F32 | None
     depth: F32
+    range: F32
 
     @classmethod
-    def empty(cls, shape: tuple[int, ...], *, with_confidence: bool, cols: slice) -> FinishOutputs:
-        """Arrays to fill in columns ``cols`` (step 1; depth everywhere), invalid outside them."""
+    def empty(
+        cls, shape: tuple[int, ...], *, with_confidence: bool, cols: slice, range_is_depth: bool
+    ) -> FinishOutputs:
+        """Arrays to fill in columns ``cols`` (step 1; depth and range everywhere), invalid
+        outside them. ``range_is_depth``: one array for both (the lat-lon pair)."""
 
         def f32() -> F32:
             return np.empty(shape, dtype=np.float32)
 
-        out = cls(f32(), np.empty(shape, dtype=bool), f32() if with_confidence else None, f32())
+        depth = f32()
+        out = cls(
+            f32(),
+            np.empty(shape, dtype=bool),
+            f32() if with_confidence else None,
+            depth,
+            depth if range_is_depth else f32(),
+        )
         for outside in (slice(0, cols.start), slice(cols.stop, None)):
             out.disparity[:, outside] = np.nan
             out.valid[:, outside] = False
@@ -217,14 +229,19 @@ class _Bands:
 
 
 class FinishStage:
-    """A pipeline's finish stage for the VPC pair of focal length ``fx`` px and baseline
-    ``baseline_m``: call it in frame order (the temporal filter's history); callers are
-    serialised. ``matcher`` is the pipeline's first matcher, whose parameters start the
-    temporal filter."""
+    """A pipeline's finish stage for the rectified pair of left view ``camera`` (pinhole or
+    lat-lon) and baseline ``baseline_m``: call it in frame order (the temporal filter's history);
+    callers are serialised. ``matcher`` is the pipeline's first matcher, whose parameters start
+    the temporal filter."""
 
-    def __init__(self, fx: float, baseline_m: float, matcher: StereoMatcher) -> None:
-        self.fx = fx
+    def __init__(self, camera: PinholeModel | LatLonModel, baseline_m: float, matcher: StereoMatcher) -> None:
+        self.camera = camera
         self.baseline_m = baseline_m
+        # Range per metre of depth of every pixel (the pinhole pair; the lat-lon pair's depth is
+        # its range).
+        self._ray_norms = (
+            pixel_ray_norms(camera) if isinstance(camera, PinholeModel) else np.ones((0, 0), np.float32)
+        )
         params = matcher.params
         self._temporal = TemporalFilter(params.temporal_alpha, params.temporal_reset)
         self._temporal_owner = matcher
@@ -245,7 +262,12 @@ class FinishStage:
         prep = _prepare(p, left_gray, right_gray, disparity_of, pool)
         temporal = p.temporal_alpha > 0.0
         self._follow(matcher)
-        out = FinishOutputs.empty(prep.disparity.shape, with_confidence=p.confidence, cols=prep.cols)
+        out = FinishOutputs.empty(
+            prep.disparity.shape,
+            with_confidence=p.confidence,
+            cols=prep.cols,
+            range_is_depth=isinstance(self.camera, LatLonModel),
+        )
         bands = _Bands(p, prep, out, None if temporal else self._depth_rows)
         run_in_bands(bands, prep.disparity.shape[0], _REFINE_THREADS, prep.margin, pool)
         stage = bands.stage_ms()
@@ -280,12 +302,18 @@ class FinishStage:
             stage[key] += ms
 
     def _depth_rows(self, out: FinishOutputs, r0: int, r1: int) -> StageTimes:
-        """Depth of rows ``[r0, r1)`` of ``out`` (in place; whole rows: numpy is 2-3× slower on
-        a column window than on contiguous rows); its time."""
+        """Depth and range of rows ``[r0, r1)`` of ``out`` (in place; whole rows: numpy is 2-3×
+        slower on a column window than on contiguous rows); its time."""
         t0 = time.perf_counter()
         disparity, valid = out.disparity[r0:r1], out.valid[r0:r1]
-        depth = disparity_to_depth(disparity, self.fx, self.baseline_m, out=out.depth[r0:r1])
-        # d <= 0 has no depth: invalid everywhere, so the arrays agree pixel for pixel.
+        camera = self.camera
+        if isinstance(camera, LatLonModel):
+            depth = latlon_range(disparity, camera, self.baseline_m, out=out.range[r0:r1])
+        else:
+            depth = disparity_to_depth(disparity, camera.fx, self.baseline_m, out=out.depth[r0:r1])
+            np.multiply(depth, self._ray_norms[r0:r1], out=out.range[r0:r1])
+        # d <= 0 (and a lat-lon triangle that does not close) has no depth: invalid everywhere,
+        # so the arrays agree pixel for pixel.
         gone = ~np.isfinite(depth)
         gone &= valid
         if gone.any():

@@ -1,6 +1,8 @@
-"""Lookup tables from a virtual pinhole camera (VPC) into a fisheye image (docs/design.md, paper eq. 10).
+"""Lookup tables from a rectified view into a fisheye image (docs/design.md, "Lookup tables";
+paper eq. 10).
 
-For every VPC pixel ``p``: ``p_fisheye = π_f(R_cam_vpc · π_pinhole⁻¹(p))``. Unlike OpenCV's
+For every pixel ``p`` of the rectified view (a virtual pinhole camera, "VPC", or a lat-lon view):
+``p_fisheye = π_f(R_cam_vpc · π_rect⁻¹(p))``. Unlike OpenCV's
 ``cv2.fisheye.initUndistortRectifyMap``, rays are followed up to the lens's own limit
 (``model.max_theta``, past 90° for a 190° lens). Pixels whose ray the fisheye cannot see are
 flagged in ``valid`` and mapped to :data:`INVALID_COORD`, outside the image, so ``cv2.remap``
@@ -10,13 +12,14 @@ with a constant border writes the border value there.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TypeGuard
 
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from calibration.geometry import is_rotation
-from calibration.models import CameraModel, PinholeModel
+from calibration.models import CameraModel, LatLonModel, PinholeModel
 from rig.errors import LutError
 
 __all__ = ["CHUNK_ROWS", "INVALID_COORD", "Lut", "build_vpc_lut", "percent_valid", "vpc_rays"]
@@ -99,25 +102,35 @@ def _check_rotation(R_cam_vpc: ArrayLike) -> F64:
     return R
 
 
-def _is_plain(vpc_camera: PinholeModel) -> bool:
+def _is_plain(vpc_camera: CameraModel) -> TypeGuard[PinholeModel]:
+    """A distortion-free pinhole."""
+    if not isinstance(vpc_camera, PinholeModel):
+        return False
     d = vpc_camera.distortion
     return (d.k1, d.k2, d.p1, d.p2) == (0.0, 0.0, 0.0, 0.0)
 
 
 def _ray_rows(
-    vpc_camera: PinholeModel, R: F64, r0: int, r1: int
+    vpc_camera: CameraModel, R: F64, r0: int, r1: int
 ) -> tuple[F64, F64, F64, NDArray[np.bool_] | None]:
-    """Rays (X, Y, Z each (r1 - r0, W)) of VPC rows r0..r1 in the fisheye frame, and ok (None:
-    every ray exists).
+    """Rays (X, Y, Z each (r1 - r0, W)) of rectified rows r0..r1 in the fisheye frame, and ok
+    (None: every ray exists).
 
-    Not normalised (z = 1 in the VPC frame). A distortion-free VPC (the normal case) is an outer
-    sum of one row and one column per component, no per-pixel unprojection.
+    A distortion-free pinhole (z = 1, not normalised) and a lat-lon view (unit rays, every pixel
+    within ±90° of azimuth and ±180° of elevation) are outer products of one row and one column
+    per component: no per-pixel unprojection. Other models go through ``unproject``.
     """
     w = vpc_camera.width
     if _is_plain(vpc_camera):
         xn = (np.arange(w, dtype=np.float64) - vpc_camera.cx) / vpc_camera.fx  # (W,)
         yn = ((np.arange(r0, r1, dtype=np.float64) - vpc_camera.cy) / vpc_camera.fy)[:, None]  # (n, 1)
         X, Y, Z = (R[i, 0] * xn + (R[i, 1] * yn + R[i, 2]) for i in range(3))
+        return X, Y, Z, None
+    if isinstance(vpc_camera, LatLonModel) and _latlon_in_domain(vpc_camera):
+        az, el = vpc_camera.azimuths(), vpc_camera.elevations()[r0:r1, None]
+        sin_az, cos_az = np.sin(az), np.cos(az)  # (W,)
+        sin_el, cos_el = np.sin(el), np.cos(el)  # (n, 1)
+        X, Y, Z = (R[i, 0] * sin_az + cos_az * (R[i, 1] * sin_el + R[i, 2] * cos_el) for i in range(3))
         return X, Y, Z, None
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(r0, r1, dtype=np.float64))
     rays, ok = vpc_camera.unproject(np.stack([u.ravel(), v.ravel()], axis=1), in_image=False)
@@ -126,19 +139,25 @@ def _ray_rows(
     return cam[:, 0].reshape(shape), cam[:, 1].reshape(shape), cam[:, 2].reshape(shape), ok.reshape(shape)
 
 
-def vpc_rays(vpc_camera: PinholeModel, R_cam_vpc: ArrayLike) -> tuple[F64, F64, F64, NDArray[np.bool_]]:
+def _latlon_in_domain(camera: LatLonModel) -> bool:
+    """Every pixel centre of ``camera`` has a ray (azimuth within ±90°, elevation within ±180°)."""
+    az, el = camera.azimuths(), camera.elevations()
+    return bool(np.abs(az).max() <= np.pi / 2 and np.abs(el).max() <= np.pi)
+
+
+def vpc_rays(vpc_camera: CameraModel, R_cam_vpc: ArrayLike) -> tuple[F64, F64, F64, NDArray[np.bool_]]:
     """Rays of every VPC pixel in the fisheye frame: (X, Y, Z) each (H, W) float64, and ok (H, W)."""
     X, Y, Z, ok = _ray_rows(vpc_camera, _check_rotation(R_cam_vpc), 0, vpc_camera.height)
     return X, Y, Z, np.ones(X.shape, dtype=bool) if ok is None else ok
 
 
-def build_vpc_lut(model: CameraModel, R_cam_vpc: ArrayLike, vpc_camera: PinholeModel) -> Lut:
-    """Table of one fisheye camera for one VPC: ``p_f = π_f(R_cam_vpc · π_pinhole⁻¹(p_vpc))``.
+def build_vpc_lut(model: CameraModel, R_cam_vpc: ArrayLike, vpc_camera: CameraModel) -> Lut:
+    """Table of one fisheye camera for one rectified view: ``p_f = π_f(R_cam_vpc · π_rect⁻¹(p))``.
 
-    ``model`` any :class:`CameraModel`; ``R_cam_vpc`` (3, 3) rotates VPC rays into the fisheye
-    frame; ``vpc_camera`` the (H, W) pinhole. Valid where the model projects the ray (within its
-    ``max_theta``, including > 90°) into its image. Raises :class:`LutError` when the VPC sees
-    nothing of the lens.
+    ``model`` any :class:`CameraModel`; ``R_cam_vpc`` (3, 3) rotates rectified rays into the
+    fisheye frame; ``vpc_camera`` the (H, W) rectified view (a pinhole or a lat-lon view). Valid
+    where the model projects the ray (within its ``max_theta``, including > 90°) into its
+    image. Raises :class:`LutError` when the view sees nothing of the lens.
 
     Float64 maths in blocks of :data:`CHUNK_ROWS` rows, so the temporaries stay in cache (a
     whole-image pass of each numpy operation is ~3× slower, memory-bound), through each model's
@@ -167,7 +186,7 @@ def build_vpc_lut(model: CameraModel, R_cam_vpc: ArrayLike, vpc_camera: PinholeM
     map_y[invalid] = INVALID_COORD
     if not valid.any():
         raise LutError(
-            f"the {w}x{h} VPC sees nothing of the {model.name} camera's image "
+            f"the {w}x{h} {vpc_camera.name} view sees nothing of the {model.name} camera's image "
             "(look direction or field of view outside the lens)"
         )
     return Lut.from_float_maps(map_x, map_y, valid)

@@ -2,14 +2,16 @@
 
 Layout of an output directory::
 
-    vpc.json              the rectified pair: width, height, fx, fy, cx, cy, baseline_m
+    vpc.json              the rectified pair: projection, width, height, fx, fy, cx, cy,
+                          baseline_m, R_rig_vpc
     run.json              what made the files: the recording, the lookup tables' content keys,
-                          the VPC and stereo settings and the products written
-    depth/NNNNNN.png      uint16 depth in mm along the left VPC's z, 0 = invalid
-    left/NNNNNN.png       the left and right VPC images (gray or BGR like the recording)
+                          the rectified pair's and stereo settings and the products written
+    range/NNNNNN.png      uint16 range in mm along each left pixel's ray, 0 = invalid
+    depth/NNNNNN.png      the pinhole pair's product: uint16 depth in mm along its z, 0 = invalid
+    left/NNNNNN.png       the left and right rectified images (gray or BGR like the recording)
     right/NNNNNN.png
     cloud/NNNNNN.ply      with ``ply``: the points in the rig frame, coloured from the left view
-    preview/NNNNNN.png    with ``preview``: the left view beside colour depth
+    preview/NNNNNN.png    with ``preview``: the left view beside colour depth (lat-lon: range)
 
 Every file is written atomically (:func:`rig.atomic.write_atomic`: a temporary, fsynced, renamed
 into place), so a file that exists is complete, and a pair is complete when every product of it
@@ -80,6 +82,7 @@ def _cloud(pipeline: DepthPipeline, frame: DepthFrame) -> bytes:
 PRODUCTS: dict[str, Product] = {
     p.name: p
     for p in (
+        Product("range", ".png", lambda _, f: _png(depth_to_png_mm(f.range))),
         Product("depth", ".png", lambda _, f: _png(depth_to_png_mm(f.depth))),
         Product("left", ".png", lambda _, f: _png(f.left_vpc)),
         Product("right", ".png", lambda _, f: _png(f.right_vpc)),
@@ -87,7 +90,7 @@ PRODUCTS: dict[str, Product] = {
         Product("preview", ".png", lambda _, f: _png(depth_preview(f.left_vpc, f.depth))),
     )
 }
-BASE_PRODUCTS = ("depth", "left", "right")
+BASE_PRODUCTS = ("range", "left", "right")
 
 
 def run_settings(pipeline: DepthPipeline, products: Sequence[str]) -> dict[str, Any]:

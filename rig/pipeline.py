@@ -12,7 +12,10 @@ temporal filter).
 
 Thread safety: ``process`` may be called from several threads (a lock serialises them);
 ``update_stereo`` may be called from any thread: it builds a new matcher and swaps it in
-atomically, and the next frame to reach :meth:`match` uses it.
+atomically, and the next frame to reach :meth:`match` uses it. ``replace_rig`` likewise builds
+the lookup tables of a corrected calibration (the online rectification refinement) on the
+calling thread and swaps them in as one :class:`VpcGeometry`: a pair is rectified and finished
+with one geometry, whichever it started with, so no frame mixes two or is dropped.
 """
 
 from __future__ import annotations
@@ -21,25 +24,27 @@ import logging
 import threading
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from calibration.models import LatLonModel
 from calibration.rig import Rig
-from rig.depth import depth_points
+from rig.depth import range_points
 from rig.errors import ConfigError, PipelineError
+from rig.field import image_border, region_outline
 from rig.filters import fill_where, visible_in_right
 from rig.finish import FinishStage
 from rig.heap import tune_allocator
 from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
 from rig.stereo import MatchedDisparity, StereoMatcher, StereoParams, UnfilteredDisparity
-from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
+from rig.vpc import RectifiedCamera, VpcConfig, VpcPair, design_vpc_pair
 
-__all__ = ["DepthFrame", "DepthPipeline", "MatchedPair", "RectifiedPair", "tune_allocator"]
+__all__ = ["DepthFrame", "DepthPipeline", "MatchedPair", "RectifiedPair", "VpcGeometry", "tune_allocator"]
 
 log = logging.getLogger(__name__)
 
@@ -49,9 +54,11 @@ U8 = NDArray[np.uint8]
 
 @dataclass
 class DepthFrame:
-    """One processed pair. Arrays are (H, W) at the VPC size.
+    """One processed pair. Arrays are (H, W) at the rectified view's size.
 
-    ``depth`` float32 m along the left VPC's z, NaN invalid; ``disparity`` float32 px, NaN
+    ``range`` float32 m along each left rectified pixel's ray, NaN invalid; ``depth`` float32 m:
+    z in the left VPC frame for the pinhole pair, the range itself (the same array) for the
+    lat-lon pair, whose rays reach past 90° off its z axis; ``disparity`` float32 px, NaN
     invalid; ``valid`` bool; ``confidence`` float32 in [0, 1] (0 where invalid) or None;
     ``left_vpc``/``right_vpc`` uint8, gray or BGR like the input; ``timings_ms`` per stage
     (remap, match, refine, filters, depth, total).
@@ -60,6 +67,7 @@ class DepthFrame:
     seq: int
     ts_ns: int
     depth: F32
+    range: F32
     disparity: F32
     valid: NDArray[np.bool_]
     confidence: F32 | None
@@ -68,16 +76,81 @@ class DepthFrame:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class VpcGeometry:
+    """What the calibration fixes for the depth pipeline: the rig, its VPC pair, one lookup table
+    per camera (and where it came from) and the masks the finish stage applies (None where a
+    table sees its whole VPC)."""
+
+    rig: Rig
+    pair: VpcPair
+    lut_info: dict[str, CachedLut]
+    left_mask: NDArray[np.bool_] | None
+    right_mask: NDArray[np.bool_] | None
+
+    @property
+    def luts(self) -> dict[str, Lut]:
+        return {n: info.lut for n, info in self.lut_info.items()}
+
+    @classmethod
+    def build(
+        cls,
+        rig: Rig,
+        config: VpcConfig,
+        cache: LutCache,
+        blind_band_px: int = 0,
+        camera: RectifiedCamera | None = None,
+        luts: Mapping[str, CachedLut] | None = None,
+    ) -> VpcGeometry:
+        """The pair of ``rig`` for ``config`` (a lat-lon field's default widened by the matcher's
+        ``blind_band_px`` unmatched columns), tables from (or built into) ``cache``. ``camera``
+        keeps a given rectified image grid (a corrected calibration moves the lenses' overlap,
+        and with it a lat-lon field's size, which frames in flight and the finish stage share).
+        ``luts``: the tables handed in instead (built once elsewhere for this calibration, e.g.
+        shipped to a cluster's workers)."""
+        pair = design_vpc_pair(rig, config, blind_band_px=blind_band_px)
+        if camera is not None:
+            pair = replace(pair, camera=camera)
+        info = {
+            n: _shipped(n, luts, pair)
+            if luts is not None
+            else cache.get(rig.cameras[n], pair.R_cam_vpc[n], pair.camera)
+            for n in (pair.left, pair.right)
+        }
+        left, right = info[pair.left].lut, info[pair.right].lut
+        return cls(
+            rig,
+            pair,
+            info,
+            None if left.valid_fraction == 1.0 else left.valid,
+            None if right.valid_fraction == 1.0 else right.valid,
+        )
+
+
+def _shipped(name: str, luts: Mapping[str, CachedLut], pair: VpcPair) -> CachedLut:
+    """Camera ``name``'s table as handed in, checked against the pair's image size."""
+    info = luts.get(name)
+    expected = (pair.camera.height, pair.camera.width)
+    if info is None or info.lut.shape != expected:
+        got = "none" if info is None else "x".join(map(str, info.lut.shape[::-1]))
+        raise ConfigError(
+            f"lookup table of camera {name!r}: {got} handed in for a {expected[1]}x{expected[0]} VPC"
+        )
+    return info
+
+
 @dataclass
 class RectifiedPair:
     """Output of :meth:`DepthPipeline.rectify`: the VPC images (H, W[, 3]) uint8, their gray
-    versions (H, W) uint8 (the same arrays for gray input) and the stage's time."""
+    versions (H, W) uint8 (the same arrays for gray input), the stage's time and the geometry
+    that made them (None: the pipeline's current one)."""
 
     left_vpc: U8
     right_vpc: U8
     left_gray: U8
     right_gray: U8
     remap_ms: float
+    geometry: VpcGeometry | None = None
 
 
 @dataclass
@@ -114,60 +187,107 @@ class DepthPipeline:
     ) -> None:
         if tune_malloc:
             tune_allocator()
-        self.rig = rig
         self.vpc_config = vpc or VpcConfig()
-        self.pair: VpcPair = design_vpc_pair(rig, self.vpc_config)
-        self.baseline_m = self.pair.baseline_m
+        params = stereo or StereoParams()
+        # A lat-lon field's default leaves room for the matcher's unmatched columns.
+        self._blind_band_px = params.blind_band_px
         self.cache = LutCache(cache_dir)
+        self._geometry = VpcGeometry.build(rig, self.vpc_config, self.cache, self._blind_band_px, luts=luts)
         self.names = (self.pair.left, self.pair.right)
-        self.lut_info: dict[str, CachedLut] = {}
-        for name in self.names:
-            if luts is not None:
-                self.lut_info[name] = self._shipped(name, luts)
-                continue
-            self.lut_info[name] = self.cache.get(
-                rig.cameras[name], self.pair.R_cam_vpc[name], self.pair.camera
-            )
-        self.luts: dict[str, Lut] = {n: info.lut for n, info in self.lut_info.items()}
-        self.valid_fraction = {n: lut.valid_fraction for n, lut in self.luts.items()}
-        for name, frac in self.valid_fraction.items():
-            if frac < 1.0:
-                log.warning(
-                    "VPC (%dx%d, hfov %.1f°, yaw %.1f°, pitch %.1f°) leaves camera '%s''s field: "
-                    "only %s of its pixels are valid",
-                    self.vpc_config.width,
-                    self.vpc_config.height,
-                    self.vpc_config.hfov_deg,
-                    self.vpc_config.yaw_deg,
-                    self.vpc_config.pitch_deg,
-                    name,
-                    percent_valid(frac),
-                )
-        left_lut, right_lut = self.luts[self.pair.left], self.luts[self.pair.right]
-        # Masks are only applied when they exclude something (the usual VPC sees all valid).
-        self._left_mask = None if left_lut.valid_fraction == 1.0 else left_lut.valid
-        self._right_mask = None if right_lut.valid_fraction == 1.0 else right_lut.valid
+        self._report_field(self._geometry)
         self._swap_lock = threading.Lock()
         self._process_lock = threading.Lock()
         self._match_lock = threading.Lock()
         self._finish_lock = threading.Lock()
-        params = stereo or StereoParams()
         self._check_params(params)
         self._matcher = StereoMatcher(params)
-        self._finish = FinishStage(self.pair.fx, self.baseline_m, self._matcher)
-
-    def _shipped(self, name: str, luts: Mapping[str, CachedLut]) -> CachedLut:
-        """Camera ``name``'s table as handed in (built once elsewhere for this calibration)."""
-        info = luts.get(name)
-        expected = (self.pair.camera.height, self.pair.camera.width)
-        if info is None or info.lut.shape != expected:
-            got = "none" if info is None else "x".join(map(str, info.lut.shape[::-1]))
-            raise ConfigError(
-                f"lookup table of camera {name!r}: {got} handed in for a {expected[1]}x{expected[0]} VPC"
-            )
-        return info
+        self._finish = FinishStage(self.pair.camera, self.baseline_m, self._matcher)
 
     # ----- configuration -----------------------------------------------------------------------
+    @property
+    def geometry(self) -> VpcGeometry:
+        """The current geometry (take it once per pair: :meth:`replace_rig` may swap it)."""
+        return self._geometry
+
+    @property
+    def rig(self) -> Rig:
+        return self._geometry.rig
+
+    @property
+    def pair(self) -> VpcPair:
+        return self._geometry.pair
+
+    @property
+    def baseline_m(self) -> float:
+        return self._geometry.pair.baseline_m
+
+    @property
+    def lut_info(self) -> dict[str, CachedLut]:
+        return self._geometry.lut_info
+
+    @property
+    def luts(self) -> dict[str, Lut]:
+        return self._geometry.luts
+
+    @property
+    def valid_fraction(self) -> dict[str, float]:
+        return {n: lut.valid_fraction for n, lut in self.luts.items()}
+
+    @property
+    def _latlon(self) -> bool:
+        return isinstance(self.pair.camera, LatLonModel)
+
+    def _report_field(self, geometry: VpcGeometry) -> None:
+        """Log what the rectified view leaves out: for the pinhole pair the share of its pixels a
+        lens does not see (an unusual VPC); the lat-lon field is the lenses' overlap by design,
+        an explicit field wider than it is clipped (:attr:`VpcPair.field_note`)."""
+        pair = geometry.pair
+        c = pair.camera
+        fractions = {n: info.lut.valid_fraction for n, info in geometry.lut_info.items()}
+        if pair.field_note:
+            log.warning("%s", pair.field_note)
+        if isinstance(c, LatLonModel):
+            log.info(
+                "lat-lon pair %dx%d, %.3f px/deg, %d unmatched columns on the left; the lenses see "
+                "%s / %s of its pixels",
+                c.width,
+                c.height,
+                np.radians(c.fx),
+                self._blind_band_px,
+                *(percent_valid(fractions[n]) for n in (pair.left, pair.right)),
+            )
+            return
+        v = self.vpc_config
+        for name, frac in fractions.items():
+            if frac < 1.0:
+                log.warning(
+                    "VPC (%dx%d, hfov %.1f°, yaw %.1f°, pitch %.1f°) leaves camera '%s''s field: "
+                    "only %s of its pixels are valid",
+                    v.width, v.height, v.hfov_deg, v.yaw_deg, v.pitch_deg, name, percent_valid(frac),
+                )  # fmt: skip
+
+    def replace_rig(self, rig: Rig) -> VpcGeometry:
+        """Swap in a corrected calibration of the same cameras and baseline length (the online
+        rectification refinement): its tables are built (or read from the cache) here, then
+        swapped in at once; pairs already rectified finish with the geometry they began with.
+        ConfigError when the lenses or the baseline's length differ (depth would change scale)."""
+        old = self._geometry
+        for name in self.names:
+            if name not in rig.cameras or rig.cameras[name].to_dict() != old.rig.cameras[name].to_dict():
+                raise ConfigError(
+                    f"replace_rig: camera {name!r} is not the same lens; restart with the new calibration"
+                )
+        geometry = VpcGeometry.build(rig, self.vpc_config, self.cache, self._blind_band_px, old.pair.camera)
+        if abs(geometry.pair.baseline_m - old.pair.baseline_m) > 1e-9 * old.pair.baseline_m:
+            raise ConfigError(
+                f"replace_rig: the baseline changes from {old.pair.baseline_m:.6f} m to "
+                f"{geometry.pair.baseline_m:.6f} m; restart with the new calibration"
+            )
+        self._report_field(geometry)
+        with self._swap_lock:
+            self._geometry = geometry
+        return geometry
+
     @property
     def stereo(self) -> StereoParams:
         return self._matcher.params
@@ -184,6 +304,14 @@ class DepthPipeline:
         """Swap in new stereo parameters (thread-safe; takes effect at the next frame)."""
         self._check_params(params)
         matcher = StereoMatcher(params)
+        if self._latlon and params.blind_band_px > self._blind_band_px:
+            log.warning(
+                "stereo: the lat-lon field leaves room for %d unmatched columns, the new settings "
+                "leave %d: the overlap's leftmost %d columns get no range until the service restarts",
+                self._blind_band_px,
+                params.blind_band_px,
+                params.blind_band_px - self._blind_band_px,
+            )
         with self._swap_lock:
             self._matcher = matcher
 
@@ -214,25 +342,30 @@ class DepthPipeline:
                 f"{model.width}x{model.height}"
             )
 
-    def rectify_camera(self, name: str, image: U8) -> tuple[U8, U8]:
+    def rectify_camera(self, name: str, image: U8, geometry: VpcGeometry | None = None) -> tuple[U8, U8]:
         """One camera's VPC image (gray or BGR like ``image``) and its gray version, which is
-        the same array for gray input. Thread-safe: reads only the camera's LUT."""
+        the same array for gray input, through ``geometry``'s table (default: the current one).
+        Thread-safe: reads only the camera's LUT."""
         self._check_input(name, image)
-        vpc = self.luts[name].remap(image)
+        vpc = (geometry or self._geometry).lut_info[name].lut.remap(image)
         return vpc, _gray(vpc)
 
     def remap(self, left: U8, right: U8) -> tuple[U8, U8]:
         """The VPC pair from a fisheye pair (fixed-point bilinear remap, black outside the lens)."""
-        self._check_input(self.pair.left, left)
-        self._check_input(self.pair.right, right)
-        return self.luts[self.pair.left].remap(left), self.luts[self.pair.right].remap(right)
+        geometry = self._geometry
+        pair = geometry.pair
+        self._check_input(pair.left, left)
+        self._check_input(pair.right, right)
+        return geometry.lut_info[pair.left].lut.remap(left), geometry.lut_info[pair.right].lut.remap(right)
 
     def rectify(self, left: U8, right: U8) -> RectifiedPair:
         """Stage 1 of :meth:`process`: the VPC pair and its gray images (thread-safe)."""
         t0 = time.perf_counter()
-        left_vpc, left_gray = self.rectify_camera(self.pair.left, left)
-        right_vpc, right_gray = self.rectify_camera(self.pair.right, right)
-        return RectifiedPair(left_vpc, right_vpc, left_gray, right_gray, (time.perf_counter() - t0) * 1e3)
+        geometry = self._geometry
+        left_vpc, left_gray = self.rectify_camera(geometry.pair.left, left, geometry)
+        right_vpc, right_gray = self.rectify_camera(geometry.pair.right, right, geometry)
+        ms = (time.perf_counter() - t0) * 1e3
+        return RectifiedPair(left_vpc, right_vpc, left_gray, right_gray, ms, geometry)
 
     def match(self, rect: RectifiedPair) -> MatchedPair:
         """Stage 2 of :meth:`process`: the current matcher's OpenCV call (its parallel part; the
@@ -249,11 +382,13 @@ class DepthPipeline:
         """The matcher's disparity of ``matched`` (speckles removed), LUT masks applied."""
         raw = matched.matcher.finish(matched.unfiltered)
         disparity, valid = raw.disparity, raw.valid
-        if self._left_mask is not None:
-            valid &= self._left_mask
-        if self._right_mask is not None:
-            valid = visible_in_right(disparity, valid, self._right_mask)
-        if self._left_mask is not None or self._right_mask is not None:
+        geometry = matched.rectified.geometry or self._geometry
+        left_mask, right_mask = geometry.left_mask, geometry.right_mask
+        if left_mask is not None:
+            valid &= left_mask
+        if right_mask is not None:
+            valid = visible_in_right(disparity, valid, right_mask)
+        if left_mask is not None or right_mask is not None:
             fill_where(disparity, np.nan, ~valid)
         return MatchedDisparity(disparity, valid)
 
@@ -274,6 +409,7 @@ class DepthPipeline:
             seq,
             ts_ns,
             out.depth,
+            out.range,
             out.disparity,
             out.valid,
             out.confidence,
@@ -295,7 +431,8 @@ class DepthPipeline:
         """Points (N, 3) float32 in the rig frame and their colours (N, 3) uint8 RGB (gray
         images give gray colours), every ``stride``-th pixel of each axis. Colours come from
         ``image`` (the left VPC image, (H, W[, 3]) uint8) or else ``frame.left_vpc``."""
-        pts, idx = depth_points(frame.depth, self.pair.camera, self.pair.T_rig_vpc[self.pair.left], stride)
+        pair = self.pair
+        pts, idx = range_points(frame.range, pair.camera, pair.T_rig_vpc[pair.left], stride)
         img = frame.left_vpc if image is None else image
         if img.shape[:2] != frame.depth.shape:
             raise PipelineError(
@@ -309,27 +446,23 @@ class DepthPipeline:
         return pts, np.ascontiguousarray(colors)
 
     def footprint(self, camera: str, samples: int = 64) -> NDArray[np.float64]:
-        """The VPC image border traced in ``camera``'s fisheye image: (M, 2) pixels, a closed
-        polyline (top, right, bottom, left edges, ``samples`` points each) of the border
-        points the lens sees. For the dashboard overlay."""
-        if camera not in self.luts:
+        """The rectified view's outline traced in ``camera``'s fisheye image: (M, 2) pixels, a
+        closed polyline of the outline points the lens sees. The pinhole pair's outline is its
+        image border (top, right, bottom, left edges, ``samples`` points each); the lat-lon
+        pair's, whose image corners no lens sees, the border of the overlap (where both lenses
+        see, ``4·samples`` points). For the dashboard overlay."""
+        geometry = self._geometry
+        if camera not in geometry.lut_info:
             raise ConfigError(f"footprint: no camera {camera!r} in the VPC pair ({', '.join(self.names)})")
         if samples < 2:
             raise ConfigError(f"footprint: samples must be >= 2, got {samples}")
-        c = self.pair.camera
-        u = np.linspace(0.0, c.width - 1.0, samples)
-        v = np.linspace(0.0, c.height - 1.0, samples)
-        border = np.concatenate(
-            [
-                np.stack([u, np.zeros_like(u)], 1),
-                np.stack([np.full_like(v, c.width - 1.0), v], 1),
-                np.stack([u[::-1], np.full_like(u, c.height - 1.0)], 1),
-                np.stack([np.zeros_like(v), v[::-1]], 1),
-            ]
-        )
-        rays = np.stack(
-            [(border[:, 0] - c.cx) / c.fx, (border[:, 1] - c.cy) / c.fy, np.ones(len(border))], axis=1
-        )
-        cam_rays = rays @ self.pair.R_cam_vpc[camera].T
-        pix, ok = self.rig.cameras[camera].project(cam_rays, in_image=False)
+        pair = geometry.pair
+        c = pair.camera
+        if isinstance(c, LatLonModel):
+            luts = geometry.luts
+            outline = region_outline(luts[pair.left].valid & luts[pair.right].valid, 4 * samples)
+        else:
+            outline = image_border(c.width, c.height, samples)
+        rays, _ = c.unproject(outline, in_image=False)
+        pix, ok = geometry.rig.cameras[camera].project(rays @ pair.R_cam_vpc[camera].T, in_image=False)
         return pix[ok]

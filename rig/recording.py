@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rig.atomic import write_atomic as _atomic_write
-from rig.errors import DiskFullError, RecordingError
+from rig.errors import DiskFullError, RecordingError, ResourceExhausted
 
 __all__ = [
     "FRAMES_HEADER",
@@ -217,11 +217,15 @@ class Recording:
         return p
 
     def read_bytes(self, pair: PairRecord, camera: str) -> bytes:
-        """The frame file exactly as stored (MJPEG bytes for camera recordings)."""
+        """The frame file exactly as stored (MJPEG bytes for camera recordings); RecordingError
+        if it is missing or unreadable, ResourceExhausted if the process has no file descriptor
+        left to open it (the file is fine: not a broken frame)."""
         p = self.path(pair.file(camera))
         try:
             return p.read_bytes()
         except OSError as err:
+            if err.errno in (errno.EMFILE, errno.ENFILE):
+                raise ResourceExhausted(f"{p}: cannot open the {camera} frame: {fd_exhaustion(err)}") from err
             raise RecordingError(
                 f"{p}: {camera} frame of seq {pair.seq} unreadable ({err.strerror})"
             ) from err
@@ -300,6 +304,9 @@ class RecordingWriter:
         self.cameras = list(cameras)
         self.fsync = fsync
         self.count = 0
+        self._meta_bytes = 0  # recording.json as written here
+        self._frame_bytes = 0
+        self._index_size = 0
         index = self.root / "frames.csv"
         if index.exists():
             raise RecordingError(f"{self.root}: already holds a recording (frames.csv exists)")
@@ -308,10 +315,11 @@ class RecordingWriter:
                 (self.root / cam).mkdir(parents=True, exist_ok=True)
             doc = {"version": RECORDING_VERSION, "cameras": self.cameras, **(meta or {})}
             doc["version"], doc["cameras"] = RECORDING_VERSION, self.cameras
-            _atomic_write(self.root / "recording.json", json.dumps(doc, indent=2).encode() + b"\n")
+            meta_bytes = json.dumps(doc, indent=2).encode() + b"\n"
+            _atomic_write(self.root / "recording.json", meta_bytes)
+            self._meta_bytes = len(meta_bytes)
             # Unbuffered: each row reaches the kernel in one write() the moment it is appended.
             self._index: io.FileIO | None = open(index, "ab", buffering=0)  # noqa: SIM115
-            self._index_size = 0
             self._append_index((",".join(FRAMES_HEADER) + "\n").encode())
         except OSError as err:
             raise self._translate(err, self.root) from err
@@ -360,6 +368,7 @@ class RecordingWriter:
             raise self._translate(err, self.root) from err
         self._seqs.add(seq)
         self.count += 1
+        self._frame_bytes += len(left) + len(right)
         return PairRecord(seq, int(left_ts_ns), int(right_ts_ns), rel["left"], rel["right"])
 
     def write_images(
@@ -373,6 +382,18 @@ class RecordingWriter:
                 raise RecordingError(f"{self.root}: could not encode frame {seq} as PNG")
             enc.append(buf.tobytes())
         return self.write_pair(seq, left_ts_ns, right_ts_ns, enc[0], enc[1], ext=".png")
+
+    @property
+    def data_bytes(self) -> int:
+        """Bytes of the frame files and ``frames.csv`` written so far, counted as they are
+        written (a recording of an hour has a hundred thousand files, too many to stat whenever
+        someone asks)."""
+        return self._frame_bytes + self._index_size
+
+    @property
+    def bytes_written(self) -> int:
+        """:attr:`data_bytes` and ``recording.json``."""
+        return self.data_bytes + self._meta_bytes
 
     def _append_index(self, data: bytes) -> None:
         """Append one row; on failure cut the file back so no partial row stays behind."""
@@ -404,4 +425,16 @@ class RecordingWriter:
     def _translate(err: OSError, root: Path) -> RecordingError:
         if err.errno in _NO_SPACE:
             return DiskFullError(f"{root}: disk full; recording stopped, everything indexed so far is intact")
+        if err.errno in (errno.EMFILE, errno.ENFILE):
+            return RecordingError(f"{root}: cannot write recording: {fd_exhaustion(err)}")
         return RecordingError(f"{root}: cannot write recording ({err.strerror or err})")
+
+
+def fd_exhaustion(err: OSError) -> str:
+    """What an EMFILE/ENFILE means, with the limit to raise."""
+    if err.errno == errno.ENFILE:
+        return "the system has run out of file descriptors (ENFILE)"
+    import resource  # POSIX only
+
+    soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+    return f"the process has run out of file descriptors (EMFILE: all {soft} of ulimit -n are open)"

@@ -40,7 +40,7 @@ from typing import Any, Generic, Literal, TypeVar
 from numpy.typing import NDArray
 
 from rig.errors import RigError
-from rig.pipeline import DepthFrame, DepthPipeline, MatchedPair, RectifiedPair
+from rig.pipeline import DepthFrame, DepthPipeline, MatchedPair, RectifiedPair, VpcGeometry
 from rig.priority import apply_to_current_thread
 
 __all__ = [
@@ -330,26 +330,31 @@ class StagedExecutor:
         """Load and remap one pair, the two cameras on two threads: JPEG decoding is
         single-threaded, and two remaps at once beat one parallelised after another."""
         left_name, right_name = self.pipeline.names
+        # One geometry for both frames: a corrected calibration swapped in meanwhile
+        # (DepthPipeline.replace_rig) starts with the next pair.
+        geometry = self.pipeline.geometry
         decoder = self._decoder
         if decoder is None:
-            left = self._load_rectify(left_name, job.left)
-            right = self._load_rectify(right_name, job.right)
+            left = self._load_rectify(left_name, job.left, geometry)
+            right = self._load_rectify(right_name, job.right, geometry)
         else:
-            future: Future[_Rectified] = decoder.submit(self._load_rectify, left_name, job.left)
+            future: Future[_Rectified] = decoder.submit(self._load_rectify, left_name, job.left, geometry)
             try:
-                right = self._load_rectify(right_name, job.right)
+                right = self._load_rectify(right_name, job.right, geometry)
             finally:
                 left = future.result()  # also when the right failed: no thread left on this pair
         right_vpc, right_gray, right_decode, right_remap = right
         left_vpc, left_gray, left_decode, left_remap = left
-        rect = RectifiedPair(left_vpc, right_vpc, left_gray, right_gray, max(left_remap, right_remap))
+        rect = RectifiedPair(
+            left_vpc, right_vpc, left_gray, right_gray, max(left_remap, right_remap), geometry
+        )
         return rect, max(left_decode, right_decode)
 
-    def _load_rectify(self, name: str, load: Callable[[], NDArray[Any]]) -> _Rectified:
+    def _load_rectify(self, name: str, load: Callable[[], NDArray[Any]], geometry: VpcGeometry) -> _Rectified:
         t0 = time.perf_counter()
         image = load()
         t1 = time.perf_counter()
-        vpc, gray = self.pipeline.rectify_camera(name, image)
+        vpc, gray = self.pipeline.rectify_camera(name, image, geometry)
         t2 = time.perf_counter()
         return vpc, gray, (t1 - t0) * 1e3, (t2 - t1) * 1e3
 

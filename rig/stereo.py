@@ -5,19 +5,15 @@ of ROS ``stereo_image_proc``'s disparity node, plus our own stages: subpixel ref
 and a confidence map (:mod:`rig.subpixel`), a full left-right check, median and temporal
 filters (:mod:`rig.filters`). Every stage is configuration; none is a code fork.
 
-Default choices (measured on the virtual environment; tables in docs/stereo.md, printed by
-``pytest -s tests/rig/test_stereo_render.py tests/rig/test_filters.py``): SGBM_3WAY (as accurate
-as full SGBM and HH on the prototype plane and room renders, ~2× faster than SGBM on 2 cores),
-7 px window (fewer >1 px errors in the room than 5, same on planes), 128 disparities (depth from
-2.5 baselines out at the default 640×480 / 90° VPC: fx·B/Z = 320/2.5), speckle removal
-(100 px, 2 px range: without it the room's disparity RMS rose from 0.23 to 1.16 px), our subpixel
-refinement with a 15 px window, a 5×5 median, and the confidence map on. The full left-right
-check is off: it runs the matcher a second time (~2× match time); on the full-size prototype
-room it removed about half of the gross (>10 %) errors that the repetitive back-wall texture
-causes, for ~4 % of the valid pixels; turn it on where a phantom near obstacle costs more than
-the time. (OpenCV 5.0's own ``disp12_max_diff`` check changed fewer than 10 of 307k pixels
-there: its second view comes from the same aggregated costs.) The temporal filter is off (it
-lags moving scenes).
+Default choices (measured on the virtual environment; see docs/stereo.md, whose tables
+``python -m bench.phantoms`` and ``pytest -s tests/rig/test_stereo_render.py tests/rig/test_filters.py``
+print): SGBM_3WAY, a 7 px window, speckle removal, our subpixel refinement with a 15 px window, a
+5×5 median and the confidence map on, as measured for accuracy; 96 disparities and the full
+left-right check on, chosen against *phantom obstacles*: a repetitive or weak texture matched with
+its next repeat gives a disparity one period too large, a near surface that is not there. Fewer
+disparities leave fewer wrong periods within reach, and the left-right check removes most of
+the rest; the price is the nearest depth (fx·B/96 at the VPC's fx) and a second matcher run
+(both measured in docs/stereo.md). The temporal filter is off (it lags moving scenes).
 """
 
 from __future__ import annotations
@@ -28,10 +24,11 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from rig.errors import PipelineError
 from rig.filters import fill_where, left_right_consistent
+from rig.settings_model import SettingsModel
 
 __all__ = [
     "SGBM_MODES",
@@ -56,7 +53,7 @@ SGBM_MODES: dict[str, int] = {
 _ROS_SGBM_MODE = ("sgbm", "hh", "3way", "hh4")
 
 
-class StereoParams(BaseModel):
+class StereoParams(SettingsModel):
     """Matcher and post-filter configuration. Names and meanings follow ROS stereo_image_proc
     (``stereo_algorithm`` 0 = BM, 1 = SGBM; ``full_dp`` = SGBM's full 8-path HH mode); the
     fields after ``full_dp`` are ours."""
@@ -69,7 +66,9 @@ class StereoParams(BaseModel):
     prefilter_cap: int = Field(31, ge=1, le=63, description="bound on prefiltered pixel values")
     correlation_window_size: int = Field(7, ge=1, le=255, description="matching window (odd, px)")
     min_disparity: int = Field(0, ge=-2048, le=2048, description="smallest disparity searched (px)")
-    disparity_range: int = Field(128, ge=16, le=4096, description="disparities searched (multiple of 16)")
+    disparity_range: int = Field(
+        96, ge=16, le=4096, description="disparities searched (multiple of 16); nearest depth fx·B/range"
+    )
     # OpenCV 5.0 SGBM_3WAY divides by zero (SIGFPE, the process dies) at a ratio of 100.
     uniqueness_ratio: float = Field(10.0, ge=0.0, lt=99.5, description="best must beat 2nd by this %")
     texture_threshold: int = Field(10, ge=0, le=10000, description="BM: minimum window texture")
@@ -81,7 +80,7 @@ class StereoParams(BaseModel):
     full_dp: bool = Field(False, description="SGBM full 8-direction dynamic programming (= mode hh)")
     subpixel: bool = Field(True, description="gradient-based subpixel refinement (rig.subpixel)")
     subpixel_window: int = Field(15, ge=3, le=31, description="refinement window (odd, px)")
-    lr_check: bool = Field(False, description="full left-right consistency check (2nd matcher run)")
+    lr_check: bool = Field(True, description="full left-right consistency check (2nd matcher run)")
     lr_max_diff: float = Field(1.0, gt=0.0, le=16.0, description="LR check tolerance (px)")
     median: Literal[0, 3, 5] = Field(5, description="median filter on disparity (0 = off)")
     temporal_alpha: float = Field(0.0, ge=0.0, lt=1.0, description="weight of the past frame (0 = off)")
@@ -98,18 +97,28 @@ class StereoParams(BaseModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> StereoParams:
-        for name in ("correlation_window_size", "prefilter_size", "subpixel_window"):
-            if getattr(self, name) % 2 == 0:
-                raise ValueError(f"{name} must be odd, got {getattr(self, name)}")
+        problems = [
+            f"{name} must be odd, got {getattr(self, name)}"
+            for name in ("correlation_window_size", "prefilter_size", "subpixel_window")
+            if getattr(self, name) % 2 == 0
+        ]
         if self.disparity_range % 16:
-            raise ValueError(f"disparity_range must be a multiple of 16, got {self.disparity_range}")
+            problems.append(f"disparity_range must be a multiple of 16, got {self.disparity_range}")
         if self.stereo_algorithm == 0 and self.correlation_window_size < 5:
-            raise ValueError("correlation_window_size must be >= 5 for block matching (BM)")
+            problems.append("correlation_window_size must be >= 5 for block matching (BM)")
         if self.full_dp and self.sgbm_mode not in ("sgbm", "hh"):
-            raise ValueError(f"full_dp conflicts with sgbm_mode {self.sgbm_mode!r} (full_dp means 'hh')")
+            problems.append(f"full_dp conflicts with sgbm_mode {self.sgbm_mode!r} (full_dp means 'hh')")
         if self.P2 and self.P1 and self.P2 <= self.P1:
-            raise ValueError(f"P2 ({self.P2}) must be larger than P1 ({self.P1})")
+            problems.append(f"P2 ({self.P2}) must be larger than P1 ({self.P1})")
+        if problems:  # all of them: one answer lists every mistake
+            raise ValueError("; ".join(problems))
         return self
+
+    @property
+    def blind_band_px(self) -> int:
+        """Columns on the left of the image the matcher never matches: OpenCV's matchers start at
+        column ``min_disparity + disparity_range`` (a left pixel's match must lie in the image)."""
+        return max(0, self.min_disparity + self.disparity_range)
 
     @property
     def effective_mode(self) -> str:

@@ -41,6 +41,7 @@ __all__ = [
     "Refinement",
     "RefinementInputs",
     "confidence_from_sigma",
+    "normalise_contrast",
     "refine_disparity",
     "refine_rows",
     "refinement_inputs",
@@ -81,7 +82,7 @@ def _row_map(h: int, w: int) -> F32:
     return ys
 
 
-def _normalise(img: U8) -> F32:
+def normalise_contrast(img: U8) -> F32:
     """Local contrast normalisation ``(I − μ) / sqrt(σ² + ε²)`` over :data:`NORM_WINDOW`: the two
     cameras' gain and offset differences (exposure, vignetting at different field angles) would
     otherwise leak into the intensity residual and bias the step. Means straight from the uint8
@@ -151,8 +152,8 @@ class Normalisation:
     gives (L, R) (H, W) float32."""
 
     def __init__(self, left: U8, right: U8, pool: Executor | None = None) -> None:
-        self._left = submit_or_run(pool, _normalise, left)
-        self._right = submit_or_run(pool, _normalise, right)
+        self._left = submit_or_run(pool, normalise_contrast, left)
+        self._right = submit_or_run(pool, normalise_contrast, right)
 
     def result(self) -> tuple[F32, F32]:
         return self._left.result(), self._right.result()

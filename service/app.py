@@ -14,7 +14,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 from starlette.concurrency import run_in_threadpool
-from starlette.types import Receive, Scope, Send
+from starlette.types import Message, Receive, Scope, Send
 
 from service.error_handlers import install_error_handlers
 from service.fast_path import answer_hot_request
@@ -47,7 +47,8 @@ API_VERSION = "1"
 
 
 class DepthServiceApp(FastAPI):
-    """FastAPI, except that the hot requests (polls of ``/depth`` and ``/disparity`` whose body
+    """FastAPI, except that a HEAD is answered as its GET without the body (wherever GET works),
+    and that the hot requests (polls of ``/depth`` and ``/disparity`` whose body
     the worker already encoded, of ``/health`` while its shared document is fresh) are answered
     before its middleware stack (:mod:`service.fast_path`). ``fast_path_on`` False sends every
     request through the stack."""
@@ -55,9 +56,30 @@ class DepthServiceApp(FastAPI):
     fast_path_on = True
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] == "http" and scope["method"] == "HEAD":
+            await self.__call__({**scope, "method": "GET"}, receive, _headers_only(send))
+            return
         if self.fast_path_on and await answer_hot_request(self.state, scope, send):
             return
         await super().__call__(scope, receive, send)
+
+
+def _headers_only(send: Send) -> Send:
+    """``send`` for a HEAD answered as its GET: the status and headers, then an empty body at once
+    (the server then reports the request complete, which ends a stream); later body parts are
+    dropped."""
+    started = False
+
+    async def send_head(message: Message) -> None:
+        nonlocal started
+        if message["type"] != "http.response.start":
+            return
+        if not started:
+            started = True
+            await send(message)
+            await send({"type": "http.response.body", "body": b"", "more_body": False})
+
+    return send_head
 
 
 def create_app(settings: Settings | None = None, *, runtime: Runtime | None = None) -> FastAPI:

@@ -7,6 +7,7 @@ with RigClient("http://127.0.0.1:8000") as rig:
     print(rig.health().status)
     d = rig.depth()                  # float32 metres, NaN = invalid
     print(d.seq, d.depth.shape, float(np.nanmedian(d.depth)))
+    r = rig.range()                  # metres along each pixel's ray (either projection)
     left = rig.frames("left", "vpc") # the rectified left image
 ```
 
@@ -34,6 +35,7 @@ __all__ = [
     "DisparityMap",
     "FrameImage",
     "PointCloud",
+    "RangeMap",
     "RigClient",
 ]
 
@@ -44,6 +46,18 @@ class DepthMap:
     was transferred (0.001 for a mm PNG, 1.0 for npy)."""
 
     depth: NDArray[np.float32]
+    seq: int
+    ts_ns: int
+    scale: float
+
+
+@dataclass(frozen=True)
+class RangeMap:
+    """``range`` (H, W) float32 metres along each left rectified pixel's ray, NaN invalid;
+    ``scale`` metres per unit of the body that was transferred (0.001 for a mm PNG, 1.0 for
+    npy)."""
+
+    range: NDArray[np.float32]
     seq: int
     ts_ns: int
     scale: float
@@ -169,7 +183,7 @@ class RigClient:
     def _array(
         self, path: str, format: Literal["npy", "png"], scale_header: str
     ) -> tuple[NDArray[np.float32], NDArray[Any] | None, int, int, float]:
-        """GET an array endpoint (``/depth``, ``/disparity``, ``/confidence``) in ``format``:
+        """GET an array endpoint (``/depth``, ``/range``, ``/disparity``, ``/confidence``) in ``format``:
         float32 values (npy as sent; png units × the scale header), the png's units (None for
         npy: for the caller's invalid marking), the frame's seq and timestamp, and the scale."""
         r = self._request("GET", path, params={"format": format})
@@ -181,11 +195,22 @@ class RigClient:
         return units.astype(np.float32) * np.float32(scale), units, seq, ts, scale
 
     def depth(self, format: Literal["npy", "png"] = "npy") -> DepthMap:
-        """Latest depth in metres (NaN invalid), whichever encoding is transferred."""
-        depth, units, seq, ts, scale = self._array("/depth", format, "X-Depth-Scale")
+        """Latest depth in metres (NaN invalid), whichever encoding is transferred: z for the
+        pinhole pair, the range along each ray for the lat-lon pair."""
+        return DepthMap(*self._metres("/depth", format, "X-Depth-Scale"))
+
+    def range(self, format: Literal["npy", "png"] = "npy") -> RangeMap:
+        """Latest range in metres along each pixel's ray (NaN invalid), either projection."""
+        return RangeMap(*self._metres("/range", format, "X-Range-Scale"))
+
+    def _metres(
+        self, path: str, format: Literal["npy", "png"], scale_header: str
+    ) -> tuple[NDArray[np.float32], int, int, float]:
+        """``/depth`` or ``/range`` in metres, NaN where the png holds 0; seq, timestamp, scale."""
+        values, units, seq, ts, scale = self._array(path, format, scale_header)
         if units is not None:
-            depth[units == 0] = np.nan
-        return DepthMap(depth, seq, ts, scale)
+            values[units == 0] = np.nan
+        return values, seq, ts, scale
 
     def disparity(self, format: Literal["npy", "png"] = "npy") -> DisparityMap:
         disp, units, seq, ts, _ = self._array("/disparity", format, "X-Disparity-Scale")

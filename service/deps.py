@@ -42,12 +42,13 @@ _HEADER_DOCS = {
 
 
 def binary_response_doc(
-    description: str, *media_types: str, depth_scale: bool = False
+    description: str, *media_types: str, scale_header: str | None = None
 ) -> dict[int | str, Any]:
-    """OpenAPI ``responses`` for an endpoint serving the latest frame as bytes."""
+    """OpenAPI ``responses`` for an endpoint serving the latest frame as bytes; ``scale_header``:
+    the name of its metres-per-unit header (``X-Depth-Scale``, ``X-Range-Scale``)."""
     headers = dict(_HEADER_DOCS)
-    if depth_scale:
-        headers["X-Depth-Scale"] = {
+    if scale_header is not None:
+        headers[scale_header] = {
             "description": "metres per unit of the body (1 for npy, which is in metres)",
             "schema": {"type": "number"},
         }

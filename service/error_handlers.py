@@ -10,11 +10,14 @@ in ``detail``, and the traceback in the log.
 from __future__ import annotations
 
 import logging
+import math
 import re
 from typing import Any
 
 from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
 from fastapi.exception_handlers import http_exception_handler
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import compile_path
@@ -23,16 +26,27 @@ from calibration.errors import CalibrationError
 from rig.errors import ConfigError, DiskFullError, FaultNotSupported, RigError
 from service.errors import (
     ConfidenceOff,
+    ConfigChanged,
     NotFound,
     NotReady,
     RecordingConflict,
     RecordingNameError,
+    RecordingStorageError,
     ServiceError,
     StereoParamsRefused,
+    TooManyStreams,
     Unauthorized,
 )
 
-__all__ = ["HEADERS_BY_ERROR", "STATUS_BY_ERROR", "error_detail", "install_error_handlers", "status_for"]
+__all__ = [
+    "HEADERS_BY_ERROR",
+    "STATUS_BY_ERROR",
+    "error_detail",
+    "error_response",
+    "install_error_handlers",
+    "json_safe",
+    "status_for",
+]
 
 log = logging.getLogger("service.app")
 
@@ -43,8 +57,11 @@ STATUS_BY_ERROR: dict[type[Exception], int] = {
     RecordingNameError: 422,
     RecordingConflict: 409,
     ConfidenceOff: 409,
+    ConfigChanged: 412,
     StereoParamsRefused: 422,
     NotReady: 503,
+    RecordingStorageError: 500,  # server.recordings_dir unusable: the operator's to fix
+    TooManyStreams: 503,
     Unauthorized: 401,
     ServiceError: 500,
     # rig
@@ -76,12 +93,39 @@ def error_detail(err: BaseException) -> Any:
     return detail if detail is not None else str(err)
 
 
-async def project_error(request: Request, exc: Exception) -> JSONResponse:
-    status = status_for(exc)
-    if status >= 500:
-        log.error("%s %s: %s", request.method, request.url.path, exc)
+def json_safe(value: Any) -> Any:
+    """``value`` with NaN and ±infinity as the strings ``"NaN"``, ``"Infinity"``, ``"-Infinity"``:
+    a refused request may have sent them (Python's JSON reads them, and ``1e400`` as infinity),
+    and an error that quotes its input must still be valid JSON."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return "NaN" if math.isnan(value) else ("Infinity" if value > 0 else "-Infinity")
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    return value
+
+
+def error_response(exc: Exception) -> JSONResponse:
+    """The answer to a project exception (for a response that must refuse from inside itself)."""
     headers = next((h for cls, h in HEADERS_BY_ERROR.items() if isinstance(exc, cls)), None)
-    return JSONResponse({"detail": error_detail(exc)}, status_code=status, headers=headers)
+    return JSONResponse(
+        {"detail": json_safe(error_detail(exc))}, status_code=status_for(exc), headers=headers
+    )
+
+
+async def invalid_request(request: Request, exc: Exception) -> JSONResponse:
+    """FastAPI's 422 for a request that fails validation, with every field error listed."""
+    assert isinstance(exc, RequestValidationError)
+    detail = jsonable_encoder(exc.errors())
+    return JSONResponse({"detail": json_safe(detail)}, status_code=422)
+
+
+async def project_error(request: Request, exc: Exception) -> JSONResponse:
+    response = error_response(exc)
+    if response.status_code >= 500 and not isinstance(exc, TooManyStreams):  # a load, not a fault
+        log.error("%s %s: %s", request.method, request.url.path, exc)
+    return response
 
 
 async def internal_error(request: Request, exc: Exception) -> JSONResponse:
@@ -98,7 +142,8 @@ def _documented_methods(app: FastAPI, path: str) -> set[str]:
             for template, ops in app.openapi().get("paths", {}).items()
         ]
         app.state.allow_table = table
-    return {m for regex, methods in table if regex.match(path) for m in methods}
+    methods = {m for regex, methods in table if regex.match(path) for m in methods}
+    return methods | {"HEAD"} if "GET" in methods else methods  # HEAD: see service.app
 
 
 async def http_error(request: Request, exc: Exception) -> Response:
@@ -117,6 +162,7 @@ async def http_error(request: Request, exc: Exception) -> Response:
 def install_error_handlers(app: FastAPI) -> None:
     """Register the mapping on ``app``."""
     app.add_exception_handler(StarletteHTTPException, http_error)
+    app.add_exception_handler(RequestValidationError, invalid_request)
     for cls in (ServiceError, RigError, CalibrationError):
         app.add_exception_handler(cls, project_error)
     app.add_exception_handler(Exception, internal_error)

@@ -11,14 +11,17 @@ from typing import Any
 __all__ = [
     "ApiError",
     "ConfidenceOff",
+    "ConfigChanged",
     "NotFound",
     "NotReady",
     "RecordingConflict",
     "RecordingNameError",
     "RecordingNotFound",
+    "RecordingStorageError",
     "ServiceError",
     "SettingsError",
     "StereoParamsRefused",
+    "TooManyStreams",
     "Unauthorized",
     "UnknownCamera",
 ]
@@ -56,6 +59,10 @@ class RecordingConflict(ServiceError):
     """The recording exists already, or another one is running."""
 
 
+class RecordingStorageError(ServiceError):
+    """``server.recordings_dir`` cannot hold recordings (not a directory, not writable)."""
+
+
 class NotFound(ServiceError, LookupError):
     """The named thing (camera, recording, dashboard asset) does not exist."""
 
@@ -74,6 +81,14 @@ class Unauthorized(ServiceError):
 
 class NotReady(ServiceError):
     """Nothing to answer with yet: the service is starting, or no pair has been processed."""
+
+
+class TooManyStreams(ServiceError):
+    """``server.max_streams`` clients are streaming already."""
+
+
+class ConfigChanged(ServiceError):
+    """A conditional change (``If-Match``) of a configuration revision that is no longer current."""
 
 
 class StereoParamsRefused(ServiceError, ValueError):

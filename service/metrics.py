@@ -1,10 +1,11 @@
 """Prometheus metrics of one running service, in its own :class:`CollectorRegistry` (never the
 global one: several apps may live in one process, e.g. in tests).
 
-Camera, pairing, worker, encode, heap and recording figures are read from the live objects at scrape
-time (a custom collector), so they always agree with ``/health``; the camera, pairing and worker
-metrics are those of the counter table (:mod:`rig.counters`). Per-stage processing time is also
-a histogram the worker feeds frame by frame.
+Camera, pairing, worker, rectification, encode, heap and recording figures are read from the
+live objects at scrape time (a custom collector), so they always agree with ``/health``; the
+camera, pairing, worker and rectification metrics are those of the counter table
+(:mod:`rig.counters`). Per-stage processing time is also a histogram the worker feeds frame by
+frame.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from prometheus_client.registry import Collector
 from rig.capture.health import CaptureHealth
 from rig.counters import Counts, Group, counters_of
 from rig.heap import HeapStats
+from rig.rectification.monitor import RectificationStatus
 from service.recordings import RecordingStatus
 from service.store import PublishedResult
 from service.worker import WorkerStats
@@ -36,6 +38,8 @@ class MetricsSnapshot:
     encodes: dict[str, int]
     recording: RecordingStatus | None
     heap: HeapStats
+    rectification: RectificationStatus | None = None
+    memory_budget_bytes: int | None = None
 
 
 class _RuntimeCollector(Collector):
@@ -49,6 +53,8 @@ class _RuntimeCollector(Collector):
         yield from _counter_families("pairing", [((), s.capture.pairing.counters)])
         w = s.worker
         yield from _counter_families("worker", [((), w.counters)])
+        if s.rectification is not None:
+            yield from _counter_families("rectification", [((), s.rectification.counters)])
         stages = GaugeMetricFamily("rig_stage_latency_ms", "mean time per pipeline stage", labels=["stage"])
         for stage, ms in w.stage_ms.items():
             stages.add_metric([stage], ms)
@@ -79,6 +85,12 @@ class _RuntimeCollector(Collector):
             "memory blocks held by Python's object allocator",
             value=h.python_blocks,
         )
+        if s.memory_budget_bytes is not None:
+            yield GaugeMetricFamily(
+                "rig_memory_budget_bytes",
+                "the resident size the service's settings allow (estimated at start-up; service.memory)",
+                value=s.memory_budget_bytes,
+            )
 
         r = s.recording
         yield GaugeMetricFamily(

@@ -14,11 +14,13 @@ Names match :data:`NAME_PATTERN` (no separators, no ``..``) and are resolved und
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
 import queue
 import re
+import shutil
 import threading
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -28,10 +30,10 @@ from typing import Any
 from calibration import save_rig
 from calibration.rig import Rig
 from rig.capture.frame import FramePair
-from rig.errors import RecordingError, RigError
+from rig.errors import DiskFullError, RecordingError, RigError
 from rig.priority import apply_to_current_thread
 from rig.recording import RecordingWriter
-from service.errors import RecordingConflict, RecordingNameError, RecordingNotFound
+from service.errors import RecordingConflict, RecordingNameError, RecordingNotFound, RecordingStorageError
 
 __all__ = ["NAME_PATTERN", "RecordingManager", "RecordingStatus", "recording_path", "validate_name"]
 
@@ -87,6 +89,7 @@ class _Active:
         self.queue: queue.Queue[Any] = queue.Queue(maxsize=queue_size)
         self.started_at = _now_iso()
         self.dropped = 0
+        self.extra_bytes = 0  # files besides the writer's (calibration.yaml)
         self.error: str | None = None
         self.last_seq: int | None = None
         self.thread = threading.Thread(target=self._run, name=f"rig-recording-{name}", daemon=True)
@@ -132,6 +135,19 @@ def _dir_bytes(path: Path) -> int:
     return total
 
 
+def _count(value: Any) -> int | None:
+    """``value`` if it is a count (an int ≥ 0), else None."""
+    return value if isinstance(value, int) and not isinstance(value, bool) and value >= 0 else None
+
+
+def _recorded_bytes(path: Path, data_bytes: int) -> int:
+    """``data_bytes`` (all files but recording.json) and recording.json's size."""
+    try:
+        return data_bytes + (path / "recording.json").stat().st_size
+    except OSError:
+        return data_bytes
+
+
 def _count_pairs(path: Path) -> int:
     try:
         with open(path / "frames.csv", "rb") as f:
@@ -152,32 +168,59 @@ class RecordingManager:
         self._active: _Active | None = None
 
     def start(self, name: str, meta: dict[str, Any] | None = None) -> RecordingStatus:
+        """Start recording into ``root/name``. A recording that cannot start leaves nothing
+        behind (its name stays free): RecordingConflict, RecordingStorageError for a
+        recordings directory that cannot hold it, DiskFullError, RecordingError."""
         path = recording_path(self.root, name)
         with self._lock:
             if self._active is not None:
                 raise RecordingConflict(f"recording {self._active.name!r} is running; stop it first")
             if path.exists():
                 raise RecordingConflict(f"recording {name!r} already exists in {self.root}")
+            self._make_root()
             try:
-                self.root.mkdir(parents=True, exist_ok=True)
                 path.mkdir()
             except FileExistsError:
                 raise RecordingConflict(f"recording {name!r} already exists in {self.root}") from None
             except OSError as err:
-                raise RecordingError(f"{path}: cannot create the recording ({err.strerror})") from err
-            doc = {"source": "rig serve", "name": name, "started_at": _now_iso(), **(meta or {})}
-            writer = RecordingWriter(path, meta=doc)
-            if self.rig is not None:
-                try:
-                    save_rig(self.rig, path / "calibration.yaml")
-                except Exception as err:  # the frames matter more than the calibration copy
-                    log.warning("recording %s: calibration not saved: %s", name, err)
-            active = _Active(name, path, writer, self.queue_size)
-            active.started_at = doc["started_at"]
-            active.thread.start()
+                raise self._storage_error(err) from err
+            try:
+                active = self._open(name, path, meta)
+            except BaseException:
+                shutil.rmtree(path, ignore_errors=True)
+                raise
             self._active = active
             log.info("recording %s started in %s", name, path)
             return self._status_of(active)
+
+    def _make_root(self) -> None:
+        try:
+            self.root.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise self._storage_error(err) from err
+
+    def _storage_error(self, err: OSError) -> DiskFullError | RecordingStorageError:
+        if err.errno in (errno.ENOSPC, errno.EDQUOT):
+            return DiskFullError(f"server.recordings_dir {self.root}: disk full")
+        reason = "not a directory" if isinstance(err, FileExistsError | NotADirectoryError) else err.strerror
+        return RecordingStorageError(
+            f"server.recordings_dir {self.root}: cannot hold recordings ({reason or err})"
+        )
+
+    def _open(self, name: str, path: Path, meta: dict[str, Any] | None) -> _Active:
+        doc = {"source": "rig serve", "name": name, "started_at": _now_iso(), **(meta or {})}
+        writer = RecordingWriter(path, meta=doc)
+        active = _Active(name, path, writer, self.queue_size)
+        active.started_at = doc["started_at"]
+        if self.rig is not None:
+            calibration = path / "calibration.yaml"
+            try:
+                save_rig(self.rig, calibration)
+                active.extra_bytes = calibration.stat().st_size
+            except Exception as err:  # the frames matter more than the calibration copy
+                log.warning("recording %s: calibration not saved: %s", name, err)
+        active.thread.start()
+        return active
 
     def offer(self, pair: FramePair) -> None:
         """Queue a pair for the running recording (if any); never blocks, counts drops."""
@@ -217,8 +260,14 @@ class RecordingManager:
         meta_path = active.path / "recording.json"
         try:
             doc = json.loads(meta_path.read_text(encoding="utf-8"))
+            # "bytes": everything but recording.json itself (see list()).
+            data_bytes = active.writer.data_bytes + active.extra_bytes
             doc.update(
-                stopped_at=stopped, pairs=active.writer.count, dropped=active.dropped, error=active.error
+                stopped_at=stopped,
+                pairs=active.writer.count,
+                bytes=data_bytes,
+                dropped=active.dropped,
+                error=active.error,
             )
             tmp = meta_path.with_name(meta_path.name + ".tmp")
             tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
@@ -232,12 +281,16 @@ class RecordingManager:
 
     def _status_of(self, active: _Active, stopped_at: str | None = None) -> RecordingStatus:
         """The status of ``active``: still running, or just stopped at ``stopped_at``."""
+        if stopped_at is None:
+            size = active.writer.bytes_written + active.extra_bytes  # counted: no walk (/health)
+        else:
+            size = _recorded_bytes(active.path, active.writer.data_bytes + active.extra_bytes)
         return RecordingStatus(
             name=active.name,
             path=str(active.path),
             active=stopped_at is None,
             pairs=active.writer.count,
-            bytes=_dir_bytes(active.path),
+            bytes=size,
             dropped=active.dropped,
             started_at=active.started_at,
             stopped_at=stopped_at,
@@ -264,13 +317,15 @@ class RecordingManager:
             except (OSError, ValueError):
                 doc = {}
             doc = doc if isinstance(doc, dict) else {}
+            pairs, size = _count(doc.get("pairs")), _count(doc.get("bytes"))
             out.append(
                 RecordingStatus(
                     name=path.name,
                     path=str(path),
                     active=False,
-                    pairs=_count_pairs(path),
-                    bytes=_dir_bytes(path),
+                    # Noted at the stop; counted for recordings that were never stopped cleanly.
+                    pairs=pairs if pairs is not None else _count_pairs(path),
+                    bytes=_recorded_bytes(path, size) if size is not None else _dir_bytes(path),
                     dropped=int(doc.get("dropped") or 0),
                     started_at=doc.get("started_at"),
                     stopped_at=doc.get("stopped_at"),

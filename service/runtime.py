@@ -17,18 +17,26 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+from numpy.typing import NDArray
+
 from calibration import load_rig
 from calibration.rig import Rig
 from rig import priority
+from rig.calibration_check import CalibrationCheck, check_calibration
 from rig.capture.capture import CAMERA_NAMES, StereoCapture
 from rig.capture.config import CaptureConfig, FileCameraConfig
 from rig.capture.health import CaptureHealth
 from rig.capture.recorded import open_recording
+from rig.errors import CorruptFrameError
 from rig.heap import heap_stats
+from rig.memory_budget import MIB
 from rig.pipeline import DepthPipeline
+from rig.rectification.monitor import RectificationMonitor, RectificationStatus
 from service.encoders import confidence_png, depth_png, disparity_png, npy_bytes
 from service.errors import SettingsError
 from service.host import HostInfo, host_info
+from service.memory import check_memory, service_estimate
 from service.metrics import MetricsSnapshot, ServiceMetrics
 from service.recordings import RecordingManager, RecordingStatus
 from service.settings import Settings
@@ -88,6 +96,7 @@ class HealthReport:
     worker: WorkerStats
     host: HostInfo
     recording: RecordingStatus | None
+    rectification: RectificationStatus | None = None
 
 
 class Runtime:
@@ -110,14 +119,17 @@ class Runtime:
         self.recordings = RecordingManager(
             settings.server.recordings_dir, queue_size=settings.server.recording_queue, rig=rig
         )
+        self.memory_budget = service_estimate(settings, rig)
         self.metrics = ServiceMetrics(self.metrics_snapshot)
         scale, level = settings.server.depth_scale_m, settings.server.png_compression
-        # The /depth, /disparity and /confidence bodies by cache key: the routes encode them on
+        # The /depth, /range, /disparity and /confidence bodies by cache key: the routes encode them on
         # request and the worker ahead of the clients that poll them (one table, so they cannot
         # disagree).
         self.frame_bodies: dict[str, Callable[[PublishedResult], bytes]] = {
             "depth_png": lambda r: depth_png(r.frame.depth, scale, level),
             "depth_npy": lambda r: npy_bytes(r.frame.depth),
+            "range_png": lambda r: depth_png(r.frame.range, scale, level),
+            "range_npy": lambda r: npy_bytes(r.frame.range),
             "disparity_png": lambda r: disparity_png(r.frame.disparity, level),
             "disparity_npy": lambda r: npy_bytes(r.frame.disparity),
             "confidence_png": lambda r: confidence_png(r.confidence(), level),
@@ -128,14 +140,33 @@ class Runtime:
             pipeline,
             self.store,
             on_pair=self.recordings.offer,
-            on_result=self.metrics.observe,
+            on_result=self._observe,
             prefetch=self.frame_bodies,
         )
+        self.rectification: RectificationMonitor | None = None
+        if settings.rectification.enabled:
+            self.rectification = RectificationMonitor(
+                rig,
+                settings.vpc,
+                self._latest_gray_pair,
+                settings.rectification,
+                apply=self._apply_corrected_rig,
+                calibration_path=calibration_path,
+            )
         self.started_ns = time.monotonic_ns()
         self.calibration_doc: Any = None  # /calibration's response, made on first request
+        # The calibration checked against the first processed pair (rig.calibration_check).
+        self.calibration_check: CalibrationCheck | None = None
+        self._check_started = False
+        self._check_lock = threading.Lock()
         self._running = False
         self._health_lock = threading.Lock()
         self._health_memo: tuple[float, object, HealthSnapshot] | None = None
+        # Configuration changes are serialised (read, validate, apply, answer as one step) and
+        # counted: the revision is /config's ETag.
+        self.config_lock = threading.Lock()
+        self.config_revision = 1
+        self.streams_open = 0  # /stream.mjpg responses running (read and changed on the event loop)
 
     @classmethod
     def build(cls, settings: Settings) -> Runtime:
@@ -151,6 +182,8 @@ class Runtime:
                 raise SettingsError(
                     f"{calibration}: the rig has no camera {name!r} (has {', '.join(rig.names)})"
                 )
+        # Before any table is built: a size that cannot fit is refused with the reason.
+        check_memory(settings, service_estimate(settings, rig))
         pipeline = DepthPipeline(rig, vpc=settings.vpc, stereo=settings.stereo, cache_dir=settings.cache_dir)
         for name in CAMERA_NAMES:
             cam = settings.cameras.camera(name)
@@ -177,18 +210,68 @@ class Runtime:
         self.capture.start()
         self.worker.start()
         priority.prioritise_native_threads()  # OpenCV's pool, if the main thread started it
+        if self.rectification is not None:
+            self.rectification.start()
         log.info(
-            "depth service running: VPC %s, baseline %.4f m",
+            "depth service running: VPC %s, baseline %.4f m; memory budget %.0f MiB (%s)",
             self.pipeline.pair.as_json(),
             self.pipeline.baseline_m,
+            self.memory_budget.total / MIB,
+            self.memory_budget.largest(),
         )
 
     def stop(self) -> None:
-        """Join the worker, finish a running recording, join the capture threads; idempotent."""
+        """Join the rectification monitor and the worker, finish a running recording, join the
+        capture threads; idempotent."""
+        if self.rectification is not None:
+            self.rectification.stop()
         self.worker.stop()
         self.recordings.close()
         self.capture.stop()
         self._running = False
+
+    # ----- the calibration against the first pair ----------------------------------------------
+    def _observe(self, result: PublishedResult, timings_ms: dict[str, float]) -> None:
+        """Each published result: metrics; the first one also starts the calibration check."""
+        self.metrics.observe(result, timings_ms)
+        with self._check_lock:
+            first, self._check_started = not self._check_started, True
+        if first:
+            threading.Thread(
+                target=self._check_calibration, args=(result,), name="rig-calibration-check", daemon=True
+            ).start()
+
+    def _check_calibration(self, result: PublishedResult) -> None:
+        """Off the worker's threads (feature matching takes a while): errors are logged once and
+        stay in /health's reasons; warnings are logged once."""
+        try:
+            check = check_calibration(self.pipeline, result.left.gray, result.right.gray, result.frame)
+        except Exception as err:  # a diagnostic must never stop the service
+            log.warning("calibration check against the first pair failed: %s", err)
+            return
+        self.calibration_check = check
+        for finding in check.findings:
+            level = logging.ERROR if finding.severity == "error" else logging.WARNING
+            log.log(level, "calibration check on pair %d: %s", result.frame.seq, finding.message)
+
+    # ----- rectification -----------------------------------------------------------------------
+    def _latest_gray_pair(self) -> tuple[NDArray[np.uint8], NDArray[np.uint8]] | None:
+        """The newest published pair's luma (decoded by the worker already), for the monitor."""
+        result = self.store.latest
+        if result is None:
+            return None
+        try:
+            return result.left.gray, result.right.gray
+        except CorruptFrameError:
+            return None
+
+    def _apply_corrected_rig(self, rig: Rig) -> None:
+        """An online correction: new lookup tables swapped into the running pipeline (built on
+        the monitor's thread, the worker keeps going), and the rig everything else reports."""
+        self.pipeline.replace_rig(rig)
+        self.rig = rig
+        self.recordings.rig = rig
+        self.calibration_doc = None
 
     # ----- state -------------------------------------------------------------------------------
     def metrics_snapshot(self) -> MetricsSnapshot:
@@ -198,6 +281,8 @@ class Runtime:
             encodes=self.store.counter.snapshot(),
             recording=self.recordings.active,
             heap=heap_stats(),
+            rectification=None if self.rectification is None else self.rectification.status(),
+            memory_budget_bytes=self.memory_budget.total,
         )
 
     def health_snapshot(
@@ -228,8 +313,10 @@ class Runtime:
 
     def health(self) -> HealthReport:
         """``down``: no camera delivers, the worker or the capture is not running; ``degraded``:
-        one camera out, no depth yet, depth older than ``server.stale_after_s`` or the active
-        recording has stopped writing; else ``ok``."""
+        one camera out, a camera losing more frames than its limits allow over the rate window
+        (:mod:`rig.capture.rates`), a calibration that failed its check against the first pair
+        (:mod:`rig.calibration_check`), no depth yet, depth older than ``server.stale_after_s``, the
+        active recording has stopped writing or the rectification is off its bound; else ``ok``."""
         cap = self.capture.health()
         worker = self.worker.stats()
         reasons: list[str] = []
@@ -237,6 +324,8 @@ class Runtime:
             if not cam.connected:
                 why = cam.reason or cam.last_error or "no frames yet"
                 reasons.append(f"camera {name} {cam.state}: {why}")
+            elif cam.degraded_reason is not None:
+                reasons.append(f"camera {name}: {cam.degraded_reason}")
         if not worker.alive:
             reasons.append("depth worker not running")
         stale_ms = self.settings.server.stale_after_s * 1e3
@@ -251,10 +340,16 @@ class Runtime:
             and worker.last_error_age_ms < stale_ms
         ):
             reasons.append(f"depth worker error: {worker.last_error}")
+        check = self.calibration_check
+        if check is not None:
+            reasons += [f"calibration check: {f.message}" for f in check.errors]
         recording = self.recordings.active
         if recording is not None and recording.error is not None:
             # The operator asked for this recording and it has stopped writing (e.g. disk full).
             reasons.append(f"recording {recording.name} stopped writing: {recording.error}")
+        rectification = None if self.rectification is None else self.rectification.status()
+        if rectification is not None and rectification.state == "degraded":
+            reasons.append(f"rectification: {rectification.reason}")
         down = not cap.running or not worker.alive or not any(c.connected for c in cap.cameras.values())
         if not cap.running:
             reasons.append("capture not running")
@@ -267,4 +362,5 @@ class Runtime:
             worker=worker,
             host=host_info(self.settings.server.recordings_dir),
             recording=recording,
+            rectification=rectification,
         )

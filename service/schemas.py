@@ -32,6 +32,8 @@ __all__ = [
     "ProbeModel",
     "RecordingInfo",
     "RecordingStart",
+    "RectificationHealthBase",
+    "RectificationHealthModel",
     "ServerPublicModel",
     "StereoPatch",
     "VpcModel",
@@ -77,7 +79,10 @@ class CameraInfoModel(BaseModel):
     header: RosHeader
     height: int
     width: int
-    distortion_model: str = Field(description="equidistant (Kannala-Brandt), plumb_bob, or our model's name")
+    distortion_model: str = Field(
+        description="equidistant (Kannala-Brandt), plumb_bob, latlon (the lat-lon rectified pair), "
+        "or our model's name"
+    )
     d: list[float]
     k: list[float] = Field(min_length=9, max_length=9)
     r: list[float] = Field(min_length=9, max_length=9)
@@ -126,6 +131,10 @@ class CameraHealthBase(_CounterFields):
     device: str
     state: str = Field(description="starting, available, unavailable, ended or stopped")
     reason: str | None = Field(description="why the camera is not available")
+    degraded_reason: str | None = Field(
+        description="what is wrong with an available camera's frames: corrupt, undecodable or dropped "
+        "frames above a share of cameras.supervisor's limits over its rate window"
+    )
     nominal_fps: float | None
     last_seq: int | None
     last_error: str | None
@@ -144,16 +153,32 @@ class PairingHealthBase(_CounterFields):
     skew_gate_ms: float = Field(description="frames further apart than this are not paired")
 
 
+class RectificationHealthBase(_CounterFields):
+    state: Literal["waiting", "ok", "not enough matches", "degraded"] = Field(
+        description="the rectification measured from the frames (docs/rectification.md): degraded "
+        "when over its bound; 'not enough matches' is no verdict"
+    )
+    reason: str | None = Field(description="why degraded, or why there is no measurement")
+    auto_refine: bool = Field(description="online corrections on (rectification.auto_refine)")
+    refinement: str | None = Field(description="what the online refinement did last, or why it did not")
+    measured_age_s: float | None = Field(description="age of the last check with enough matches")
+    check_wall_ms: float | None = Field(description="wall time of the last check (a low-priority thread)")
+
+
 # Generated from the table (rig.counters) when this module is imported, so the OpenAPI document
 # describes every figure; a test that extends the table does so before importing the service.
 if TYPE_CHECKING:
     CameraHealthModel = CameraHealthBase
     WorkerHealthModel = WorkerHealthBase
     PairingHealthModel = PairingHealthBase
+    RectificationHealthModel = RectificationHealthBase
 else:
     CameraHealthModel = _with_counters(CameraHealthBase, "camera", "One camera's state and figures.")
     WorkerHealthModel = _with_counters(WorkerHealthBase, "worker", "The depth worker's figures.")
     PairingHealthModel = _with_counters(PairingHealthBase, "pairing", "Stereo pairing's figures.")
+    RectificationHealthModel = _with_counters(
+        RectificationHealthBase, "rectification", "The rectified pair's measured vertical disparity."
+    )
 
 
 class CounterModel(BaseModel):
@@ -220,9 +245,16 @@ class HealthModel(BaseModel):
     pairing: PairingHealthModel
     host: HostModel
     recording: RecordingInfo | None
+    rectification: RectificationHealthModel | None = Field(
+        None, description="null while rectification.enabled is false"
+    )
 
 
 class VpcModel(BaseModel):
+    projection: Literal["pinhole", "latlon"] = Field(
+        description="pinhole: u = cx + fx·x/z, v = cy + fy·y/z; latlon: u = cx + fx·asin(x/|p|), "
+        "v = cy + fy·atan2(y, z) (fx, fy in px per radian), in the left rectified frame"
+    )
     width: int
     height: int
     fx: float
@@ -230,9 +262,11 @@ class VpcModel(BaseModel):
     cx: float
     cy: float
     baseline_m: float
-    hfov_deg: float
+    hfov_deg: float | None = Field(description="the pinhole pair's horizontal field of view (None: lat-lon)")
+    px_per_deg: float | None = Field(description="the lat-lon pair's resolution (None: pinhole)")
     yaw_deg: float
     pitch_deg: float
+    R_rig_vpc: list[list[float]] = Field(description="the left rectified frame's axes in the rig frame")
     T_rig_vpc: dict[str, list[list[float]]]
 
 
@@ -322,9 +356,12 @@ def _optional_fields(model: type[BaseModel]) -> dict[str, Any]:
 
 
 #: Every StereoParams field, optional: the fields given replace the current ones. Strict, as
-#: the schema says (JSON 0 is not false); the merged set is validated again as StereoParams.
+#: the schema says (JSON 0 is not false), and finite; the merged set is validated again as
+#: StereoParams.
 StereoPatch: Any = create_model(
-    "StereoPatch", __config__=ConfigDict(extra="forbid", strict=True), **_optional_fields(StereoParams)
+    "StereoPatch",
+    __config__=ConfigDict(extra="forbid", strict=True, allow_inf_nan=False),
+    **_optional_fields(StereoParams),
 )
 
 

@@ -9,22 +9,36 @@ threads. ``rig serve`` (:mod:`cli.serve`) puts settings, socket and runtime toge
 from __future__ import annotations
 
 import contextlib
+import resource
 import signal
 import socket
 import threading
 from collections.abc import Iterator
+from typing import Any
 
 import uvicorn
 
 from service.app import create_app
+from service.connections import ConnectionLimits, guarded_protocol
 from service.errors import ServiceError
 from service.runtime import Runtime
 from service.settings import Settings
 
-__all__ = ["GRACEFUL_S", "LOG_LEVELS", "bind_socket", "run_server"]
+__all__ = [
+    "FD_RESERVE",
+    "GRACEFUL_S",
+    "LOG_LEVELS",
+    "bind_socket",
+    "ensure_fd_room",
+    "run_server",
+    "uvicorn_config",
+]
 
 GRACEFUL_S = 3
 LOG_LEVELS = ("critical", "error", "warning", "info", "debug")
+#: File descriptors kept free of HTTP connections: cameras, frame and recording files, the LUT
+#: cache, sensors, the listening socket, Python's own.
+FD_RESERVE = 128
 
 
 def bind_socket(host: str, port: int) -> socket.socket:
@@ -65,17 +79,52 @@ class _Server(uvicorn.Server):
                 signal.signal(sig, handler)
 
 
-def run_server(settings: Settings, runtime: Runtime, sock: socket.socket, log_level: str = "info") -> None:
-    """Serve ``create_app(settings, runtime=runtime)`` on ``sock`` until SIGINT/SIGTERM (the app
-    starts the runtime and stops it at shutdown). ``log_level`` is one of :data:`LOG_LEVELS`."""
-    if log_level not in LOG_LEVELS:
-        raise ServiceError(f"log level must be one of {', '.join(LOG_LEVELS)}, got {log_level!r}")
-    uv_config = uvicorn.Config(
-        create_app(settings, runtime=runtime),
+def ensure_fd_room(settings: Settings) -> int:
+    """Make sure ``server.max_connections`` connections leave :data:`FD_RESERVE` descriptors free
+    (raising the soft ``RLIMIT_NOFILE`` up to the hard one if needed): the process's limit, or
+    ServiceError naming the setting."""
+    need = settings.server.max_connections + FD_RESERVE
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != resource.RLIM_INFINITY and soft < need:
+        if hard != resource.RLIM_INFINITY and hard < need:
+            raise ServiceError(
+                f"settings: field 'server.max_connections': {settings.server.max_connections} connections "
+                f"need {need} file descriptors, and this process may open {hard} (ulimit -n; "
+                "LimitNOFILE= in a systemd unit): lower server.max_connections or raise the limit"
+            )
+        resource.setrlimit(resource.RLIMIT_NOFILE, (need, hard))
+        soft = need
+    return soft
+
+
+def uvicorn_config(app: Any, settings: Settings, log_level: str = "info", **kwargs: Any) -> uvicorn.Config:
+    """Uvicorn's configuration for ``app``: the httptools parser with the connection limits of
+    ``settings.server`` (:mod:`service.connections`), no WebSocket upgrades, no proxy headers."""
+    server = settings.server
+    limits = ConnectionLimits(
+        max_connections=server.max_connections,
+        max_header_bytes=server.max_header_bytes,
+        max_headers=server.max_headers,
+        request_timeout_s=server.request_timeout_s,
+    )
+    return uvicorn.Config(
+        app,
+        http=guarded_protocol(limits),
+        ws="none",
+        timeout_keep_alive=server.keep_alive_s,
         log_level=log_level,
         timeout_graceful_shutdown=GRACEFUL_S,
         access_log=log_level == "debug",
         proxy_headers=False,
         server_header=False,
+        **kwargs,
     )
-    _Server(uv_config).run(sockets=[sock])
+
+
+def run_server(settings: Settings, runtime: Runtime, sock: socket.socket, log_level: str = "info") -> None:
+    """Serve ``create_app(settings, runtime=runtime)`` on ``sock`` until SIGINT/SIGTERM (the app
+    starts the runtime and stops it at shutdown). ``log_level`` is one of :data:`LOG_LEVELS`."""
+    if log_level not in LOG_LEVELS:
+        raise ServiceError(f"log level must be one of {', '.join(LOG_LEVELS)}, got {log_level!r}")
+    ensure_fd_room(settings)
+    _Server(uvicorn_config(create_app(settings, runtime=runtime), settings, log_level)).run(sockets=[sock])

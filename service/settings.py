@@ -12,9 +12,10 @@ cameras:                         # rig.capture.CaptureConfig; omitted = no camer
   left:  {kind: v4l2, device: /dev/rig/left}
   right: {kind: v4l2, device: /dev/rig/right}
 calibration: {path: rig.yaml}    # rig.yaml or Kalibr camchain.yaml
-vpc: {width: 640, height: 480, hfov_deg: 90}
-stereo: {disparity_range: 128}   # rig.stereo.StereoParams
+vpc: {projection: latlon, px_per_deg: 5.585}  # or {projection: pinhole, width: 640, height: 480}
+stereo: {disparity_range: 96}    # rig.stereo.StereoParams
 ros: {namespace: /rig}           # rig.ros.RosNames: topic names and frame ids (Foxglove, MCAP)
+rectification: {check_interval_s: 10, auto_refine: false}   # rig.rectification.RectificationConfig
 cache_dir: null                  # LUT cache (default: $RIG_CACHE_DIR or the user cache dir)
 ```
 
@@ -26,7 +27,7 @@ from __future__ import annotations
 
 import ipaddress
 import os
-from collections.abc import Iterator, Mapping
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
 from pathlib import Path
@@ -35,7 +36,6 @@ from typing import Any
 import platformdirs
 import yaml
 from pydantic import (
-    BaseModel,
     ConfigDict,
     Field,
     SecretStr,
@@ -44,10 +44,13 @@ from pydantic import (
     model_validator,
 )
 from pydantic.fields import FieldInfo
+from pydantic_core import ErrorDetails
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
-from rig.capture.config import CaptureConfig
+from rig.capture.config import CAMERA_KINDS, CaptureConfig
+from rig.rectification.monitor import RectificationConfig
 from rig.ros.names import RosNames
+from rig.settings_model import SettingsModel, describe_field_errors, field_errors
 from rig.stereo import StereoParams
 from rig.vpc import VpcConfig
 from service.errors import SettingsError
@@ -85,7 +88,7 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-class FoxgloveSettings(BaseModel):
+class FoxgloveSettings(SettingsModel):
     """The Foxglove WebSocket server (foxglove-sdk) of ``rig serve``: read-only, off by default."""
 
     model_config = ConfigDict(extra="forbid")
@@ -103,7 +106,7 @@ class FoxgloveSettings(BaseModel):
     )
 
 
-class ServerSettings(BaseModel):
+class ServerSettings(SettingsModel):
     """HTTP server, security and response options."""
 
     model_config = ConfigDict(extra="forbid")
@@ -129,6 +132,34 @@ class ServerSettings(BaseModel):
         "(spares clients the inflate); 2-9 = libpng/zlib: 2 = ~230 KiB for ~11 ms, 6 = ~220 KiB for ~34 ms",
     )
     stream_fps: float = Field(10.0, gt=0.0, le=60.0, description="max parts per second of /stream.mjpg")
+    max_streams: int = Field(
+        16, ge=1, le=1000, description="concurrent /stream.mjpg clients; more are answered 503"
+    )
+    stream_stall_s: float = Field(
+        10.0,
+        gt=0.0,
+        le=600.0,
+        description="a /stream.mjpg client that has not taken a part within this is dropped",
+    )
+    max_connections: int = Field(
+        128,
+        ge=8,
+        le=100_000,
+        description="open HTTP connections; beyond, the one idle longest is closed, or the new one "
+        "answered 503 if all are busy",
+    )
+    max_header_bytes: int = Field(
+        16 * 1024, ge=1024, le=1024 * 1024, description="request line and headers; larger: 431"
+    )
+    max_headers: int = Field(100, ge=8, le=10_000, description="header lines of a request; more: 431")
+    request_timeout_s: float = Field(
+        10.0,
+        gt=0.0,
+        le=600.0,
+        description="a request's head and body must arrive within this of its first byte (of the "
+        "connection, for the first request): 408 otherwise",
+    )
+    keep_alive_s: int = Field(5, ge=1, le=600, description="idle keep-alive connections close after this")
     color_range_m: tuple[float, float] = Field(
         (0.3, 8.0), description="depth range spanned by the colour map (near, far), log scale"
     )
@@ -182,6 +213,15 @@ class ServerSettings(BaseModel):
         return v
 
     @model_validator(mode="after")
+    def _streams_within_connections(self) -> ServerSettings:
+        if self.max_streams >= self.max_connections:
+            raise ValueError(
+                f"max_streams ({self.max_streams}) must be below max_connections ({self.max_connections}): "
+                "streams hold connections"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _loopback_or_token(self) -> ServerSettings:
         for what, host in (("", self.host), ("the Foxglove server on ", self.foxglove.host)):
             if not is_loopback(host) and self.api_token is None:
@@ -196,7 +236,7 @@ class ServerSettings(BaseModel):
         return None if self.api_token is None else self.api_token.get_secret_value()
 
 
-class CalibrationSettings(BaseModel):
+class CalibrationSettings(SettingsModel):
     model_config = ConfigDict(extra="forbid")
 
     path: Path | None = Field(
@@ -240,6 +280,9 @@ class Settings(BaseSettings):
     stereo: StereoParams = Field(default_factory=StereoParams)
     ros: RosNames = Field(default_factory=RosNames)
     cache_dir: Path | None = Field(None, description="LUT cache directory (env RIG_CACHE_DIR)")
+    rectification: RectificationConfig = Field(
+        default_factory=RectificationConfig, description="live rectification measure and online refinement"
+    )
 
     @classmethod
     def settings_customise_sources(
@@ -260,7 +303,12 @@ class Settings(BaseSettings):
 
 
 # ----- loading ---------------------------------------------------------------------------------
-_PATH_FIELDS = (("server", "recordings_dir"), ("calibration", "path"), ("cache_dir",))
+_PATH_FIELDS = (
+    ("server", "recordings_dir"),
+    ("calibration", "path"),
+    ("cache_dir",),
+    ("rectification", "persist_path"),
+)
 
 
 def _resolve_relative(doc: dict[str, Any], base: Path) -> dict[str, Any]:
@@ -305,15 +353,10 @@ def _read_config(path: Path) -> dict[str, Any]:
     return _resolve_relative(doc, path.parent)
 
 
-def _field_name(loc: tuple[int | str, ...]) -> str:
-    # Drop the union tags of discriminated unions so the path reads like the YAML.
-    return ".".join(str(p) for p in loc if p not in ("file", "v4l2"))
-
-
 def _source_of(loc: tuple[int | str, ...], config: Path | None) -> str:
     if tuple(loc[:2]) == ("server", "api_token") and TOKEN_ENV in os.environ:
         return f"environment {TOKEN_ENV}"
-    parts = [str(p) for p in loc if p not in ("file", "v4l2")]
+    parts = [str(p) for p in loc if p not in CAMERA_KINDS]
     for n in range(len(parts), 0, -1):
         name = ENV_PREFIX + "__".join(parts[:n]).upper()
         if name in os.environ:
@@ -330,24 +373,73 @@ def _file_data(doc: dict[str, Any]) -> Iterator[None]:
         _FILE_DATA.reset(token)
 
 
-def load_settings(config: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Settings:
+def load_settings(
+    config: str | Path | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    *,
+    replace: Collection[str] = (),
+) -> Settings:
     """Settings from ``config`` (default: ``$RIG_CONFIG``; none = defaults), the environment and
-    ``overrides`` (nested mapping, highest precedence). SettingsError names the file (or
-    environment variable) and the field."""
+    ``overrides`` (nested mapping, highest precedence). The top-level sections in ``replace``
+    (``cameras`` for ``rig serve --demo``) are taken from ``overrides`` alone instead of merged
+    into the file's. Every value of the file and the environment is validated even where an
+    override takes its place (a wrong value is wrong, whether used today or not); rules between
+    fields apply to the settings in effect. SettingsError lists every mistake, each with its
+    file (or environment variable) and field."""
     if config is None and os.environ.get(CONFIG_ENV):
         config = os.environ[CONFIG_ENV]
     path = Path(config).expanduser() if config is not None else None
     doc = _read_config(path) if path is not None else {}
-    try:
+    overrides = dict(overrides or {})
+    if overrides:
         with _file_data(doc):
-            return Settings(**dict(overrides or {}))
+            _check_own_values(path, overrides)
+    try:
+        with _file_data({k: v for k, v in doc.items() if k not in replace}):
+            return Settings(**overrides)
     except ValidationError as err:
-        first = err.errors()[0]
-        loc = tuple(first["loc"])
-        msg = first["msg"].removeprefix("Value error, ")
-        raise SettingsError(
-            f"{_source_of(loc, path)}: field '{_field_name(loc) or '<root>'}': {msg}"
-        ) from err
+        raise SettingsError(_describe(err.errors(), path)) from err
+
+
+def _check_own_values(config: Path | None, overrides: Mapping[str, Any]) -> None:
+    """The file's and the environment's values on their own. Errors of a model that contains an
+    overridden value (a rule between its fields, such as a non-loopback host without a token)
+    are left to the settings in effect."""
+    try:
+        Settings()
+    except ValidationError as err:
+        overridden = _leaf_paths(overrides)
+        own = [
+            e
+            for e in err.errors()
+            if not any(_strictly_within(_plain(e["loc"]), leaf) for leaf in overridden)
+        ]
+        if own:
+            raise SettingsError(_describe(own, config)) from err
+
+
+def _leaf_paths(doc: Mapping[str, Any], prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
+    out: list[tuple[str, ...]] = []
+    for key, value in doc.items():
+        path = (*prefix, str(key))
+        out += _leaf_paths(value, path) if isinstance(value, Mapping) and value else [path]
+    return out
+
+
+def _plain(loc: tuple[int | str, ...]) -> tuple[str, ...]:
+    return tuple(str(p) for p in loc if p not in CAMERA_KINDS)
+
+
+def _strictly_within(loc: tuple[str, ...], leaf: tuple[str, ...]) -> bool:
+    return len(loc) < len(leaf) and leaf[: len(loc)] == loc
+
+
+def _describe(errors: Sequence[ErrorDetails], config: Path | None) -> str:
+    """Every mistake in one line, grouped by where it came from (the file, a variable)."""
+    by_source: dict[str, list[tuple[str, str]]] = {}
+    for (field, msg), e in zip(field_errors(errors, hide=CAMERA_KINDS), errors, strict=True):
+        by_source.setdefault(_source_of(tuple(e["loc"]), config), []).append((field, msg))
+    return "; ".join(f"{source}: {describe_field_errors(found)}" for source, found in by_source.items())
 
 
 def settings_summary(settings: Settings) -> dict[str, Any]:

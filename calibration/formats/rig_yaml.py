@@ -21,7 +21,15 @@ from calibration.formats.document import Document, Field
 from calibration.models import MODELS, CameraModel
 from calibration.rig import Rig
 
-__all__ = ["RIG_YAML_VERSION", "dump_rig_yaml", "is_rig_yaml", "read_rig_yaml", "write_rig_yaml"]
+__all__ = [
+    "RIG_YAML_VERSION",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "dump_rig_yaml",
+    "is_rig_yaml",
+    "read_rig_yaml",
+    "write_rig_yaml",
+]
 
 RIG_YAML_VERSION = 1
 
@@ -108,14 +116,20 @@ def write_rig_yaml(rig: Rig, path: str | Path) -> None:
 
 def atomic_write_text(path: Path, text: str) -> None:
     """Replace ``path`` with ``text`` so readers see the old or the new file, never a part."""
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Replace ``path`` with ``data`` (temp file in the same folder, fsync, os.replace), keeping
+    the old file's permissions; CalibrationFileError naming ``path`` if it cannot be written."""
     try:
         mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     except OSError as err:
         raise CalibrationFileError(path, f"cannot write: {err.strerror or err}") from err
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
         os.chmod(tmp, mode)

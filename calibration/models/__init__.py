@@ -1,6 +1,7 @@
 """Camera models: one interface (``project``/``unproject`` with validity masks) for all.
 
 ``create(name, width, height, **params)`` builds one by name; :data:`MODELS` lists them.
+:class:`LatLonModel` (the wide rectified view) has the same surface but is no lens: not in MODELS.
 """
 
 from calibration.models.base import MODELS, CameraModel, create, register
@@ -8,6 +9,7 @@ from calibration.models.double_sphere import DoubleSphereModel
 from calibration.models.equidistant import EquidistantModel
 from calibration.models.eucm import EucmModel
 from calibration.models.kannala_brandt import KannalaBrandtModel
+from calibration.models.latlon import LatLonModel
 from calibration.models.mei import MeiModel
 from calibration.models.pinhole import PinholeModel
 from calibration.models.scaramuzza import ScaramuzzaModel
@@ -19,6 +21,7 @@ __all__ = [
     "EquidistantModel",
     "EucmModel",
     "KannalaBrandtModel",
+    "LatLonModel",
     "MeiModel",
     "PinholeModel",
     "ScaramuzzaModel",

@@ -8,6 +8,11 @@ taken (older ones are counted as skipped) or, with ``newest=False``, the oldest 
 All buffers are bounded and drop their oldest entry when full; with
 ``pairing.backpressure`` the camera threads wait for room instead (file replays, where waiting
 costs nothing and every frame must be kept).
+
+Each camera's frame-loss rates over ``supervisor.rate_window_s`` (:mod:`rig.capture.rates`) are
+sampled by every :meth:`health` call and twice a second by a monitor thread, so a camera that
+starts losing frames is logged once (warning) and its recovery once (info) whether or not
+anyone polls the health.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from rig.capture.frame import Frame, FramePair
 from rig.capture.health import CaptureHealth, PairingHealth
 from rig.capture.pairing import FramePairer
 from rig.capture.protocol import Camera, FaultInjectable, TimeBase
+from rig.capture.rates import RateAssessment, RateLimits, RateWindow
 from rig.capture.supervisor import CameraSupervisor
 from rig.counters import Tally, complete
 from rig.errors import ConfigError, FaultNotSupported
@@ -35,6 +41,8 @@ __all__ = ["CAMERA_NAMES", "StereoCapture", "default_skew_gate_ns"]
 log = logging.getLogger("rig.capture")
 CAMERA_NAMES = ("left", "right")
 _WAIT_SLICE_S = 0.1
+# How often the monitor thread samples the rates when nobody asks for the health.
+_MONITOR_S = 0.5
 
 
 def default_skew_gate_ns(fps_values: list[float | None]) -> int:
@@ -75,6 +83,13 @@ class StereoCapture:
         self._waiting = 0  # consumers waiting in next_pair (read unlocked by the decode choice)
         self._ended: set[str] = set()
         self._started = self._stopped = False
+        sup = config.supervisor
+        limits = RateLimits(sup.rate_window_s, sup.max_broken_fraction, sup.max_dropped_fraction)
+        self._rates = {n: RateWindow(limits) for n in CAMERA_NAMES}
+        self._problems: dict[str, str | None] = dict.fromkeys(CAMERA_NAMES)  # kind, under _problem_lock
+        self._problem_lock = threading.Lock()
+        self._monitor_stop = threading.Event()
+        self._monitor: threading.Thread | None = None
         self._supervisors = {
             n: CameraSupervisor(
                 cam,
@@ -96,6 +111,8 @@ class StereoCapture:
         self._warn_bandwidth()
         for sup in self._supervisors.values():
             sup.start()
+        self._monitor = threading.Thread(target=self._watch_rates, name="rig-capture-rates", daemon=True)
+        self._monitor.start()
         return self
 
     def stop(self) -> None:
@@ -104,6 +121,9 @@ class StereoCapture:
                 return
             self._stopped = True
             self._cond.notify_all()
+        self._monitor_stop.set()
+        if self._monitor is not None and self._monitor is not threading.current_thread():
+            self._monitor.join(5.0)
         for sup in self._supervisors.values():
             sup.stop()
 
@@ -236,10 +256,47 @@ class StereoCapture:
             )
             finished = self._pairer.exhausted and not self._pairs
             running = self._started and not self._stopped
+        now = self._clock()
         for n, h in cams.items():
             pairing_drops = {"frames_unpaired": counts.unpaired[n], "frames_evicted": counts.evicted[n]}
-            cams[n] = replace(h, counters=complete("camera", {**h.counters, **pairing_drops}))
+            counters = complete("camera", {**h.counters, **pairing_drops})
+            rates = self._rates[n].observe(now, counters)
+            reason = self._note_rates(n, rates, connected=h.connected)
+            counters.update(
+                corrupt_per_s=rates.corrupt_per_s,
+                undecodable_per_s=rates.undecodable_per_s,
+                dropped_per_s=rates.dropped_per_s,
+            )
+            cams[n] = replace(h, counters=counters, degraded_reason=reason)
         return CaptureHealth(running=running, finished=finished, cameras=cams, pairing=pairing)
+
+    def _note_rates(self, name: str, rates: RateAssessment, *, connected: bool) -> str | None:
+        """The camera's rate problem while it delivers (an unavailable camera has its own
+        reason); logs once when a problem starts or changes kind, and once when it is over."""
+        kind = rates.kind if connected else None
+        with self._problem_lock:
+            before, self._problems[name] = self._problems[name], kind
+        if kind is not None and kind != before:
+            log.warning("camera %s degraded: %s", name, rates.problem)
+        elif kind is None and before is not None and connected:
+            lim = self._rates[name].limits
+            log.info(
+                "camera %s recovered: frame losses back within limits (broken ≤ %.0f %%, dropped ≤ %.0f %% "
+                "over %g s)",
+                name,
+                100 * lim.max_broken_fraction,
+                100 * lim.max_dropped_fraction,
+                lim.window_s,
+            )
+        return rates.problem if connected else None
+
+    def _watch_rates(self) -> None:
+        """Samples the rates while nobody polls the health (see module doc)."""
+        while not self._monitor_stop.wait(_MONITOR_S):
+            try:
+                self.health()
+            except Exception as err:  # a diagnostic must never stop capture
+                log.debug("rate monitor: %s", err)
 
     # ----- USB bandwidth -----------------------------------------------------------------------
     def _warn_bandwidth(self) -> None:

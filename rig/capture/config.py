@@ -24,12 +24,14 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from rig.capture.faults import Fault
 from rig.errors import ConfigError
+from rig.settings_model import SettingsModel, describe_field_errors, field_errors
 
 __all__ = [
+    "CAMERA_KINDS",
     "CameraConfig",
     "CaptureConfig",
     "FileCameraConfig",
@@ -41,7 +43,7 @@ __all__ = [
 ]
 
 
-class V4L2CameraConfig(BaseModel):
+class V4L2CameraConfig(SettingsModel):
     """A UVC camera through OpenCV's V4L2 backend. Control values are raw V4L2 units."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -72,7 +74,7 @@ class V4L2CameraConfig(BaseModel):
     fps_tolerance: float = Field(0.5, ge=0.0, description="accepted difference of negotiated fps")
 
 
-class FileCameraConfig(BaseModel):
+class FileCameraConfig(SettingsModel):
     """One camera of a recording directory (docs/design.md) replayed through the camera protocol."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -117,7 +119,7 @@ class FileCameraConfig(BaseModel):
 CameraConfig = Annotated[V4L2CameraConfig | FileCameraConfig, Field(discriminator="kind")]
 
 
-class PairingConfig(BaseModel):
+class PairingConfig(SettingsModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     skew_gate_ms: float | None = Field(
@@ -132,7 +134,7 @@ class PairingConfig(BaseModel):
     )
 
 
-class SupervisorConfig(BaseModel):
+class SupervisorConfig(SettingsModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     watchdog_s: float = Field(
@@ -158,9 +160,26 @@ class SupervisorConfig(BaseModel):
         ),
     )
     fps_window_s: float = Field(2.0, gt=0.0)
+    rate_window_s: float = Field(
+        10.0, ge=1.0, le=3600.0, description="window of the frame-loss rates that drive health (s)"
+    )
+    max_broken_fraction: float = Field(
+        0.05,
+        ge=0.0,
+        le=1.0,
+        description="corrupt + undecodable frames above this share of a camera's frames over the rate "
+        "window → health degraded, naming the camera and the share",
+    )
+    max_dropped_fraction: float = Field(
+        0.1,
+        ge=0.0,
+        le=1.0,
+        description="dropped frames (lost, unpaired, evicted) above this share of a camera's frames "
+        "over the rate window → health degraded",
+    )
 
 
-class CaptureConfig(BaseModel):
+class CaptureConfig(SettingsModel):
     """Two cameras plus pairing and supervision options."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -178,10 +197,9 @@ class CaptureConfig(BaseModel):
         raise ConfigError(f"unknown camera {name!r} (expected 'left' or 'right')")
 
 
-def _field_path(loc: tuple[int | str, ...]) -> str:
-    # Drop pydantic's union tags ("file", "v4l2") so the path reads like the YAML.
-    parts = [str(p) for p in loc if p not in ("file", "v4l2")]
-    return ".".join(parts)
+#: The camera kinds: pydantic puts the kind of a camera into an error's location; a config file
+#: does not spell it.
+CAMERA_KINDS = ("file", "v4l2")
 
 
 def capture_config_from_mapping(doc: Mapping[str, Any], source: str = "<config>") -> CaptureConfig:
@@ -191,9 +209,8 @@ def capture_config_from_mapping(doc: Mapping[str, Any], source: str = "<config>"
     try:
         cfg = CaptureConfig.model_validate(dict(doc))
     except ValidationError as err:
-        first = err.errors()[0]
-        field = _field_path(("cameras", *first["loc"]))
-        raise ConfigError(f"{source}: field '{field}': {first['msg']}") from err
+        errors = field_errors(err, prefix=("cameras",), hide=CAMERA_KINDS)
+        raise ConfigError(f"{source}: {describe_field_errors(errors)}") from err
     base = Path(source).parent if source != "<config>" else None
     if base is not None:
         # Relative recording paths are relative to the config file, like most tools read them.

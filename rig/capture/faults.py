@@ -30,7 +30,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Annotated, Any, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
+from pydantic import ConfigDict, Field, TypeAdapter, model_validator
+
+from rig.settings_model import SettingsModel
 
 __all__ = [
     "MAX_FAULT_S",
@@ -63,7 +65,7 @@ def _fault_schema(schema: dict[str, Any], cls: type) -> None:
     schema["allOf"] = rules + list(getattr(cls, "SCHEMA_RULES", []))
 
 
-class _Trigger(BaseModel):
+class _Trigger(SettingsModel):
     model_config = ConfigDict(extra="forbid", frozen=True, json_schema_extra=_fault_schema)
 
     at_frame: int | None = Field(None, ge=0, description="fire after this many delivered frames")

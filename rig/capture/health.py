@@ -35,6 +35,8 @@ class CameraHealth:
     format: str
     width: int
     height: int
+    #: The frame-loss rates over the window are above a limit (rig.capture.rates): what is wrong.
+    degraded_reason: str | None
     counters: Counts  # rig.counters, group "camera"
 
     @property

@@ -303,7 +303,8 @@ class CameraSupervisor:
 
     # ----- health ------------------------------------------------------------------------------
     def health(self) -> CameraHealth:
-        """Snapshot of this camera (pairing's counters, 0 here, are filled in by StereoCapture)."""
+        """Snapshot of this camera (pairing's counters, 0 here, and the rates over the window,
+        None here, are filled in by StereoCapture)."""
         now = self._clock()
         window = round(self.config.fps_window_s * 1e9)
         with self._lock:
@@ -321,6 +322,10 @@ class CameraSupervisor:
                 "connected": self._state == "available",
                 "fps": fps,
                 "last_frame_age_ms": age,
+                # Rates over the window and pairing's drops are StereoCapture's (rig.capture.rates).
+                "corrupt_per_s": None,
+                "undecodable_per_s": None,
+                "dropped_per_s": None,
             }
             return CameraHealth(
                 name=self.name,
@@ -338,6 +343,7 @@ class CameraSupervisor:
                 format=info.format,
                 width=info.width,
                 height=info.height,
+                degraded_reason=None,
                 counters=complete("camera", counters),
             )
 

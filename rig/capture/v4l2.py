@@ -41,6 +41,14 @@ from rig.errors import CameraFormatError, CameraUnavailable, CorruptFrameError
 __all__ = ["V4L2Camera", "VideoCaptureLike", "fourcc_code", "fourcc_text", "resolve_device"]
 
 V4L2_EXPOSURE_MANUAL = 1
+# The controls read back after negotiation (rig check shows them): name → OpenCV property.
+_READ_BACK = (
+    ("auto_exposure", cv2.CAP_PROP_AUTO_EXPOSURE),
+    ("exposure", cv2.CAP_PROP_EXPOSURE),
+    ("gain", cv2.CAP_PROP_GAIN),
+    ("auto_white_balance", cv2.CAP_PROP_AUTO_WB),
+    ("white_balance", cv2.CAP_PROP_WB_TEMPERATURE),
+)
 
 
 class VideoCaptureLike(Protocol):
@@ -121,6 +129,7 @@ class V4L2Camera:
         self._ts_note: str | None = None
         self._seq = -1
         self._last_ts: int | None = None
+        self._controls: dict[str, float] = {}
 
     # ----- protocol ----------------------------------------------------------------------------
     @property
@@ -185,6 +194,11 @@ class V4L2Camera:
             return Frame(self.name, seq, ts_ns, "jpeg", host_ns, raw=data.tobytes(), source=source)
         return Frame.from_image(self.name, seq, ts_ns, data, host_ns, source=source)
 
+    def controls(self) -> dict[str, float]:
+        """The exposure, gain and white-balance controls as the camera read them back at the last
+        open (raw V4L2 units, see the module doc; empty before the first open)."""
+        return dict(self._controls)
+
     def reset_hardware(self) -> str:
         if self._usb_reset is None:
             from rig.usb import reset_video_device  # pyusb only when a reset is really needed
@@ -241,6 +255,7 @@ class V4L2Camera:
             got = cap.get(prop)
             if not accepted or not _close(got, want):
                 refused.append(f"{label} {_fmt(want)} (gives {_fmt(got)})")
+        self._controls = {name: float(cap.get(prop)) for name, prop in _READ_BACK}
         if refused:
             raise CameraFormatError(
                 f"camera {self.name} ({target}) refused "

@@ -4,9 +4,11 @@
 Full run: the preset's own image size, 24 calibration views, the product's default VPC
 (640×480, 90°), planes at k = 2, 3, …, 20 baselines with 3 textures; supersampling 3×3 for the
 boards and the room, 2×2 for the four renders of each of the 57 planes (they are most of the
-run's time; 3×3 took 1.5× as long).
+run's time; 3×3 took 1.5× as long); the extrinsics chain from up to 12 wedge boards and 3 room
+pairs.
 Quick run (tests, smoke checks): the preset scaled to half size, 10 views and one round of corner
-refinement, a 320×240 VPC, planes at k = 3, 8, 16 with 2 textures, supersampling 2×2 throughout.
+refinement, a 320×240 VPC, planes at k = 3, 8, 16 with 2 textures, supersampling 2×2 throughout;
+the extrinsics chain from up to 8 wedge boards and 2 room pairs.
 """
 
 from __future__ import annotations
@@ -71,6 +73,9 @@ class EvalConfig:
     square_m: float = 0.05  # chessboard square
     board: tuple[int, int] = (9, 6)  # chessboard inner corners (cols, rows)
     stereo: StereoParams = field(default_factory=StereoParams)
+    extrinsics_model: str = "kannala_brandt"  # lenses of the extrinsics chain (rig.evaluate.extrinsics)
+    stereo_views: int = 12  # wedge boards for the pair's calibration (at most; those both lenses see)
+    refine_frames: int = 3  # room pairs the extrinsics are refined from
 
     def describe(self) -> dict[str, object]:
         """JSON-able summary for run.json and the report."""
@@ -92,6 +97,11 @@ class EvalConfig:
             "samples_per_plane": self.samples,
             "vicinity_frac": self.vicinity_frac,
             "stereo": self.stereo.model_dump(),
+            "extrinsics": {
+                "model": self.extrinsics_model,
+                "stereo_views": self.stereo_views,
+                "refine_frames": self.refine_frames,
+            },
         }
 
 
@@ -151,10 +161,12 @@ def make_config(
     ks = _check_distances(
         distances if distances is not None else (QUICK_DISTANCES if quick else FULL_DISTANCES)
     )
-    vpc = VpcConfig(width=320, height=240) if quick else VpcConfig()
+    # The paper's method: the pinhole pair.
+    vpc = VpcConfig(width=320, height=240) if quick else VpcConfig(projection="pinhole")
+    chosen = _check_models(models if models is not None else DEFAULT_MODELS)
     return EvalConfig(
         preset=preset,
-        models=_check_models(models if models is not None else DEFAULT_MODELS),
+        models=chosen,
         distances=ks,
         textures=tuple(TEXTURES[:n_tex]),
         quick=quick,
@@ -166,4 +178,7 @@ def make_config(
         calibration_views=10 if quick else 24,
         refine_rounds=1 if quick else 3,
         stereo=stereo_for(vpc, ks[0]),
+        extrinsics_model="kannala_brandt" if "kannala_brandt" in chosen else chosen[0],
+        stereo_views=8 if quick else 12,
+        refine_frames=2 if quick else 3,
     )

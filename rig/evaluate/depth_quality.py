@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration.models import PinholeModel
 from calibration.rig import Rig
-from rig.errors import RigError
+from rig.errors import EvaluationError, RigError
 from rig.evaluate.metrics import (
     PlaneStats,
     finite_mean,
@@ -102,6 +103,10 @@ def measure_depth(
     samples: int,
 ) -> list[DepthSample]:
     """Depth of ``shot`` through every pipeline (the Reference one takes the Reference pair)."""
+    if not isinstance(pair.camera, PinholeModel):
+        raise EvaluationError(
+            "the paper's depth evaluation is of the pinhole pair (VpcConfig projection pinhole)"
+        )
     # The plane z = D of the rig frame, in the left VPC frame.
     plane = plane_in_frame(pair.T_rig_vpc[pair.left], [0.0, 0.0, 1.0], shot.distance_m)
     out = []

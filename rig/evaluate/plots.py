@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
 from rig.evaluate.depth_quality import REFERENCE, THEORY, TRUE_LENS, CurvePoint
+from rig.evaluate.extrinsics import CALIBRATED, REFINED
 from rig.evaluate.matchers import MATCHER_LABELS, MatcherPoint
 
 __all__ = [
@@ -39,6 +40,8 @@ CURVE_LABELS: dict[str, str] = {
     "equidistant": "equidistant (atan)",
     "double_sphere": "double sphere",
     "eucm": "EUCM",
+    CALIBRATED: "calibrated extrinsics (lenses of the extrinsics model)",
+    REFINED: "refined extrinsics (lenses of the extrinsics model)",
 }
 _STYLE: dict[str, dict[str, object]] = {
     REFERENCE: {"color": "black", "marker": "s"},
@@ -49,6 +52,8 @@ _STYLE: dict[str, dict[str, object]] = {
     "equidistant": {"color": "tab:green", "marker": "<"},
     "double_sphere": {"color": "tab:purple", "marker": ">"},
     "eucm": {"color": "tab:brown", "marker": "P"},
+    CALIBRATED: {"color": "tab:cyan", "marker": "x"},
+    REFINED: {"color": "tab:olive", "marker": "+"},
 }
 
 

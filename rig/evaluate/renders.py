@@ -29,6 +29,8 @@ from rig.vpc import VpcPair
 __all__ = [
     "Box",
     "PlaneShot",
+    "board_fits",
+    "board_outline",
     "board_pose",
     "calibration_board_poses",
     "lut_box",
@@ -146,7 +148,7 @@ def board_pose(
     return make_transform(R, d * distance_m - R @ centre)
 
 
-def _board_outline(board: tuple[int, int], square_m: float, margin_squares: float) -> F64:
+def board_outline(board: tuple[int, int], square_m: float, margin_squares: float) -> F64:
     """Points (576, 3) over the board's squares and ``margin_squares`` of its white margin."""
     cols, rows = board
     m = margin_squares * square_m
@@ -156,7 +158,9 @@ def _board_outline(board: tuple[int, int], square_m: float, margin_squares: floa
     return np.stack([xx.ravel(), yy.ravel(), np.zeros(xx.size)], axis=1)
 
 
-def _board_fits(lens: CameraModel, T: F64, outline: F64, max_deg: float) -> bool:
+def board_fits(lens: CameraModel, T: F64, outline: F64, max_deg: float) -> bool:
+    """Whether every point of ``outline`` (board frame) posed at ``T`` (``T_cam_board``) is in
+    ``lens``'s image and within ``max_deg`` of its axis."""
     p = outline @ T[:3, :3].T + T[:3, 3]
     _, ok = lens.project(p)
     angle = np.degrees(np.arccos(np.clip(p[:, 2] / np.linalg.norm(p, axis=1), -1.0, 1.0)))
@@ -178,7 +182,7 @@ def calibration_board_poses(
     if n_views < 6:
         raise EvaluationError(f"calibration needs at least 6 board views, got {n_views}")
     near, far = 10.0 * square_m, 16.0 * square_m  # the board spans ~55° near, ~35° at the rim
-    outline = _board_outline(board, square_m, 0.0)
+    outline = board_outline(board, square_m, 0.0)
     limit = math.degrees(lens.max_theta) - _RIM_CLEARANCE_DEG
     n_centre = max(2, n_views // 6)
     n_mid = max(2, n_views // 3)
@@ -194,7 +198,7 @@ def calibration_board_poses(
         for _ in range(18):  # bisection on the centre's angle: the board fits at lo
             mid = 0.5 * (lo + hi)
             T = board_pose(board, square_m, mid, phi, distance, tilt, spin)
-            lo, hi = (mid, hi) if _board_fits(lens, T, outline, limit) else (lo, mid)
+            lo, hi = (mid, hi) if board_fits(lens, T, outline, limit) else (lo, mid)
         return lo
 
     for i in range(n_mid + n_rim):
@@ -215,7 +219,7 @@ def render_board(
     """Grey image of the board (one square of white margin) seen by ``lens`` on a uniform
     background; only the board's bounding box is ray-cast."""
     scene = chessboard_scene(*board, square_m, T_cam_board)
-    p = _board_outline(board, square_m, 1.0) @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+    p = board_outline(board, square_m, 1.0) @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
     pix, ok = lens.project(p, in_image=False)
     if not ok.any():
         return np.full((lens.height, lens.width), BOARD_BACKGROUND, dtype=np.uint8)

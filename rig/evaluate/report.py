@@ -1,11 +1,11 @@
 """Files of an evaluation run in its output directory.
 
-``results.json`` (keys, exactly: preset, calibration, image_difference, depth,
-matchers; NaN written as null), ``run.json`` (settings, σd of the theory, fits, failures,
-timings, the git commit of the code, versions), the tables as CSV, the figures as PNG,
-``difference/`` (the VPC images and contrast-enhanced difference images) and ``report.md``
-(tables, figures, agreement with the paper). ``results.json`` is written last, atomically: its
-presence marks a complete run.
+``results.json`` (keys: preset, calibration, image_difference, depth, matchers, and extrinsics,
+the chain of docs/rectification.md; NaN written as null), ``run.json`` (settings, σd of the
+theory, fits, failures, timings, the git commit of the code, versions), the tables as CSV, the
+figures as PNG, ``difference/`` (the VPC images and contrast-enhanced difference images) and
+``report.md`` (tables, figures, agreement with the paper). ``results.json`` is written last,
+atomically: its presence marks a complete run.
 """
 
 from __future__ import annotations
@@ -22,8 +22,9 @@ import cv2
 import numpy as np
 
 from rig.errors import EvaluationError
-from rig.evaluate.agreement import check_claims
-from rig.evaluate.depth_quality import THEORY, CurvePoint
+from rig.evaluate.agreement import check_claims, mean_ratio
+from rig.evaluate.depth_quality import REFERENCE, THEORY, CurvePoint
+from rig.evaluate.extrinsics import CALIBRATED, REFINED, PoseError
 from rig.evaluate.markdown import render_markdown
 from rig.evaluate.matchers import MATCHER_LABELS
 from rig.evaluate.plots import coverage_plot, depth_plot, depth_ratio_plot, difference_montage, matcher_plot
@@ -119,8 +120,49 @@ def _point(p: CurvePoint, theory: bool = False) -> dict[str, Any]:
     return d
 
 
+def _pose(e: PoseError | None) -> dict[str, float] | None:
+    if e is None:
+        return None
+    return {"rotation_deg": e.rotation_deg, "translation_mm": e.translation_mm, "baseline_mm": e.baseline_mm}
+
+
+def _extrinsics(run: EvaluationRun) -> dict[str, Any] | None:
+    """The extrinsics chain: pose errors against the truth and the depth error ratio to the
+    Reference with the true, calibrated and refined extrinsics."""
+    ex = run.extrinsics
+    if ex is None:
+        return None
+    ref = run.depth.get(REFERENCE, [])
+    curves = {"true": ex.model, "calibrated": CALIBRATED, "refined": REFINED}
+    ratio = {k: mean_ratio(run.depth[c], ref) if c in run.depth else None for k, c in curves.items()}
+    out: dict[str, Any] = {
+        "model": ex.model,
+        "board_views": ex.board_views,
+        "common_views": ex.common_views,
+        "stereo_rms_px": ex.stereo_rms_px,
+        "calibrated": _pose(ex.calibrated),
+        "calibrated_rotation_sigma_deg": ex.calibrated_sigma_deg,
+        "refined": _pose(ex.refined),
+        "depth_rms_over_reference": ratio,
+        "error": ex.error,
+    }
+    r = ex.refinement
+    if r is not None:
+        out["refinement"] = {
+            "correction_deg": r.fit.angle_deg,
+            "correction_sigma_deg": r.fit.angle_sigma_deg,
+            "baseline_direction": r.fit.direction_note,
+            "matches": r.matches,
+            "inliers": r.fit.n_inliers,
+            "frames": len(r.matches_per_frame),
+            "vertical_disparity_p50_px": [r.before.p50_px, r.after.p50_px],
+            "vertical_disparity_p95_px": [r.before.p95_px, r.after.p95_px],
+        }
+    return out
+
+
 def results_document(run: EvaluationRun) -> dict[str, Any]:
-    """The content of results.json."""
+    """The content of results.json (with ``extrinsics``, the chain of docs/rectification.md)."""
     depth = {name: [_point(p, name == THEORY) for p in pts] for name, pts in run.depth.items()}
     matchers = {
         name: {
@@ -145,6 +187,7 @@ def results_document(run: EvaluationRun) -> dict[str, Any]:
         "image_difference": {n: r.mad_whole for n, r in run.distortion.results.items()},
         "depth": depth,
         "matchers": matchers,
+        "extrinsics": _extrinsics(run),
     }
     return _clean_document(doc)
 

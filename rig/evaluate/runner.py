@@ -31,6 +31,8 @@ from rig.evaluate.depth_quality import (
     theory_curve,
 )
 from rig.evaluate.distortion import DistortionStudy, run_distortion_study
+from rig.evaluate.extrinsics import ExtrinsicsStudy, run_extrinsics_study
+from rig.evaluate.extrinsics import steps as extrinsics_steps
 from rig.evaluate.matchers import (
     MatcherPoint,
     MatcherSample,
@@ -77,6 +79,7 @@ class EvaluationRun:
     depth_errors: dict[str, str]  # curves that could not be measured, with the reason
     theory_sigma_d_px: float
     matchers: dict[str, tuple[list[MatcherPoint], float]]
+    extrinsics: ExtrinsicsStudy | None = None
     timings_s: dict[str, float] = field(default_factory=dict)
     source: SourceRevision | None = None  # the code that ran (None: not a git checkout)
 
@@ -92,7 +95,12 @@ def run_evaluation(
     pair = design_vpc_pair(rig, config.vpc)
     n_lenses = len(set(distinct_lenses(rig).values()))
     n_scenes = len(config.distances) * len(config.textures)
-    sink.start(n_lenses * (config.calibration_views + len(config.models)) + 2 + 2 * n_scenes)
+    sink.start(
+        n_lenses * (config.calibration_views + len(config.models))
+        + 2
+        + 2 * n_scenes
+        + extrinsics_steps(config)
+    )
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
@@ -102,6 +110,11 @@ def run_evaluation(
 
     rigs: dict[str, Rig] = {REFERENCE: reference_rig(pair), TRUE_LENS: rig}
     rigs |= {m: study.calibrated_rig(rig, m) for m in ok_models}
+
+    t0 = time.perf_counter()
+    extrinsics = run_extrinsics_study(preset, study, config, sink.step)
+    timings["extrinsics"] = time.perf_counter() - t0
+    rigs |= extrinsics.rigs or {}
 
     t0 = time.perf_counter()
     left_models = {TRUE_LENS: rig.cameras[pair.left]} | {m: rigs[m].cameras[pair.left] for m in ok_models}
@@ -163,6 +176,7 @@ def run_evaluation(
         depth_errors=errors,
         theory_sigma_d_px=sigma_d,
         matchers=average_matchers(matcher_samples),
+        extrinsics=extrinsics,
         timings_s=timings,
         source=source,
     )

@@ -25,6 +25,12 @@ scaramuzza        scaramuzza          a0, a1, … (z forward); K = [[c, d, cx], 
 ROS has no name for the last four: their ``distortion_model`` is our model's name and ROS tools
 will not undistort with them; ``D`` and ``K`` still give the exact model (formulas in
 ``calibration.models``).
+
+The lat-lon rectified pair (``vpc.projection: latlon``, docs/wide-pair.md) is no pinhole either:
+its rectified views' ``distortion_model`` is ``latlon`` (mrcal's name) with no ``D``, and ``K``
+and ``P`` hold its ``fx, fy, cx, cy`` in pixels per radian (``u = cx + fx·asin(x/|p|)``,
+``v = cy + fy·atan2(y, z)``): ROS tools that only know pinholes refuse it rather than
+misproject; the point cloud and the range image carry the geometry.
 """
 
 from __future__ import annotations
@@ -106,8 +112,8 @@ def _intrinsics(model: CameraModel) -> tuple[str, tuple[float, ...], F64]:
 
 
 def rectified_projection(pair: VpcPair, camera: str) -> F64:
-    """``P`` (3, 4) of ``camera``'s rectified view: the VPC pinhole, ``Tx = −fx·B`` for the
-    right camera of the pair (0 for the left)."""
+    """``P`` (3, 4) of ``camera``'s rectified view: the VPC pinhole (the lat-lon pair: its
+    ``fx, fy, cx, cy``), ``Tx = −fx·B`` for the right camera of the pair (0 for the left)."""
     c = pair.camera
     tx = -c.fx * pair.baseline_m if camera == pair.right else 0.0
     return np.array([[c.fx, 0.0, c.cx, tx], [0.0, c.fy, c.cy, 0.0], [0.0, 0.0, 1.0, 0.0]])
@@ -130,15 +136,17 @@ def raw_camera_info(model: CameraModel, pair: VpcPair, camera: str, names: RosNa
 
 
 def rectified_camera_info(pair: VpcPair, camera: str, names: RosNames) -> CameraInfo:
-    """``camera``'s rectified view (VPC): plumb_bob, zero distortion, identity ``R``."""
+    """``camera``'s rectified view: the VPC as plumb_bob with zero distortion (the lat-lon pair:
+    ``latlon``, no ``D``; see the module doc), identity ``R``."""
     c = pair.camera
+    pinhole = pair.projection == "pinhole"
     return CameraInfo(
         frame_id=names.rect_frame(camera),
         width=c.width,
         height=c.height,
-        distortion_model="plumb_bob",
-        d=(0.0, 0.0, 0.0, 0.0, 0.0),
-        k=c.K,
+        distortion_model="plumb_bob" if pinhole else "latlon",
+        d=(0.0, 0.0, 0.0, 0.0, 0.0) if pinhole else (),
+        k=_k(c.fx, c.fy, c.cx, c.cy),
         r=np.eye(3),
         p=rectified_projection(pair, camera),
     )

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from rig.depth import depth_to_png_mm, depth_to_range, pack_xyzrgb, pixel_ray_norms
-from rig.pipeline import DepthFrame, DepthPipeline
+from rig.depth import depth_to_png_mm, pack_xyzrgb
+from rig.pipeline import DepthFrame, DepthPipeline, VpcGeometry
 from rig.recording import StoredFrame
 from rig.ros.camera_info import CameraInfo, raw_camera_info, rectified_camera_info
 from rig.ros.images import RawPixels, raw_pixels
@@ -114,13 +114,36 @@ class MessageBuilder:
     rectified_images: bool = True
 
     def __post_init__(self) -> None:
-        pair = self.pipeline.pair
-        rig = self.pipeline.rig
+        self._built_for: VpcGeometry | None = None
+        self._refresh()
+
+    def _refresh(self) -> None:
+        """Camera infos and transforms of the pipeline's current geometry: an online
+        rectification correction (:meth:`DepthPipeline.replace_rig`) changes them."""
+        geometry = self.pipeline.geometry
+        if geometry is self._built_for:
+            return
+        pair, rig = geometry.pair, geometry.rig
         self.cameras = (pair.left, pair.right)
-        self.raw_infos = {c: raw_camera_info(rig.cameras[c], pair, c, self.names) for c in self.cameras}
-        self.rect_infos = {c: rectified_camera_info(pair, c, self.names) for c in self.cameras}
-        self.transforms = static_transforms(rig, pair, self.names)
-        self._ray_norms = pixel_ray_norms(pair.camera)
+        self._raw_infos = {c: raw_camera_info(rig.cameras[c], pair, c, self.names) for c in self.cameras}
+        self._rect_infos = {c: rectified_camera_info(pair, c, self.names) for c in self.cameras}
+        self._transforms = static_transforms(rig, pair, self.names)
+        self._built_for = geometry
+
+    @property
+    def raw_infos(self) -> dict[str, CameraInfo]:
+        self._refresh()
+        return self._raw_infos
+
+    @property
+    def rect_infos(self) -> dict[str, CameraInfo]:
+        self._refresh()
+        return self._rect_infos
+
+    @property
+    def transforms(self) -> list[StaticTransform]:
+        self._refresh()
+        return self._transforms
 
     # ----- static ------------------------------------------------------------------------------
     def static(self, stamp_ns: int) -> list[Message]:
@@ -175,8 +198,7 @@ class MessageBuilder:
         if want(self.names.depth_image):
             out.append(self.depth_image(frame, stamp_ns))
         if want(topic := self.names.range_image):
-            rng = depth_to_range(frame.depth, self.pipeline.pair.camera, self._ray_norms)
-            out.append(ImageMessage(topic, rect_frame, stamp_ns, raw_pixels(rng)))
+            out.append(ImageMessage(topic, rect_frame, stamp_ns, raw_pixels(frame.range)))
         if frame.confidence is not None and want(topic := self.names.confidence_image):
             conf = np.asarray(frame.confidence, dtype=np.float32)
             out.append(ImageMessage(topic, rect_frame, stamp_ns, raw_pixels(conf)))

@@ -22,7 +22,7 @@ from rig.errors import SimulationError
 from rig.sim.rays import camera_rays
 from rig.sim.scene import Hits, Scene
 
-__all__ = ["Render", "render", "subpixel_offsets", "vignetting_factor"]
+__all__ = ["Render", "render", "render_range", "subpixel_offsets", "vignetting_factor"]
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
@@ -96,6 +96,41 @@ def _check(
         raise SimulationError(f"render: background must be a grey level 0..255, got {background!r}")
 
 
+def _centre_hits(
+    scene: Scene, camera: CameraModel, T: F64, rows: F64, cols: F64
+) -> tuple[F64, F64, NDArray[np.bool_]]:
+    """For the pixel centres of ``rows`` × ``cols`` (n·w,): the distance to the nearest surface
+    along each ray (NaN: none or no ray), the rays (n·w, 3) in the camera frame, and valid."""
+    vv, uu = np.meshgrid(rows, cols, indexing="ij")
+    rays, ok = camera_rays(camera, np.stack([uu.ravel(), vv.ravel()], axis=1))
+    hits = scene.intersect(T[:3, 3], rays[ok] @ T[:3, :3].T)
+    t = np.full(ok.shape[0], np.nan)
+    t[ok] = np.where(hits.rect_index >= 0, hits.t, np.nan)
+    return t, rays, ok
+
+
+def render_range(
+    scene: Scene, camera: CameraModel, T_world_cam: ArrayLike, *, chunk_rays: int = DEFAULT_CHUNK_RAYS
+) -> tuple[F32, NDArray[np.bool_]]:
+    """Ground truth only: the distance (H, W) float32 m along each pixel-centre ray of ``camera``
+    (any model, e.g. a rectified view) posed at ``T_world_cam`` to the nearest surface (NaN: no
+    surface, or no ray), and the pixels that have a ray (H, W) bool. What :func:`render` gives
+    as ``distance``, without shading."""
+    T = np.asarray(T_world_cam, dtype=np.float64)
+    _check(camera, T, 1, 0.0, 0.0, 0)
+    h, w = camera.height, camera.width
+    distance = np.empty((h, w), dtype=np.float32)
+    valid = np.empty((h, w), dtype=bool)
+    rows_per_chunk = max(1, int(chunk_rays) // w)
+    cols = np.arange(w, dtype=np.float64)
+    for r0 in range(0, h, rows_per_chunk):
+        rows = np.arange(r0, min(h, r0 + rows_per_chunk), dtype=np.float64)
+        t, _, ok = _centre_hits(scene, camera, T, rows, cols)
+        distance[r0 : r0 + rows.size] = t.reshape(rows.size, w)
+        valid[r0 : r0 + rows.size] = ok.reshape(rows.size, w)
+    return distance, valid
+
+
 def render(
     scene: Scene,
     camera: CameraModel,
@@ -134,11 +169,7 @@ def render(
         rows = np.arange(r0, min(h, r0 + rows_per_chunk), dtype=np.float64)
         n = rows.shape[0]
         # Pixel centres: validity, depth, ray length, off-axis angle.
-        vv, uu = np.meshgrid(rows, cols, indexing="ij")
-        rays, ok = camera_rays(camera, np.stack([uu.ravel(), vv.ravel()], axis=1))
-        hits = scene.intersect(origin, rays[ok] @ R.T)
-        t = np.full(n * w, np.nan)
-        t[ok] = np.where(hits.rect_index >= 0, hits.t, np.nan)
+        t, rays, ok = _centre_hits(scene, camera, T, rows, cols)
         sl = slice(r0, r0 + n)
         valid[sl] = ok.reshape(n, w)
         distance[sl] = t.reshape(n, w)

@@ -6,9 +6,17 @@ Layout written under ``out``::
     recording.json, frames.csv, left/NNNNNN.png, right/NNNNNN.png   (rig.recording)
     calibration.yaml                         the preset's rig (rig.yaml, version 1)
     ground_truth/scene.json                  what each seq shows (below)
+    ground_truth/range/NNNNNN.npy            float32 (H, W) distance along each LEFT rectified
+                                             pixel's ray (either projection), m, NaN = none
     ground_truth/depth/NNNNNN.npy            float32 (H, W) z in the LEFT VPC frame, m, NaN = none
-    ground_truth/reference/left/NNNNNN.png   Reference: ideal pinhole at the left VPC pose
+                                             (the pinhole pair only)
+    ground_truth/reference/left/NNNNNN.png   Reference: the ideal rectified view (pinhole or
+                                             lat-lon) at the left VPC pose
     ground_truth/reference/right/NNNNNN.png  ... and at the right VPC pose
+
+The rectified views are those of ``vpc`` (default VpcConfig()); a lat-lon field's default adds
+``blind_band_px`` columns (default: the default stereo settings') as the pipeline does, so the
+ground truth is per pixel of what ``rig process`` writes with the same settings.
 
 Scenes: ``plane`` puts the paper's fronto-parallel target at each distance (in baselines) for
 ``frames_per_distance`` frames; ``room`` moves the rig along a short path through the demo room
@@ -40,12 +48,13 @@ from rig.sim.presets import Preset, get_preset
 from rig.sim.render import render
 from rig.sim.scene import Scene, plane_scene, room_scene
 from rig.sim.textures import texture_name
-from rig.vpc import VpcConfig, design_vpc_pair
+from rig.stereo import StereoParams
+from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
 
 __all__ = ["GROUND_TRUTH_VERSION", "SCENES", "ProgressCallback", "room_path", "simulate_recording"]
 
 SCENES = ("plane", "room")
-GROUND_TRUTH_VERSION = 1
+GROUND_TRUTH_VERSION = 2
 DEFAULT_DISTANCES = (3.0, 5.0, 10.0)
 DEFAULT_ROOM_FRAMES = 5
 
@@ -139,6 +148,40 @@ def _npy(array: NDArray[Any]) -> bytes:
     return buf.getvalue()
 
 
+def _ground_truth_doc(p: Preset, scene: str, pair: VpcPair, vpc: VpcConfig, band: int) -> dict[str, Any]:
+    """scene.json without its frames: the rig, the rectified pair and what each file holds."""
+    view = (
+        {"hfov_deg": vpc.hfov_deg}
+        if pair.projection == "pinhole"
+        else {"px_per_deg": vpc.resolution_px_per_deg}
+    )
+    doc: dict[str, Any] = {
+        "version": GROUND_TRUTH_VERSION,
+        "preset": p.name,
+        "scene": scene,
+        "baseline_m": p.rig.baseline(),
+        "vpc": {**pair.as_json(), **view, "blind_band_px": band},
+        "T_rig_vpc": {n: T.tolist() for n, T in pair.T_rig_vpc.items()},
+        "range": {
+            "frame": "left rectified view",
+            "quantity": "distance along the pixel's ray",
+            "units": "m",
+            "dtype": "float32",
+            "invalid": "NaN",
+        },
+    }
+    if pair.projection == "pinhole":
+        doc["depth"] = {
+            "frame": "left VPC",
+            "quantity": "z",
+            "units": "m",
+            "dtype": "float32",
+            "invalid": "NaN",
+        }
+    doc["frames"] = []
+    return doc
+
+
 def _frame_seed(seed: int, seq: int, camera: int) -> int:
     return int(np.random.SeedSequence([seed, seq, camera]).generate_state(1)[0])
 
@@ -158,13 +201,15 @@ def simulate_recording(
     supersample: int = 3,
     color: bool = False,
     vpc: VpcConfig | None = None,
+    blind_band_px: int | None = None,
     progress: ProgressCallback | None = None,
 ) -> Path:
     """Render a recording of ``scene`` ("plane" | "room") seen by ``preset``'s rig into ``out``.
 
     plane: ``distances`` in baselines (default 3, 5, 10), ``frames_per_distance`` pairs each;
     room: ``frames`` pairs along :func:`room_path` (default 5). ``noise_std`` / ``vignetting``
-    default to the preset's. Ground truth is for the VPC pair of ``vpc`` (default VpcConfig()).
+    default to the preset's. Ground truth is for the rectified pair of ``vpc`` (default
+    VpcConfig()) and, for a lat-lon field, ``blind_band_px`` (see the module doc).
     ``out`` must not exist or be an empty directory. Returns ``out``.
     """
     p = get_preset(preset) if isinstance(preset, str) else preset
@@ -179,13 +224,15 @@ def simulate_recording(
         raise ConfigError(f"vignetting must be in [0, 1], got {vignetting!r}")
     if isinstance(supersample, bool) or int(supersample) != supersample or not 1 <= supersample <= 16:
         raise ConfigError(f"supersample must be an integer in [1, 16], got {supersample!r}")
-    pair = design_vpc_pair(p.rig, vpc)
+    band = StereoParams().blind_band_px if blind_band_px is None else int(blind_band_px)
+    pair = design_vpc_pair(p.rig, vpc, blind_band_px=band)
     root = Path(out)
     if root.exists() and (not root.is_dir() or any(root.iterdir())):
         raise RecordingError(f"{root}: already exists and is not an empty directory; choose a new --out")
     gt = root / "ground_truth"
+    pinhole = pair.projection == "pinhole"
     try:
-        for sub in ("depth", "reference/left", "reference/right"):
+        for sub in ("range", "reference/left", "reference/right", *(("depth",) if pinhole else ())):
             (gt / sub).mkdir(parents=True, exist_ok=True)
         save_rig(p.rig, root / "calibration.yaml")
     except OSError as err:
@@ -207,16 +254,7 @@ def simulate_recording(
         "supersample": int(supersample),
         "color": bool(color),
     }
-    doc: dict[str, Any] = {
-        "version": GROUND_TRUTH_VERSION,
-        "preset": p.name,
-        "scene": scene,
-        "baseline_m": p.rig.baseline(),
-        "vpc": {**pair.as_json(), "hfov_deg": (vpc or VpcConfig()).hfov_deg},
-        "T_rig_vpc": {n: T.tolist() for n, T in pair.T_rig_vpc.items()},
-        "depth": {"frame": "left VPC", "quantity": "z", "units": "m", "dtype": "float32", "invalid": "NaN"},
-        "frames": [],
-    }
+    doc = _ground_truth_doc(p, scene, pair, vpc or VpcConfig(), band)
     cams = (pair.left, pair.right)
     with RecordingWriter(root, meta=meta) as writer:
         for seq, shot in enumerate(shots):
@@ -236,18 +274,17 @@ def simulate_recording(
                 )
                 for i, n in enumerate(cams)
             ]
-            rel = {"depth": f"ground_truth/depth/{seq:06d}.npy"}
+            rel = {"range": f"ground_truth/range/{seq:06d}.npy"}
+            rel |= {"depth": f"ground_truth/depth/{seq:06d}.npy"} if pinhole else {}
             rel |= {n: f"ground_truth/reference/{n}/{seq:06d}.png" for n in cams}
             try:
-                _write_atomic(root / rel["depth"], _npy(ref[pair.left].depth))
+                _write_atomic(root / rel["range"], _npy(ref[pair.left].distance))
+                if pinhole:
+                    _write_atomic(root / rel["depth"], _npy(ref[pair.left].depth))
                 for n in cams:
                     _write_atomic(root / rel[n], _png(ref[n].image))
-                entry = {
-                    "seq": seq,
-                    **shot.info,
-                    "T_world_rig": shot.T_world_rig.tolist(),
-                    "depth": rel["depth"],
-                }
+                entry = {"seq": seq, **shot.info, "T_world_rig": shot.T_world_rig.tolist()}
+                entry |= {k: rel[k] for k in ("range", "depth") if k in rel}
                 entry["reference"] = {n: rel[n] for n in cams}
                 doc["frames"].append(entry)
                 _write_atomic(gt / "scene.json", json.dumps(doc, indent=2).encode() + b"\n")

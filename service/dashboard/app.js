@@ -123,8 +123,20 @@ async function loadCalibration() {
     if (!r.ok) throw new Error("HTTP " + r.status);
     calibration = await r.json();
     const v = calibration.vpc;
-    $("vpc-info").textContent =
-      `VPC ${v.width}×${v.height}, fx ${v.fx.toFixed(1)} px, baseline ${(calibration.baseline_m * 1000).toFixed(1)} mm`;
+    const baseline = `baseline ${(calibration.baseline_m * 1000).toFixed(1)} mm`;
+    if (v.projection === "latlon") {
+      // The wide pair: a tall image over the whole overlap, range rather than depth.
+      document.body.classList.add("wide");
+      $("vpc-info").textContent =
+        `lat-lon pair ${v.width}×${v.height}, ${v.px_per_deg.toFixed(2)} px/deg, ${baseline}`;
+      $("depth-caption").textContent =
+        "range along each ray (left lat-lon view; near = red, far = blue, black = no match)";
+      $("vpc-left-caption").textContent = "left lat-lon view";
+      $("vpc-right-caption").textContent = "right lat-lon view";
+      for (const name of CAMERAS) $(`footprint-${name}-caption`).textContent = `${name} fisheye, overlap outlined`;
+    } else {
+      $("vpc-info").textContent = `VPC ${v.width}×${v.height}, fx ${v.fx.toFixed(1)} px, ${baseline}`;
+    }
     CAMERAS.forEach(drawFootprint);
   } catch (err) {
     setTimeout(loadCalibration, 2000);
@@ -156,7 +168,9 @@ function showHealth(h) {
     const state = $(`cam-${name}-state`);
     state.textContent = cam.state;
     state.className = cam.state;
-    $(`cam-${name}-reason`).textContent = cam.connected ? "" : (cam.reason || cam.last_error || "");
+    $(`cam-${name}-reason`).textContent = cam.connected
+      ? (cam.degraded_reason || "")
+      : (cam.reason || cam.last_error || "");
     for (const col of columns || []) $(`cam-${name}-${col.id}`).textContent = columnText(cam, col);
     $(`banner-${name}`).hidden = cam.connected;
   }

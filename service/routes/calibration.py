@@ -36,7 +36,8 @@ def calibration_model(runtime: Runtime) -> CalibrationModel:
         cameras=cams,
         vpc=VpcModel(
             **pair.as_json(),
-            hfov_deg=vpc.hfov_deg,
+            hfov_deg=vpc.hfov_deg if pair.projection == "pinhole" else None,
+            px_per_deg=vpc.resolution_px_per_deg if pair.projection == "latlon" else None,
             yaw_deg=vpc.yaw_deg,
             pitch_deg=vpc.pitch_deg,
             T_rig_vpc={n: T.tolist() for n, T in pair.T_rig_vpc.items()},
@@ -49,7 +50,7 @@ def calibration_model(runtime: Runtime) -> CalibrationModel:
 
 @router.get("/calibration", response_model=CalibrationModel, summary="Rig and VPC calibration")
 def get_calibration(runtime: RuntimeDep) -> CalibrationModel:
-    # Fixed for the life of the runtime (the VPC does not change): computed once.
+    # Computed once, and again after an online rectification correction (Runtime drops it).
     cached: CalibrationModel | None = runtime.calibration_doc
     if cached is None:
         cached = calibration_model(runtime)

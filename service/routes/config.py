@@ -1,10 +1,21 @@
-"""``/config``: the effective configuration (GET) and live stereo parameter changes (PATCH)."""
+"""``/config``: the effective configuration (GET) and live stereo parameter changes (PATCH).
+
+Changes are serialised: each PATCH reads the current parameters, merges its fields, validates
+them and swaps them into the pipeline under one lock, so concurrent writers of different fields
+all keep their change, and writers of one field end with the last one in the server's order. A
+200 means the pipeline holds the change: every pair matched after the answer uses it. Each
+change raises the configuration's revision, sent as ``ETag`` by GET and PATCH (the order in
+which the server applied the changes). A PATCH with ``If-Match`` applies only to that revision
+(412 otherwise), for clients that change a value derived from the one they read.
+"""
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import cv2
 import numpy as np
-from fastapi import APIRouter
+from fastapi import APIRouter, Header, Response
 from fastapi.encoders import jsonable_encoder
 from pydantic import ValidationError
 
@@ -12,9 +23,9 @@ from rig.errors import ConfigError, PipelineError
 from rig.pipeline import DepthPipeline
 from rig.stereo import StereoMatcher, StereoParams
 from service.deps import RuntimeDep
-from service.errors import StereoParamsRefused
+from service.errors import ConfigChanged, StereoParamsRefused
 from service.runtime import Runtime
-from service.schemas import BODY_ERRORS, ConfigModel, ConfigPatch, ServerPublicModel
+from service.schemas import BODY_ERRORS, ConfigModel, ConfigPatch, ErrorModel, ServerPublicModel
 from service.security import AuthDep, TokenFirstRoute
 
 __all__ = ["config_model", "router"]
@@ -62,25 +73,22 @@ def dry_run(pipeline: DepthPipeline, params: StereoParams) -> None:
     StereoMatcher(params).match(blank, blank)
 
 
+def _etag(revision: int) -> str:
+    return f'"{revision}"'
+
+
 @router.get("/config", response_model=ConfigModel, summary="Effective configuration (no secrets)")
-def get_config(runtime: RuntimeDep) -> ConfigModel:
-    return config_model(runtime)
+def get_config(runtime: RuntimeDep, response: Response) -> ConfigModel:
+    with runtime.config_lock:
+        response.headers["ETag"] = _etag(runtime.config_revision)
+        return config_model(runtime)
 
 
-@router.patch(
-    "/config",
-    response_model=ConfigModel,
-    summary="Change stereo parameters (takes effect at the next frame)",
-    responses=BODY_ERRORS,
-)
-def patch_config(patch: ConfigPatch, runtime: RuntimeDep, _auth: AuthDep) -> ConfigModel:
-    # null = keep the current value (the schema allows null for every field).
-    changes = {k: v for k, v in patch.stereo.model_dump(exclude_unset=True).items() if v is not None}
-    current = runtime.pipeline.stereo
+def _merged_params(runtime: Runtime, changes: dict[str, object]) -> StereoParams:
+    """The current parameters with ``changes``, validated and tried on the matcher."""
     try:
-        params = StereoParams.model_validate({**current.model_dump(), **changes})
+        params = StereoParams.model_validate({**runtime.pipeline.stereo.model_dump(), **changes})
         dry_run(runtime.pipeline, params)
-        runtime.pipeline.update_stereo(params)
     except ValidationError as err:
         detail = jsonable_encoder(err.errors(include_url=False, include_context=False))
         for item in detail:
@@ -94,4 +102,34 @@ def patch_config(patch: ConfigPatch, runtime: RuntimeDep, _auth: AuthDep) -> Con
         raise StereoParamsRefused(
             f"stereo parameters refused by the matcher (VPC width {width} px): {message}"
         ) from err
-    return config_model(runtime)
+    return params
+
+
+@router.patch(
+    "/config",
+    response_model=ConfigModel,
+    summary="Change stereo parameters (in effect when answered: the next pair matched uses them)",
+    responses={**BODY_ERRORS, 412: {"model": ErrorModel, "description": "If-Match names an old revision"}},
+)
+def patch_config(
+    patch: ConfigPatch,
+    runtime: RuntimeDep,
+    response: Response,
+    _auth: AuthDep,
+    if_match: Annotated[str | None, Header(description="apply only to this revision (the ETag)")] = None,
+) -> ConfigModel:
+    # null = keep the current value (the schema allows null for every field).
+    changes = {k: v for k, v in patch.stereo.model_dump(exclude_unset=True).items() if v is not None}
+    with runtime.config_lock:
+        current = _etag(runtime.config_revision)
+        if if_match is not None and if_match.strip() != "*":
+            wanted = [tag.strip().removeprefix("W/") for tag in if_match.split(",")]
+            if current not in wanted:
+                raise ConfigChanged(
+                    f"the configuration is at revision {current}, not {if_match.strip()}: "
+                    "GET /config and apply the change to what it shows"
+                )
+        runtime.pipeline.update_stereo(_merged_params(runtime, changes))
+        runtime.config_revision += 1
+        response.headers["ETag"] = _etag(runtime.config_revision)
+        return config_model(runtime)

@@ -1,4 +1,4 @@
-"""Depth, disparity, confidence, colourised depth and point cloud of the latest frame."""
+"""Depth, range, disparity, confidence, colourised depth and point cloud of the latest frame."""
 
 from __future__ import annotations
 
@@ -37,9 +37,10 @@ PLY = "application/x-ply"
 PCD = "application/x-pcd"
 CloudFormat = Literal["ply", "pcd"]
 ArrayFormat = Literal["png", "npy"]
-ArrayEndpoint = Literal["depth", "disparity", "confidence"]
+ArrayEndpoint = Literal["depth", "range", "disparity", "confidence"]
 _SCALE_HEADERS: dict[str, str] = {
     "depth": "X-Depth-Scale",
+    "range": "X-Range-Scale",
     "disparity": "X-Disparity-Scale",
     "confidence": "X-Confidence-Scale",
 }
@@ -48,9 +49,10 @@ _PNG_SCALES: dict[str, float] = {"disparity": DISPARITY_PNG_SCALE, "confidence":
 
 @dataclass(frozen=True)
 class ArrayBody:
-    """How ``GET /depth``, ``/disparity`` or ``/confidence`` answers in one ``format``: the runtime's frame
-    body (``Runtime.frame_bodies`` key), its media type and the scale header. Shared by the
-    routes and :mod:`service.fast_path`, so both give the same response."""
+    """How ``GET /depth``, ``/range``, ``/disparity`` or ``/confidence`` answers in one
+    ``format``: the runtime's frame body (``Runtime.frame_bodies`` key), its media type and the
+    scale header. Shared by the routes and :mod:`service.fast_path`, so both give the same
+    response."""
 
     key: str
     media_type: str
@@ -58,10 +60,11 @@ class ArrayBody:
 
 
 def array_body(endpoint: ArrayEndpoint, format: ArrayFormat, depth_scale_m: float) -> ArrayBody:
-    """The :class:`ArrayBody` of ``endpoint`` in ``format`` (PNG depth in units of ``depth_scale_m``)."""
+    """The :class:`ArrayBody` of ``endpoint`` in ``format`` (PNG depth and range in units of
+    ``depth_scale_m``)."""
     if format == "npy":
         scale = "1"
-    elif endpoint == "depth":
+    elif endpoint in ("depth", "range"):
         scale = f"{depth_scale_m:g}"
     else:
         scale = f"{_PNG_SCALES[endpoint]:g}"
@@ -87,10 +90,12 @@ async def _array_response(
     summary="Latest depth map",
     responses=binary_response_doc(
         "png: uint16 in units of X-Depth-Scale metres (1 mm default), 0 = invalid; npy: float32 metres, "
-        "NaN = invalid. z in the left VPC frame.",
+        "NaN = invalid. The pinhole pair (vpc.projection pinhole): z in the left VPC frame. The lat-lon "
+        "pair (vpc.projection latlon): the range along each pixel's ray, as /range (its rays reach past "
+        "90° off the forward axis, where z is no depth).",
         "image/png",
         NPY,
-        depth_scale=True,
+        scale_header="X-Depth-Scale",
     ),
 )
 async def get_depth(
@@ -100,6 +105,28 @@ async def get_depth(
     format: Annotated[ArrayFormat, Query(description="png (16-bit) or npy (float32 m)")] = "png",
 ) -> Response:
     return await _array_response("depth", format, result, runtime, settings)
+
+
+@router.get(
+    "/range",
+    response_class=Response,
+    summary="Latest range map (metres along each pixel's ray)",
+    responses=binary_response_doc(
+        "png: uint16 in units of X-Range-Scale metres (server.depth_scale_m, 1 mm default), 0 = invalid; "
+        "npy: float32 metres, NaN = invalid. The distance from the left rectified view's centre along "
+        "each pixel's ray, for either projection; aligned with /depth and /frames/left?view=vpc.",
+        "image/png",
+        NPY,
+        scale_header="X-Range-Scale",
+    ),
+)
+async def get_range(
+    result: ResultDep,
+    runtime: RuntimeDep,
+    settings: SettingsDep,
+    format: Annotated[ArrayFormat, Query(description="png (16-bit) or npy (float32 m)")] = "png",
+) -> Response:
+    return await _array_response("range", format, result, runtime, settings)
 
 
 @router.get(
@@ -163,7 +190,10 @@ async def colorized_body(runtime: Runtime, result: PublishedResult) -> bytes:
     "/depth/colorized",
     response_class=Response,
     summary="Latest depth as a colour-mapped JPEG (the dashboard's and the stream's image)",
-    responses=binary_response_doc("turbo colour map of inverse depth; black = invalid", "image/jpeg"),
+    responses=binary_response_doc(
+        "turbo colour map of inverse depth (the lat-lon pair: of inverse range); black = invalid",
+        "image/jpeg",
+    ),
 )
 async def get_depth_colorized(runtime: RuntimeDep, result: ResultDep) -> Response:
     body = await colorized_body(runtime, result)

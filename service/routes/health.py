@@ -16,6 +16,7 @@ from service.schemas import (
     PairingHealthModel,
     ProbeModel,
     RecordingInfo,
+    RectificationHealthModel,
     WorkerHealthModel,
 )
 from service.settings import Settings
@@ -40,6 +41,9 @@ def health_model(report: HealthReport) -> HealthModel:
         recording=None
         if report.recording is None
         else RecordingInfo.model_validate(report.recording, from_attributes=True),
+        rectification=None
+        if report.rectification is None
+        else RectificationHealthModel.model_validate(flatten(report.rectification)),
     )
 
 

@@ -39,7 +39,12 @@ def list_recordings(runtime: RuntimeDep) -> list[RecordingInfo]:
     response_model=RecordingInfo,
     status_code=201,
     summary="Start recording the camera pairs",
-    responses={**BODY_ERRORS, 409: {"model": ErrorModel}, 507: {"model": ErrorModel}},
+    responses={
+        **BODY_ERRORS,
+        409: {"model": ErrorModel, "description": "the name exists, or a recording is running"},
+        500: {"model": ErrorModel, "description": "server.recordings_dir cannot hold recordings"},
+        507: {"model": ErrorModel, "description": "disk full"},
+    },
 )
 def start_recording(body: RecordingStart, runtime: RuntimeDep, _auth: AuthDep) -> RecordingInfo:
     meta = {"vpc": runtime.pipeline.pair.as_json()}

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench import api_load, dask_scale, lut_build, memory, process, startup, worker
+from bench import api_load, dask_scale, hostile, lut_build, memory, process, rectification, startup, worker
 from calibration.models import MODELS, KannalaBrandtModel
 from rig.sim import get_preset
 
@@ -151,3 +151,29 @@ def test_window_minima_keep_each_windows_floor() -> None:
     points = [(0.0, 5.0), (10.0, 3.0), (59.0, 4.0), (61.0, 9.0), (130.0, 2.0), (170.0, 1.0)]
     assert memory.window_minima(points, 60.0) == [(30.0, 3.0), (90.0, 9.0), (150.0, 1.0)]
     assert memory.window_minima([], 60.0) == []
+
+
+def test_rectification_bench_times_a_check_and_the_worker_with_and_without(
+    bench_env: Path, tmp_path: Path
+) -> None:
+    path = tmp_path / "r.json"
+    argv = ["--quick", "--windows", "1", "--window-s", "2", "--interval", "0.5", "--json", str(path)]
+    doc = _written(path, rectification.main(argv))
+    med = doc["median_ms"]
+    assert med["check_wall"] > 0 and med["check_cpu"] > 0 and med["sift_cpu"] > 0
+    assert 0 < doc["cpu_ratio_to_bare_sift"] < 10 and 0 < doc["duty_cycle_one_core"] < 1
+    impact = doc["worker_impact"]
+    assert len(impact["fps_on"]) == len(impact["fps_off"]) == 1 and impact["fps_off"][0] > 0
+    assert impact["checks_per_window"][0] >= 1 and impact["ratio"] > 0
+
+
+def test_hostile_bench_runs_its_attacks(bench_env: Path, tmp_path: Path) -> None:
+    out = tmp_path / "h.json"
+    doc = _written(
+        out, hostile.main(["--quick", "--attack", "patch", "--attack", "headers", "--json", str(out)])
+    )
+    patch = doc["patch"]
+    assert patch["acknowledged"] == patch["different_fields"] > 0 and patch["lost_updates"] == 0
+    assert patch["same_field_last_wins"] is True
+    assert doc["headers"]["lines"]["status"] == doc["headers"]["giant"]["status"] == 431
+    assert doc["headers"]["lines"]["health"]["failures"] == 0

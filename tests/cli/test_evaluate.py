@@ -18,6 +18,8 @@ from rig.evaluate.provenance import source_revision
 from tests.helpers.command import run_rig
 
 MODELS = ["kannala_brandt", "mei", "scaramuzza", "equidistant", "double_sphere", "eucm"]
+# The extrinsics chain's curves: the Kannala-Brandt lenses with calibrated / refined extrinsics.
+EXTRINSICS = ["calibrated_extrinsics", "refined_extrinsics"]
 
 
 def run(*args: str | Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
@@ -30,6 +32,10 @@ def quick(tmp_path_factory: pytest.TempPathFactory) -> Path:
     res = run("evaluate", "--preset", "paper-sim", "--quick", "--out", out)
     assert res.returncode == 0, res.stderr
     assert "wrote" in res.stdout and "report.md" in res.stdout
+    timings = json.loads((out / "run.json").read_text())["timings_s"]
+    # docs/evaluation.md's figure for --quick: the sum of the stages' times run.json records.
+    print(f"\nrig evaluate --preset paper-sim --quick: {sum(timings.values()):.1f} s ({timings})")
+    assert set(timings) >= {"calibration", "depth_pipelines"} and all(t > 0 for t in timings.values())
     return out
 
 
@@ -46,7 +52,7 @@ def _rows(path: Path) -> list[dict[str, str]]:
 @pytest.mark.slow
 def test_results_json_has_exactly_the_issue_keys_and_sane_calibrations(quick: Path) -> None:
     doc = _results(quick)
-    assert set(doc) == {"preset", "calibration", "image_difference", "depth", "matchers"}
+    assert set(doc) == {"preset", "calibration", "image_difference", "depth", "matchers", "extrinsics"}
     assert doc["preset"] == "paper-sim"
     assert list(doc["calibration"]) == MODELS
     for model, entry in doc["calibration"].items():
@@ -64,7 +70,7 @@ def test_results_json_has_exactly_the_issue_keys_and_sane_calibrations(quick: Pa
 @pytest.mark.slow
 def test_depth_curves_grow_with_distance_and_theory_is_quadratic(quick: Path) -> None:
     depth = _results(quick)["depth"]
-    assert set(depth) == {"reference", "true_lens", "theory", *MODELS}
+    assert set(depth) == {"reference", "true_lens", "theory", *MODELS, *EXTRINSICS}
     ref = depth["reference"]
     assert [p["k"] for p in ref] == [3.0, 8.0, 16.0]
     rms = [p["rms_m"] for p in ref]
@@ -89,6 +95,26 @@ def test_depth_curves_grow_with_distance_and_theory_is_quadratic(quick: Path) ->
 
 
 @pytest.mark.slow
+def test_extrinsics_chain_true_calibrated_refined(quick: Path) -> None:
+    """The pair calibrated from wedge boards, then refined from the room: both close to the true
+    relative pose, the scale kept, and a depth error ratio to the Reference for each."""
+    ex = _results(quick)["extrinsics"]
+    assert ex["error"] is None and ex["model"] == "kannala_brandt"
+    assert ex["common_views"] >= 6 and ex["stereo_rms_px"] < 0.1
+    assert ex["calibrated"]["rotation_deg"] < 0.1 and ex["refined"]["rotation_deg"] < 0.1
+    # Refinement never changes the baseline's length: the calibration's stays.
+    assert ex["refined"]["baseline_mm"] == pytest.approx(ex["calibrated"]["baseline_mm"], abs=1e-9)
+    r = ex["refinement"]
+    assert r["inliers"] > 200 and r["frames"] == 2
+    assert r["vertical_disparity_p50_px"][1] <= r["vertical_disparity_p50_px"][0] + 0.01
+    ratios = ex["depth_rms_over_reference"]
+    assert set(ratios) == {"true", "calibrated", "refined"} and all(1.0 < v < 20.0 for v in ratios.values())
+    depth = _results(quick)["depth"]
+    for curve in EXTRINSICS:
+        assert all(p["rms_m"] < 0.02 * p["k"] * 0.2 for p in depth[curve])
+
+
+@pytest.mark.slow
 def test_image_difference_and_matchers_are_sane(quick: Path) -> None:
     doc = _results(quick)
     diff = doc["image_difference"]
@@ -109,12 +135,17 @@ def test_image_difference_and_matchers_are_sane(quick: Path) -> None:
 @pytest.mark.slow
 def test_csv_png_and_report_files_are_written_and_valid(quick: Path) -> None:
     depth_rows = _rows(quick / "depth.csv")
-    assert {r["curve"] for r in depth_rows} == {"reference", "true_lens", "theory", *MODELS}
-    assert len(depth_rows) == 3 * (len(MODELS) + 3)
+    assert {r["curve"] for r in depth_rows} == {"reference", "true_lens", "theory", *MODELS, *EXTRINSICS}
+    assert len(depth_rows) == 3 * (len(MODELS) + len(EXTRINSICS) + 3)
     assert {r["model"] for r in _rows(quick / "calibration.csv")} == set(MODELS)
     assert len(_rows(quick / "image_difference.csv")) == len(MODELS) + 1
     assert len(_rows(quick / "matchers.csv")) == 4 * 3
-    assert {r["curve"] for r in _rows(quick / "depth_fit.csv")} == {"reference", "true_lens", *MODELS}
+    assert {r["curve"] for r in _rows(quick / "depth_fit.csv")} == {
+        "reference",
+        "true_lens",
+        *MODELS,
+        *EXTRINSICS,
+    }
     pngs = [
         "depth_rms.png",
         "depth_ratio.png",
@@ -127,6 +158,7 @@ def test_csv_png_and_report_files_are_written_and_valid(quick: Path) -> None:
         assert img is not None and img.shape[0] > 50 and img.shape[1] > 50, png
     report = (quick / "report.md").read_text()
     for heading in ("Calibration quality", "Distortion removal", "Depth quality", "Matcher choice",
+                    "Extrinsics: calibrated from boards, refined from the scene",
                     "Agreement with the paper"):  # fmt: skip
         assert heading in report
     links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", report)

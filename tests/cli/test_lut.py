@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 from pathlib import Path
 
@@ -28,18 +29,20 @@ def calibration(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_build_reports_path_key_valid_fraction_and_time_then_hits(calibration: Path, tmp_path: Path) -> None:
     cache = tmp_path / "lut"
-    res = run("lut", "build", "--calibration", calibration, "--cache-dir", cache)
+    res = run("lut", "build", "--calibration", calibration, "--cache-dir", cache, "--projection", "pinhole")
     assert res.returncode == 0, res.stderr
-    pair = design_vpc_pair(prototype_rig(1.0), VpcConfig())
+    pair = design_vpc_pair(prototype_rig(1.0), VpcConfig(projection="pinhole"))
     for name in ("left", "right"):
         key = lut_key(prototype_rig(1.0).cameras[name], pair.R_cam_vpc[name], pair.camera)
         assert (cache / f"{key}.lut").is_file()
         assert key[:16] in res.stdout
     assert res.stdout.count("100.0%") == 2 and res.stdout.count("built") == 2
     assert "VPC 640x480" in res.stdout
-    again = run("lut", "build", "-c", calibration, "--cache-dir", cache)
+    again = run("lut", "build", "-c", calibration, "--cache-dir", cache, "--projection", "pinhole")
     assert again.returncode == 0 and again.stdout.count("cache (load)") == 2
-    forced = run("lut", "build", "-c", calibration, "--cache-dir", cache, "--rebuild")
+    forced = run(
+        "lut", "build", "-c", calibration, "--cache-dir", cache, "--rebuild", "--projection", "pinhole"
+    )
     assert forced.returncode == 0 and forced.stdout.count("built") == 2
 
 
@@ -84,3 +87,29 @@ def test_build_errors_are_one_line_exit_2(calibration: Path, tmp_path: Path) -> 
         assert res.returncode == 2, (args, res.stderr)
         lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
         assert len(lines) == 1 and needle in lines[0], res.stderr
+
+
+def test_hostile_cache_entries_never_stop_the_command(calibration: Path, tmp_path: Path) -> None:
+    # Before: a non-finite image size in a header ended with "internal error", a FIFO hung it.
+    cache = tmp_path / "lut"
+    cache.mkdir()
+    pair = design_vpc_pair(prototype_rig(1.0), VpcConfig(width=320, height=240))
+    keys = [lut_key(prototype_rig(1.0).cameras[n], pair.R_cam_vpc[n], pair.camera) for n in ("left", "right")]
+    (cache / f"{keys[0]}.lut").write_bytes(
+        b"ODFCLUT\n" + len(h := b'{"version": 2, "height": Infinity}').to_bytes(4, "little") + h
+    )
+    os.mkfifo(cache / f"{keys[1]}.lut")
+    shown = run("lut", "show", "--cache-dir", cache)
+    assert shown.returncode == 0, shown.stderr
+    assert "FIFO" in shown.stdout and "Infinity" in shown.stdout
+    built = run("lut", "build", "-c", calibration, "--cache-dir", cache, "--vpc-size", "320x240")
+    assert built.returncode == 0, built.stderr
+    assert built.stdout.count("built") == 2
+    warnings = [ln for ln in built.stderr.splitlines() if "LUT cache file" in ln]
+    assert len(warnings) == 2 and all("rebuilding" in w for w in warnings), built.stderr
+    assert (
+        run("lut", "build", "-c", calibration, "--cache-dir", cache, "--vpc-size", "320x240").stdout.count(
+            "cache (load)"
+        )
+        == 2
+    )

@@ -39,7 +39,18 @@ def test_version_prints_the_installed_package_version() -> None:
 def test_short_help_on_the_root_and_process_from_the_console_script() -> None:
     root = run_rig(["-h"], timeout=60)
     assert root.returncode == 0, root.stderr
-    for command in ("serve", "process", "record", "devices", "calibrate", "lut", "sim", "evaluate"):
+    for command in (
+        "serve",
+        "process",
+        "record",
+        "export",
+        "check",
+        "devices",
+        "calibrate",
+        "lut",
+        "sim",
+        "evaluate",
+    ):
         assert re.search(rf"│ {command} ", root.stdout), command
     assert "--version" in root.stdout
     process = run_rig(["process", "-h"], timeout=60)

@@ -18,7 +18,7 @@ from rig.depth import depth_from_png_mm
 from rig.recording import RecordingWriter
 from rig.vpc import VpcConfig
 from tests.helpers.command import clean_env, run_rig
-from tests.helpers.shots import StereoShot, central_box, plane_shot
+from tests.helpers.shots import StereoShot, central_box, plane_shot, prototype_rig
 
 VPC = VpcConfig(width=320, height=240)
 VPC_ARGS = ["--vpc-size", "320x240", "--vpc-hfov", "90"]
@@ -112,16 +112,17 @@ def test_output_layout_vpc_json_and_depth(tmp_path: Path, shot: StereoShot) -> N
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
     assert sorted(p.name for p in out.iterdir()) == [
-        "cloud", "depth", "left", "preview", "right", "run.json", "vpc.json"
+        "cloud", "depth", "left", "preview", "range", "right", "run.json", "vpc.json"
     ]  # fmt: skip
     run_doc = json.loads((out / "run.json").read_text())
     assert run_doc["recording"] == str(rec.resolve())
-    assert run_doc["products"] == ["depth", "left", "right", "cloud", "preview"]
+    assert run_doc["products"] == ["range", "depth", "left", "right", "cloud", "preview"]
     assert run_doc["stereo"]["disparity_range"] == 64 and run_doc["vpc"]["width"] == 320
-    for sub in ("depth", "left", "right"):
+    for sub in ("depth", "range", "left", "right"):
         assert sorted(p.name for p in (out / sub).iterdir()) == ["000003.png", "000004.png"]
     doc = json.loads((out / "vpc.json").read_text())
-    assert list(doc) == ["width", "height", "fx", "fy", "cx", "cy", "baseline_m"]
+    assert list(doc) == ["projection", "width", "height", "fx", "fy", "cx", "cy", "baseline_m", "R_rig_vpc"]
+    assert doc["projection"] == "pinhole" and np.allclose(doc["R_rig_vpc"], shot.pair.R_rig_vpc)
     assert (doc["width"], doc["height"]) == (320, 240)
     assert doc["fx"] == pytest.approx(160.0) and doc["cx"] == pytest.approx(159.5)
     assert doc["baseline_m"] == pytest.approx(shot.rig.baseline())
@@ -206,3 +207,66 @@ def test_no_processable_pair_is_an_error(tmp_path: Path, shot: StereoShot) -> No
     assert res.returncode == 2
     assert "skipped seq 0" in res.stderr and "skipped seq 1" in res.stderr
     assert "no pair of 2" in res.stderr
+
+
+def test_a_swapped_calibration_stops_with_one_line_naming_it(tmp_path: Path, shot: StereoShot) -> None:
+    # Before: exit status 0 and a few per cent of the pixels with (wrong) depth.
+    rec = write_recording(tmp_path / "rec", shot, [0, 1, 2])
+    rig = shot.rig
+    swapped = Rig(
+        {"left": rig.cameras["right"], "right": rig.cameras["left"]},
+        {"left": rig.T_rig_cam["right"], "right": rig.T_rig_cam["left"]},
+    )
+    save_rig(swapped, tmp_path / "swapped.yaml")
+    res = run(
+        "process",
+        rec,
+        "-c",
+        tmp_path / "swapped.yaml",
+        "-o",
+        tmp_path / "out",
+        *small(rec),
+        tmp=tmp_path,
+    )
+    assert res.returncode == 2, (res.stdout, res.stderr)
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "calibration check on pair 0: cameras left and right are swapped" in lines[0]
+    assert not (tmp_path / "out" / "depth" / "000000.png").exists()
+    # The check can be skipped (then the wrong depth is the user's choice).
+    forced = run(
+        "process", rec, "-c", tmp_path / "swapped.yaml", "-o", tmp_path / "out2", *small(rec),
+        "--no-calibration-check", tmp=tmp_path,
+    )  # fmt: skip
+    assert forced.returncode == 0 and "processed 3 of 3 pairs" in forced.stdout
+
+
+def test_a_calibration_of_another_size_is_one_line_not_one_per_frame(
+    tmp_path: Path, shot: StereoShot
+) -> None:
+    # Before: one "skipped seq N: left image is 640x480 but its calibration is 1280x960" per frame.
+    rec = write_recording(tmp_path / "rec", shot, list(range(6)))
+    save_rig(prototype_rig(1.0), tmp_path / "full.yaml")  # the same lenses at twice the size
+    res = run(
+        "process",
+        rec,
+        "-c",
+        tmp_path / "full.yaml",
+        "-o",
+        tmp_path / "out",
+        *small(rec),
+        tmp=tmp_path,
+    )
+    assert res.returncode == 2
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, res.stderr
+    assert (
+        "camera left: the frames of" in lines[0]
+        and "are 640x480 but the calibration is for 1280x960" in lines[0]
+    )
+    assert "(the frames are ×0.5 its size)" in lines[0]
+
+
+def test_the_right_calibration_passes_the_check_silently(tmp_path: Path, shot: StereoShot) -> None:
+    rec = write_recording(tmp_path / "rec", shot, [0])
+    res = run("process", rec, "-c", rec / "rig.yaml", "-o", tmp_path / "out", *small(rec), tmp=tmp_path)
+    assert res.returncode == 0 and "calibration check" not in res.stderr, res.stderr

@@ -11,6 +11,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from rig.vpc import DEFAULT_PROJECTION
 from tests.helpers.command import (
     Served,
     assert_one_line_error,
@@ -121,6 +122,11 @@ def test_serve_demo_from_an_empty_cache(tmp_path: Path) -> None:
         assert health["status"] == "ok"
         r = httpx.get(served.url + "depth", timeout=30)
         assert r.status_code == 200 and r.headers["content-type"] == "image/png"
+        # The demo shows the default rectified pair, and its range.
+        vpc = httpx.get(served.url + "calibration", timeout=30).json()["vpc"]
+        assert vpc["projection"] == DEFAULT_PROJECTION
+        r = httpx.get(served.url + "range", timeout=30)
+        assert r.status_code == 200 and r.headers["X-Range-Scale"] == "0.001"
         page = httpx.get(served.url, timeout=10)
         assert page.status_code == 200 and 'id="depth-img"' in page.text
     finally:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import re
+import resource
 import selectors
 import subprocess
 import sys
@@ -23,6 +24,7 @@ __all__ = [
     "Served",
     "assert_one_line_error",
     "clean_env",
+    "limit_descriptors",
     "run_rig",
     "start_serve",
     "wait_answering",
@@ -46,13 +48,24 @@ def clean_env(tmp: Path | None = None, **extra: str | Path) -> dict[str, str]:
     return env
 
 
+def limit_descriptors(nofile: int) -> Callable[[], None]:
+    """A ``preexec_fn`` that lowers the child's ``RLIMIT_NOFILE``, soft and hard, to ``nofile``."""
+
+    def lower() -> None:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (nofile, nofile))
+
+    return lower
+
+
 def run_rig(
     args: Sequence[str | Path],
     env: dict[str, str] | None = None,
     timeout: float = 300,
     cwd: Path | None = None,
+    nofile: int | None = None,
 ) -> subprocess.CompletedProcess[str]:
-    """``rig ARGS`` to completion, output captured (``env`` defaults to :func:`clean_env`)."""
+    """``rig ARGS`` to completion, output captured (``env`` defaults to :func:`clean_env`); with
+    ``nofile``, under that descriptor limit."""
     assert RIG.is_file(), f"console script not installed at {RIG}"
     return subprocess.run(
         [str(RIG), *map(str, args)],
@@ -61,6 +74,7 @@ def run_rig(
         text=True,
         timeout=timeout,
         cwd=cwd,
+        preexec_fn=None if nofile is None else limit_descriptors(nofile),
     )
 
 
@@ -99,11 +113,19 @@ class Served:
         return "".join(self.output) + (out or "")
 
 
-def start_serve(args: list[str], env: dict[str, str], timeout: float = 120) -> Served:
-    """``rig serve ARGS`` until it prints its URL (stdout and stderr merged). The URL line comes
-    when the socket is bound: use :func:`wait_answering` before relying on the app."""
+def start_serve(
+    args: list[str], env: dict[str, str], timeout: float = 120, nofile: int | None = None
+) -> Served:
+    """``rig serve ARGS`` until it prints its URL (stdout and stderr merged); with ``nofile``,
+    under that descriptor limit. The URL line comes when the socket is bound: use
+    :func:`wait_answering` before relying on the app."""
     proc = subprocess.Popen(
-        [str(RIG), "serve", *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+        [str(RIG), "serve", *args],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        preexec_fn=None if nofile is None else limit_descriptors(nofile),
     )
     assert proc.stdout is not None
     sel = selectors.DefaultSelector()

@@ -30,7 +30,8 @@ __all__ = [
 PERIOD_NS = 33_333_333  # 30 fps
 T0_NS = 5_000_000_000
 
-# Fast supervision for tests: quick watchdog and reconnects.
+# Fast supervision for tests: quick watchdog and reconnects, and frame-loss rates judged over
+# 2 s (10 s by default) so the health is back to ok soon after a fault.
 FAST_SUPERVISOR = SupervisorConfig(
     watchdog_s=0.3,
     reconnect_after_s=1.0,
@@ -38,6 +39,7 @@ FAST_SUPERVISOR = SupervisorConfig(
     backoff_base_s=0.02,
     backoff_max_s=0.1,
     usb_reset_after=3,
+    rate_window_s=2.0,
 )
 
 

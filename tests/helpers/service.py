@@ -20,6 +20,7 @@ from rig.vpc import VpcConfig
 from service.app import create_app
 from service.demo import DemoSpec, render_demo
 from service.runtime import Runtime
+from service.serve import uvicorn_config
 from service.settings import Settings, load_settings
 from tests.helpers.recordings import FAST_SUPERVISOR
 from tests.helpers.waiting import wait_for
@@ -126,7 +127,8 @@ class LiveServer:
         self.sock.bind(("127.0.0.1", 0))
         self.port = self.sock.getsockname()[1]
         self.base_url = f"http://127.0.0.1:{self.port}"
-        config = uvicorn.Config(self.app, log_level="warning", timeout_graceful_shutdown=2, lifespan=lifespan)
+        # The configuration rig serve runs with (parser, connection limits), as the settings say.
+        config = uvicorn_config(self.app, settings, "warning", lifespan=lifespan)
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True)
 

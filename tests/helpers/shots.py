@@ -24,6 +24,7 @@ from rig.sim import Scene, divergent_rig, get_preset, plane_scene, render, room_
 from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
 
 __all__ = [
+    "PINHOLE",
     "StereoShot",
     "add_noise",
     "central_box",
@@ -36,6 +37,7 @@ __all__ = [
 
 U8 = NDArray[np.uint8]
 F32 = NDArray[np.float32]
+PINHOLE = VpcConfig(projection="pinhole")  # the shots' default pair: the paper's 640x480, 90°
 
 
 @dataclass(frozen=True)
@@ -111,7 +113,7 @@ def plane_shot(
         if (angle_deg, pitch_deg) == (90.0, 0.0)
         else mount_rig(scale, angle_deg, pitch_deg)
     )
-    pair = design_vpc_pair(rig, vpc or VpcConfig())
+    pair = design_vpc_pair(rig, vpc or PINHOLE)
     scene = plane_scene(k_baselines * rig.baseline(), texture=texture, seed=seed)
     eye = np.eye(4)
     left, right = (
@@ -139,7 +141,7 @@ def room_shot(
         if (angle_deg, pitch_deg) == (90.0, 0.0)
         else mount_rig(scale, angle_deg, pitch_deg)
     )
-    pair = design_vpc_pair(rig, vpc or VpcConfig())
+    pair = design_vpc_pair(rig, vpc or PINHOLE)
     scene = room_scene(seed)
     T = make_transform(np.eye(3), [x_m, 0.0, -0.5])
     left, right = (render_for_vpc(scene, rig, n, pair, T, supersample) for n in ("left", "right"))

@@ -1,10 +1,12 @@
 """Load: 32 concurrent loopback clients for 30 s against ``rig serve`` (a real subprocess, so the
 clients do not share its interpreter) on ``/depth``, ``/health`` and ``/stream.mjpg``: no errors,
-health stays ok, the depth worker keeps producing, and the server's memory stays bounded.
+health stays ok, the depth worker keeps producing, and the server's memory stays bounded and under
+the memory budget it exports (``rig_memory_budget_bytes``).
 
 Memory bound: the service keeps the latest result and its encoded bodies (a few hundred kB at
 320x240), per-connection buffers and the allocator's working set; after a warm-up with every
-client connected once, that is its steady state. 50 MB over 30 s is several times what a
+client connected once and the rectification monitor's first check done (it builds its epipolar
+views once; docs/rectification.md), that is its steady state. 50 MB over 30 s is several times what a
 steady state moves by (allocator high-water marks) and far below what a per-request leak of
 even 1 kB would add at the request rates measured here (tens of thousands of requests).
 """
@@ -21,6 +23,7 @@ import pytest
 
 from tests.helpers.command import Served, clean_env, start_serve, wait_healthy
 from tests.helpers.service import write_serve_config
+from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
@@ -111,6 +114,11 @@ async def run_clients(base: str, seconds: float) -> Tally:
     return tally
 
 
+def monitor_checked(base: str) -> bool:
+    rect = httpx.get(base + "/health", timeout=10).json()["rectification"]
+    return rect is None or rect["checks"] >= 1
+
+
 @pytest.fixture
 def served(jpeg_recording: Path, lut_cache: Path, tmp_path: Path) -> Served:
     # The supervisor as deployed (defaults), not the tests' fast-reacting one.
@@ -132,17 +140,25 @@ def test_32_clients_for_30_s(served: Served) -> None:
     try:
         warm = asyncio.run(run_clients(base, WARMUP_S))
         assert not warm.errors, warm.errors[:5]
+        wait_for(lambda: monitor_checked(base), 60, "the rectification monitor's first check", poll_s=0.5)
         before_mb = rss_mb(pid)
         worker_before = httpx.get(base + "/health", timeout=10).json()["worker"]["frames_processed"]
         tally = asyncio.run(run_clients(base, DURATION_S))
         after_mb = rss_mb(pid)
         h = httpx.get(base + "/health", timeout=10).json()
+        metrics = httpx.get(base + "/metrics", timeout=10).text
+        budget_mb = next(
+            float(line.split()[1]) / 2**20
+            for line in metrics.splitlines()
+            if line.startswith("rig_memory_budget_bytes ")
+        )
         assert served.proc.poll() is None  # still running
     finally:
         text = served.stop()
     print(
         f"\n{sum(tally.requests.values())} requests in {DURATION_S:.0f} s {tally.requests}, "
-        f"{tally.parts} stream parts, {len(tally.errors)} errors; RSS {before_mb:.1f} -> {after_mb:.1f} MB; "
+        f"{tally.parts} stream parts, {len(tally.errors)} errors; RSS {before_mb:.1f} -> {after_mb:.1f} MiB "
+        f"(budget {budget_mb:.0f} MiB); "
         f"worker {h['worker']['frames_processed'] - worker_before} frames at {h['worker']['fps']:.1f} fps"
     )
     assert not tally.errors, tally.errors[:10]
@@ -151,4 +167,5 @@ def test_32_clients_for_30_s(served: Served) -> None:
     assert h["status"] == "ok" and h["worker"]["alive"] and h["worker"]["fps"] > 0
     assert h["worker"]["frames_processed"] > worker_before  # it kept producing under load
     assert after_mb - before_mb < MAX_RSS_GROWTH_MB
+    assert after_mb < budget_mb  # the budget rig serve exports (service.memory)
     assert served.proc.returncode == 0 and "Traceback" not in text

@@ -57,7 +57,7 @@ def test_cluster_output_equals_this_process_bit_for_bit(
     assert [(s.name, s.written) for s in here] == [("a", 6), ("b", 5)]
     for name in ("a", "b"):
         got, want = files_of(tmp_path / "there" / name), files_of(tmp_path / "here" / name)
-        assert len(got) == 3 * (6 if name == "a" else 5) + 2  # depth, left, right; vpc.json, run.json
+        assert len(got) == 3 * (6 if name == "a" else 5) + 2  # range, left, right; vpc.json, run.json
         assert got == want, name
 
 
@@ -85,7 +85,7 @@ def test_a_killed_workers_chunk_is_retried_and_the_output_stays_bit_for_bit(
         deadline = time.monotonic() + 120.0
         while not killed and time.monotonic() < deadline and run.is_alive():
             for worker, keys in client.processing().items():
-                done = len(list((out / "long" / "depth").glob("*.png"))) if (out / "long").exists() else 0
+                done = len(list((out / "long" / "range").glob("*.png"))) if (out / "long").exists() else 0
                 if done and any(str(k).startswith("rig-chunk-long-") for k in keys):
                     os.kill(pids[worker], signal.SIGKILL)
                     killed.update(worker=worker, keys=list(keys), pairs_done=done)

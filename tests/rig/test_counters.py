@@ -71,6 +71,7 @@ def test_a_table_the_code_cannot_derive_from_is_refused(
 
 def test_complete_sums_derived_counters_and_refuses_anything_undeclared() -> None:
     measured = {**Tally("camera").snapshot(), "connected": True, "fps": 2.5, "last_frame_age_ms": None}
+    measured.update(corrupt_per_s=None, undecodable_per_s=0.5, dropped_per_s=1.0)
     measured.update(frames_lost=3, frames_unpaired=4, frames_evicted=5, frames_dropped=999)
     out = complete("camera", measured)
     assert list(out) == [c.name for c in counters_of("camera")]
@@ -100,6 +101,7 @@ def test_an_added_counter_is_tallied_and_must_be_measured(monkeypatch: pytest.Mo
     tally = Tally("camera")
     tally.add("frames_new", 2)
     measured = {**tally.snapshot(), "connected": True, "fps": 1.0, "last_frame_age_ms": 5.0}
+    measured.update(corrupt_per_s=None, undecodable_per_s=None, dropped_per_s=None)
     with pytest.raises(KeyError, match=r"camera\.q declared"):
         complete("camera", measured)
     assert complete("camera", {**measured, "q": 7.0})["frames_new"] == 2

@@ -1,12 +1,20 @@
-"""LUT disk cache: hits and misses, keys, corrupt/truncated/stale files, atomic writes."""
+"""LUT disk cache: hits and misses, keys, corrupt/truncated/stale files, atomic writes, and
+hostile entries (crafted headers, FIFOs, directories, symlinks, huge files, a read-only cache)."""
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import logging
 import math
 import os
-from collections.abc import Callable
+import re
+import struct
+import subprocess
+import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -185,3 +193,193 @@ def test_entries_and_clear(tmp_path: Path) -> None:
     assert cache.clear() == 3
     assert cache.entries() == []
     assert os.listdir(tmp_path / "c") == []
+
+
+# ----- hostile entries: never trusted, never blocking, one warning ------------------------------
+def _rewrite_header(path: Path, edit: Callable[[str], str]) -> None:
+    """Rewrite the header text of a cache file (the payload stays as it was)."""
+    data = path.read_bytes()
+    (n,) = struct.unpack_from("<I", data, len(MAGIC))
+    start = len(MAGIC) + 4
+    head = edit(data[start : start + n].decode()).encode()
+    path.write_bytes(MAGIC + struct.pack("<I", len(head)) + head + data[start + n :])
+
+
+def _field(name: str, text: str) -> Callable[[str], str]:
+    """Replace the value of header field ``name`` by the JSON ``text`` (NaN, Infinity allowed)."""
+    return lambda head: re.sub(rf'"{name}": [^,}}]+', f'"{name}": {text}', head)
+
+
+# Each of these crashed start-up ("internal error") or was read as a valid table before.
+CRAFTED_HEADERS = {
+    "infinite height": _field("height", "Infinity"),
+    "NaN width": _field("width", "NaN"),
+    "1e400 height": _field("height", "1e400"),
+    "fractional height": _field("height", "120.5"),
+    "height as text": _field("height", '"120"'),
+    "height true": _field("height", "true"),
+    "negative size": lambda h: _field("width", "-1")(_field("height", "-1")(h)),
+    "absurd size": lambda h: _field("width", "1000000000")(_field("height", "1000000000")(h)),
+    "payload_bytes as float": _field("payload_bytes", "288000.0"),
+    "crc beyond 32 bits": _field("payload_crc32", "18446744073709551616"),
+    "NaN valid fraction": _field("valid_fraction", "NaN"),
+    "version true": _field("version", "true"),
+    "key a number": _field("key", "7"),
+    "header a list": lambda h: "[1, 2]",
+    "deeply nested": lambda h: "[" * 100_000 + "]" * 100_000,
+}
+
+
+@pytest.mark.parametrize("edit", CRAFTED_HEADERS.values(), ids=list(CRAFTED_HEADERS))
+def test_crafted_headers_are_refused_and_rebuilt(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, edit: Callable[[str], str]
+) -> None:
+    _rebuilt_after(tmp_path, lambda p: _rewrite_header(p, edit), caplog)
+
+
+def test_a_header_length_beyond_the_limit_is_refused_unread(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # A header that claims 4 GiB (in a file that is really that long, sparse): nothing is read.
+    def huge_header(p: Path) -> None:
+        with open(p, "r+b") as f:
+            f.seek(len(MAGIC))
+            f.write(struct.pack("<I", 0xFFFFFFF0))
+            f.truncate(2**32 + 64)
+
+    _rebuilt_after(tmp_path, huge_header, caplog)
+
+
+def test_a_huge_file_is_refused_without_reading_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Before: the whole file was read into memory (3 GiB here, sparse) before any check.
+    cache = LutCache(tmp_path)
+    first = cache.get(fisheye(), R0, vpc_cam())
+    with open(first.path, "r+b") as f:
+        f.truncate(3 * 2**30)
+    reads: list[int] = []
+    real_empty = np.empty
+
+    def counting_empty(shape: Any, *args: Any, **kw: Any) -> Any:
+        reads.append(int(np.prod(shape)))
+        return real_empty(shape, *args, **kw)
+
+    monkeypatch.setattr(lut_cache.np, "empty", counting_empty)
+    again = LutCache(tmp_path).get(fisheye(), R0, vpc_cam())
+    assert not again.hit and np.array_equal(again.lut.map_x, first.lut.map_x)
+    assert max(reads) < 2**20, "no buffer for the file's claimed size was allocated"
+    assert first.path.stat().st_size < 2**20, "and stored again at its own size"
+
+
+def _get_within(cache: LutCache, seconds: float) -> lut_cache.CachedLut:
+    """``cache.get`` in a thread; fails the test (instead of hanging it) if it blocks."""
+    out: list[lut_cache.CachedLut] = []
+    t = threading.Thread(target=lambda: out.append(cache.get(fisheye(), R0, vpc_cam())), daemon=True)
+    t.start()
+    t.join(seconds)
+    assert not t.is_alive(), f"the cache lookup blocked for more than {seconds} s"
+    assert out
+    return out[0]
+
+
+NOT_FILES: dict[str, Callable[[Path], object]] = {
+    "FIFO": os.mkfifo,  # before: start-up hung forever in open()
+    "directory": lambda p: p.mkdir(),
+    "symlink to /dev/zero": lambda p: p.symlink_to("/dev/zero"),
+    "dangling symlink": lambda p: p.symlink_to(p.with_name("nowhere")),
+}
+
+
+@pytest.mark.parametrize("make", NOT_FILES.values(), ids=list(NOT_FILES))
+def test_an_entry_that_is_not_a_file_is_ignored_and_never_blocks(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, make: Callable[[Path], object]
+) -> None:
+    good = LutCache(tmp_path / "good").get(fisheye(), R0, vpc_cam())
+    cache = LutCache(tmp_path / "c")
+    cache.directory.mkdir()
+    entry = cache.path(good.key)
+    make(entry)
+    try:
+        with caplog.at_level(logging.WARNING, logger="rig.lut_cache"):
+            got = _get_within(cache, 10.0)
+            again = _get_within(cache, 10.0)
+        assert not got.hit and np.array_equal(got.lut.map1, good.lut.map1)
+        warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+        assert len(warnings) == 1 and str(entry) in warnings[0], warnings
+        assert ("directory" in warnings[0]) == entry.is_dir()
+        listed = cache.entries()  # `rig lut show` lists it without blocking either
+        assert [e.path for e in listed] == [entry] and (listed[0].ok == again.hit)
+    finally:
+        if entry.is_fifo():  # release a reader still blocked on the FIFO (the old code's hang)
+            os.close(os.open(entry, os.O_WRONLY | os.O_NONBLOCK))
+
+
+@contextlib.contextmanager
+def _read_only(directory: Path) -> Iterator[str]:
+    """``directory`` made read-only for the duration: a read-only tmpfs where one can be mounted
+    (root), else its permissions (a non-root user), else (root without mount rights) writes
+    refused by an injected EROFS. Yields which one was used."""
+    if os.geteuid() != 0:
+        directory.chmod(0o555)
+        try:
+            yield "chmod 555"
+        finally:
+            directory.chmod(0o755)
+        return
+    if _mount_read_only_copy(directory):
+        try:
+            yield "read-only tmpfs"
+        finally:
+            subprocess.run(["umount", str(directory)], check=True)
+        return
+    with pytest.MonkeyPatch.context() as mp:
+
+        def refuse(*args: Any, **kw: Any) -> Any:
+            raise OSError(errno.EROFS, "Read-only file system")
+
+        mp.setattr(lut_cache.tempfile, "mkstemp", refuse)
+        mp.setattr(Path, "unlink", refuse)
+        yield "injected EROFS"
+
+
+def _mount_read_only_copy(directory: Path) -> bool:
+    """Mount a tmpfs over ``directory`` holding a copy of its files, read-only; False where
+    mounting is not allowed."""
+    saved = {p.name: p.read_bytes() for p in directory.iterdir()}
+    mount = ["mount", "-t", "tmpfs", "-o", "size=4m", "rig-test-ro", str(directory)]
+    if subprocess.run(mount, capture_output=True).returncode != 0:
+        return False
+    for name, data in saved.items():
+        (directory / name).write_bytes(data)
+    subprocess.run(["mount", "-o", "remount,ro", str(directory)], check=True)
+    return True
+
+
+def test_a_corrupt_file_in_a_read_only_cache_is_rebuilt_in_memory_with_one_warning(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    directory = tmp_path / "ro"
+    good = LutCache(directory).get(fisheye(), R0, vpc_cam())
+    data = bytearray(good.path.read_bytes())
+    data[len(data) // 2] ^= 0x40
+    good.path.write_bytes(bytes(data))
+    with _read_only(directory) as how:
+        cache = LutCache(directory)
+        with caplog.at_level(logging.WARNING, logger="rig.lut_cache"):
+            got = cache.get(fisheye(), R0, vpc_cam())
+            again = cache.get(fisheye(), R0, vpc_cam())
+        print(f"read-only cache directory by {how}")
+        assert not got.hit and not again.hit
+        assert np.array_equal(got.lut.map1, good.lut.map1) and np.array_equal(again.lut.map2, good.lut.map2)
+        warnings = [r.getMessage() for r in caplog.records]
+        assert len(warnings) == 1, warnings
+        assert "checksum" in warnings[0] and "in memory" in warnings[0] and "not writable" in warnings[0]
+        assert good.path.read_bytes() == bytes(data), "the damaged file is still there, untouched"
+
+
+def test_clear_leaves_what_is_not_a_cache_file(tmp_path: Path) -> None:
+    cache = LutCache(tmp_path)
+    a = cache.get(fisheye(), R0, vpc_cam())
+    (tmp_path / ("1" * 64 + ".lut")).mkdir()
+    os.mkfifo(tmp_path / ("2" * 64 + ".lut"))
+    assert cache.clear() == 1 and not a.path.exists()
+    assert sorted(p.name[0] for p in tmp_path.iterdir()) == ["1", "2"]

@@ -22,7 +22,7 @@ from rig.pipeline import DepthPipeline
 from rig.stereo import StereoParams, create_opencv_matcher
 from rig.subpixel import refine_disparity
 from rig.vpc import VpcConfig
-from tests.helpers.shots import StereoShot, central_box, plane_shot, prototype_rig
+from tests.helpers.shots import PINHOLE, StereoShot, central_box, plane_shot, prototype_rig
 
 VPC = VpcConfig(width=320, height=240)
 SMALL_STEREO = StereoParams(disparity_range=64)
@@ -31,11 +31,11 @@ SMALL_STEREO = StereoParams(disparity_range=64)
 @pytest.mark.slow
 def test_done_when_prototype_plane_depth_within_2_percent(lut_cache: Path) -> None:
     """Prototype renders (full 1280×960 KB 190° lenses, the preset's 1.5 grey levels
-    of noise and vignetting) of a textured plane at 3.7, 7.6 and 14.2 baselines; default VPC
+    of noise and vignetting) of a textured plane at 3.7, 7.6 and 14.2 baselines; the pinhole VPC
     (640×480, 90°) and default stereo parameters; ≥ 95 % of the central 50 % × 50 % box has
     depth within 2 % of the truth."""
-    pipe = DepthPipeline(prototype_rig(1.0), cache_dir=lut_cache)
-    print("\nprototype plane, default VPC + stereo: fraction of central box within 2% of true depth")
+    pipe = DepthPipeline(prototype_rig(1.0), PINHOLE, cache_dir=lut_cache)
+    print("\nprototype plane, pinhole VPC, default stereo: fraction of central box within 2% of true depth")
     # Measured (docs/stereo.md's figures): depth RMS (mm) and disparity RMS (px) at each distance.
     measured = {3.7: (0.095, 0.031), 7.6: (0.26, 0.020), 14.2: (1.45, 0.032)}
     for k in (3.7, 7.6, 14.2):
@@ -224,7 +224,9 @@ def test_lut_comes_from_the_cache_the_second_time(shot: StereoShot, tmp_path: Pa
 
 
 @pytest.mark.parametrize(
-    "config", [VpcConfig(hfov_deg=150.0), VpcConfig(yaw_deg=60.0)], ids=["hfov150", "yaw60"]
+    "config",
+    [VpcConfig(hfov_deg=150.0), VpcConfig(projection="pinhole", yaw_deg=60.0)],
+    ids=["hfov150", "yaw60"],
 )
 def test_vpc_leaving_the_lens_reports_its_valid_fraction(
     config: VpcConfig, lut_cache: Path, caplog: pytest.LogCaptureFixture

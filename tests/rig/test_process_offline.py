@@ -36,6 +36,8 @@ def rec(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _run(rec: Path, out: Path, stereo: StereoParams, cache: Path, **options: object) -> list[object]:
     job = RecordingJob(RecordingSource(rec), Recording(rec), make_pipeline(stereo, cache), out)
+    # The pinhole pair's products (BASE_PRODUCTS and its depth/).
+    options.setdefault("products", ("range", "depth", "left", "right"))
     return list(process_recordings([job], ProcessOptions(**options)))  # type: ignore[arg-type]
 
 
@@ -55,6 +57,7 @@ def test_files_equal_a_sequential_loop_bit_for_bit(rec: Path, stereo: StereoPara
         left, right = (recording.read_frame(pair, cam).pipeline_image() for cam in ("left", "right"))
         frame = pipeline.process(left, right, pair.seq)
         stem = f"{pair.seq:06d}.png"
+        assert (tmp_path / "out" / "range" / stem).read_bytes() == _png(depth_to_png_mm(frame.range))
         assert (tmp_path / "out" / "depth" / stem).read_bytes() == _png(depth_to_png_mm(frame.depth))
         assert (tmp_path / "out" / "left" / stem).read_bytes() == _png(frame.left_vpc)
         assert (tmp_path / "out" / "right" / stem).read_bytes() == _png(frame.right_vpc)
@@ -65,7 +68,7 @@ def test_chunks_carrying_the_temporal_history_equal_one_run(rec: Path, tmp_path:
     pairs = recording.pairs
     whole, carried, dropped = (OutputLayout(tmp_path / n) for n in ("whole", "carried", "dropped"))
     for layout in (whole, carried, dropped):
-        for sub in ("depth", "left", "right"):
+        for sub in ("range", "left", "right"):
             (layout.root / sub).mkdir(parents=True)
     pipeline = make_pipeline(TEMPORAL, tmp_path / "c")
     process_pairs(pipeline, recording, pairs, whole)
@@ -81,9 +84,9 @@ def test_chunks_carrying_the_temporal_history_equal_one_run(rec: Path, tmp_path:
     assert files_of(carried.root) == files_of(whole.root)
     # Without the history the chunks' first pairs come out otherwise: the carry is what matters.
     differ = [k for k, v in files_of(dropped.root).items() if files_of(whole.root)[k] != v]
-    assert all(k.startswith("depth/") for k in differ)
-    assert {"depth/000012.png", "depth/000015.png"} <= set(differ)  # each chunk's first pair
-    assert not {"depth/000010.png", "depth/000011.png"} & set(differ)  # the first chunk is the run
+    assert all(k.startswith("range/") for k in differ)
+    assert {"range/000012.png", "range/000015.png"} <= set(differ)  # each chunk's first pair
+    assert not {"range/000010.png", "range/000011.png"} & set(differ)  # the first chunk is the run
 
 
 def test_resume_writes_only_what_is_missing(rec: Path, tmp_path: Path) -> None:
@@ -109,7 +112,7 @@ def test_resume_with_the_temporal_filter_rebuilds_its_history(rec: Path, tmp_pat
     _run(rec, out, TEMPORAL, tmp_path / "c")
     (out / "depth" / "000014.png").unlink()
     job = RecordingJob(RecordingSource(rec), Recording(rec), make_pipeline(TEMPORAL, tmp_path / "c"), out)
-    plan_recording(job, ProcessOptions(resume=True))
+    plan_recording(job, ProcessOptions(resume=True, products=("range", "depth", "left", "right")))
     assert job.write == {14}
     assert [p.seq for p in job.compute] == [10, 11, 12, 13, 14]  # the history up to the missing pair
     (summary,) = _run(rec, out, TEMPORAL, tmp_path / "c", resume=True)
@@ -123,12 +126,19 @@ def test_resume_refuses_files_made_with_other_settings(rec: Path, tmp_path: Path
     with pytest.raises(ConfigError, match=r"run\.json: .*stereo\.disparity_range differs"):
         _run(rec, out, StereoParams(disparity_range=48), tmp_path / "c", resume=True)
     with pytest.raises(ConfigError, match=r"products differs"):
-        _run(rec, out, STEREO, tmp_path / "c", resume=True, products=("depth", "left", "right", "preview"))
+        _run(
+            rec,
+            out,
+            STEREO,
+            tmp_path / "c",
+            resume=True,
+            products=("range", "depth", "left", "right", "preview"),
+        )
 
 
 def test_a_new_run_first_removes_an_earlier_runs_files_of_its_pairs(rec: Path, tmp_path: Path) -> None:
     out = tmp_path / "out"
-    _run(rec, out, STEREO, tmp_path / "c", products=("depth", "left", "right", "cloud"))
+    _run(rec, out, STEREO, tmp_path / "c", products=("range", "depth", "left", "right", "cloud"))
     assert len(list((out / "cloud").iterdir())) == N_PAIRS
     other = tmp_path / "other"
     _run(rec, other, StereoParams(disparity_range=48), tmp_path / "c")

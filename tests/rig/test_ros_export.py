@@ -200,8 +200,11 @@ def test_raw_camera_info_rebuilds_our_rectification_in_opencv(
         off_axis = np.degrees(np.arctan2(np.hypot(rays[..., 0], rays[..., 1]), rays[..., 2]))
         use = lut.valid & (off_axis < 85.0)
         assert use.mean() > 0.5
-        assert np.abs(mx[use] - lut.map_x[use]).max() < 0.01
-        assert np.abs(my[use] - lut.map_y[use]).max() < 0.01
+        worst = float(max(np.abs(mx[use] - lut.map_x[use]).max(), np.abs(my[use] - lut.map_y[use]).max()))
+        print(
+            f"\n{cam}: OpenCV's fisheye maps from CameraInfo vs our LUT within 85° off axis: {worst:.1e} px"
+        )
+        assert worst <= 1e-3  # measured 0 (docs/ros.md): the same float32 maps
 
 
 def test_ros2_profile_as_ros2_bag_writes_it(exported: tuple[TinyRecording, Path, DepthPipeline]) -> None:

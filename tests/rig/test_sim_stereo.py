@@ -15,7 +15,7 @@ from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
 @pytest.fixture(scope="module")
 def paper_rig_maps() -> tuple[Preset, VpcPair, dict[str, tuple[np.ndarray, np.ndarray]]]:
     preset = get_preset("paper-sim")
-    pair = design_vpc_pair(preset.rig, VpcConfig())
+    pair = design_vpc_pair(preset.rig, VpcConfig(projection="pinhole"))
     vpc = pair.camera
     u, v = np.meshgrid(np.arange(vpc.width, dtype=float), np.arange(vpc.height, dtype=float))
     rays, _ = vpc.unproject(np.stack([u.ravel(), v.ravel()], axis=1))

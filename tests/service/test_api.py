@@ -257,10 +257,10 @@ def test_errors_are_json_with_the_right_status(shared_server: LiveServer) -> Non
         assert r.status_code == status, path
         assert r.headers["content-type"] == "application/json" and "detail" in r.json()
     r = httpx.delete(base + "/depth")
-    assert r.status_code == 405 and "detail" in r.json() and r.headers["allow"] == "GET"
-    # Methods are separate routes; Allow still lists every method of the path.
-    assert httpx.put(base + "/config").headers["allow"] == "GET, PATCH"
-    assert httpx.delete(base + "/recordings").headers["allow"] == "GET, POST"
+    assert r.status_code == 405 and "detail" in r.json() and r.headers["allow"] == "GET, HEAD"
+    # Methods are separate routes; Allow still lists every method of the path (HEAD with GET).
+    assert httpx.put(base + "/config").headers["allow"] == "GET, HEAD, PATCH"
+    assert httpx.delete(base + "/recordings").headers["allow"] == "GET, HEAD, POST"
 
 
 def test_cors_off_by_default(shared_server: LiveServer) -> None:

@@ -4,21 +4,36 @@ limit, faults → /health, readiness before the first frame, CORS on, 0.1 mm dep
 from __future__ import annotations
 
 import io
+import itertools
+import logging
+import re
 import threading
+import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import cv2
 import httpx
 import numpy as np
 import pytest
 
-from calibration import load_rig
+from calibration import load_rig, save_rig
+from calibration.rig import Rig
 from rig.capture.faults import DisconnectFault
 from rig.recording import Recording
 from service.client import RigClient
 from service.encoders import depth_to_png16
 from service.errors import ApiError
-from tests.helpers.service import TOKEN, SmallRecording, StartServer, metric_values, same_frame
+from service.settings import load_settings
+from tests.helpers.service import (
+    TOKEN,
+    LiveServer,
+    SmallRecording,
+    StartServer,
+    metric_values,
+    same_frame,
+    service_overrides,
+)
 from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.timeout(180)
@@ -217,6 +232,76 @@ def test_health_degraded_then_down_when_cameras_stop(start_server: StartServer) 
     assert httpx.get(base + "/livez").status_code == 200  # the process and worker still run
     r = httpx.post(base + "/cameras/middle/faults", json={"fault": {"kind": "drop"}}, headers=AUTH)
     assert r.status_code == 404
+
+
+def test_health_names_a_camera_with_a_third_of_its_frames_corrupt(
+    start_server: StartServer, caplog: pytest.LogCaptureFixture
+) -> None:
+    # Before: "ok" with no reason. Both replayed cameras corrupt frames 2, 5, 8, ... of their first
+    # 60 (6 s at 10 fps); the tests' supervisor judges over 2 s.
+    faults = [{"kind": "corrupt", "count": 1, "at_frame": k} for k in range(2, 62, 3)]
+    pattern = re.compile(r"camera (left|right): (\d+) % of frames corrupt over the last 2 s")
+    with caplog.at_level(logging.INFO, logger="rig.capture"):
+        live = start_server(ready=False, camera_faults=faults)
+        found: list[dict[str, object]] = []
+
+        def degraded() -> bool:
+            h = httpx.get(live.base_url + "/health").json()
+            found.append(h)
+            return h["status"] == "degraded" and any(pattern.fullmatch(r) for r in h["reasons"])
+
+        wait_for(degraded, 15, "health degraded by the corrupt frames")
+        h = found[-1]
+        shares = [int(m.group(2)) for r in h["reasons"] if (m := pattern.fullmatch(r))]
+        assert all(20 <= s <= 45 for s in shares), h["reasons"]
+        left = h["cameras"]["left"]
+        assert left["connected"] and left["degraded_reason"] and left["corrupt_per_s"] > 1.0
+        wait_for(lambda: httpx.get(live.base_url + "/health").json()["status"] == "ok", 20, "recovery")
+    messages = [r.getMessage() for r in caplog.records if r.name == "rig.capture"]
+    for cam in ("left", "right"):
+        said = [m for m in messages if m.startswith(f"camera {cam} degraded: ") and "corrupt" in m]
+        assert len(said) == 1, messages
+        # Once when an episode starts, once when it is over (a loaded machine may add one of
+        # dropped frames: a starved camera thread skips some).
+        episodes = [
+            m.split(":")[0]
+            for m in messages
+            if m.startswith((f"camera {cam} degraded", f"camera {cam} recovered"))
+        ]
+        assert episodes[-1] == f"camera {cam} recovered", messages
+        assert all(a != b for a, b in itertools.pairwise(episodes)), messages
+
+
+def test_a_swapped_calibration_is_named_in_health_and_logged_once(
+    small_recording: SmallRecording, lut_cache: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # Before: "ok", with depth on a few per cent of the pixels.
+    rig = load_rig(small_recording.loop / "calibration.yaml")
+    swapped = Rig(
+        {"left": rig.cameras["right"], "right": rig.cameras["left"]},
+        {"left": rig.T_rig_cam["right"], "right": rig.T_rig_cam["left"]},
+    )
+    save_rig(swapped, tmp_path / "swapped.yaml")
+    doc = service_overrides(small_recording.loop, tmp_path, lut_cache)
+    settings = load_settings(None, {**doc, "calibration": {"path": str(tmp_path / "swapped.yaml")}})
+    with caplog.at_level(logging.WARNING, logger="service.runtime"):
+        live = LiveServer(settings).start()
+        try:
+            live.wait_ready()
+
+            def named() -> bool:
+                h = httpx.get(live.base_url + "/health").json()
+                return h["status"] == "degraded" and any(
+                    r.startswith("calibration check: cameras left and right are swapped")
+                    for r in h["reasons"]
+                )
+
+            wait_for(named, 20, "the calibration check in /health")
+            time.sleep(1.0)  # a few more frames: still said once
+        finally:
+            live.stop()
+    said = [r.getMessage() for r in caplog.records if "calibration check" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("calibration check on pair "), said
 
 
 def test_not_ready_before_the_first_frame(start_server: StartServer) -> None:

@@ -19,7 +19,13 @@ from prometheus_client.parser import text_string_to_metric_families
 
 import rig.counters
 from rig.counters import COUNTERS, GROUPS, CounterSpec, Group, counters_of
-from service.schemas import CameraHealthBase, CounterModel, PairingHealthBase, WorkerHealthBase
+from service.schemas import (
+    CameraHealthBase,
+    CounterModel,
+    PairingHealthBase,
+    RectificationHealthBase,
+    WorkerHealthBase,
+)
 from tests.helpers.browser import CHROMIUM, CHROMIUM_ARGS, needs_chromium
 from tests.helpers.service import LiveServer, SmallRecording, service_overrides
 
@@ -27,17 +33,28 @@ pytestmark = pytest.mark.timeout(180)
 
 ROOT = Path(__file__).resolve().parents[2]
 #: The /metrics families of the table's groups (all other rig_* metrics are not counters).
-PREFIXES = ("rig_camera_", "rig_pair", "rig_worker_")
-BASES = {"camera": CameraHealthBase, "pairing": PairingHealthBase, "worker": WorkerHealthBase}
+PREFIXES = ("rig_camera_", "rig_pair", "rig_worker_", "rig_rectification_")
+BASES = {
+    "camera": CameraHealthBase,
+    "pairing": PairingHealthBase,
+    "worker": WorkerHealthBase,
+    "rectification": RectificationHealthBase,
+}
 Samples = dict[tuple[str, tuple[tuple[str, str], ...]], float]
 
 
 def _group_docs(health: dict[str, Any]) -> list[tuple[Group, dict[str, Any], tuple[tuple[str, str], ...]]]:
-    """(group, /health object, its camera label) for each camera, the pairing and the worker."""
+    """(group, /health object, its camera label) for each camera, the pairing, the worker and the
+    rectification."""
     cams: list[tuple[Group, dict[str, Any], tuple[tuple[str, str], ...]]] = [
         ("camera", doc, (("camera", name),)) for name, doc in health["cameras"].items()
     ]
-    return [*cams, ("pairing", health["pairing"], ()), ("worker", health["worker"], ())]
+    rest: list[tuple[Group, dict[str, Any], tuple[tuple[str, str], ...]]] = [
+        ("pairing", health["pairing"], ()),
+        ("worker", health["worker"], ()),
+        ("rectification", health["rectification"], ()),
+    ]
+    return [*cams, *rest]
 
 
 def _scrape(text: str) -> tuple[dict[str, Any], Samples]:

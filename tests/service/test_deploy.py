@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from rig.capture.config import V4L2CameraConfig
+from rig.stereo import StereoParams
 from service.settings import load_settings
 
 REPO = Path(__file__).resolve().parents[2]
@@ -201,6 +202,8 @@ def test_example_config_loads_with_the_service_settings(monkeypatch: pytest.Monk
         cam = s.cameras.camera(name)
         assert isinstance(cam, V4L2CameraConfig) and cam.device == f"/dev/rig/{name}"
     assert s.calibration.path == DEPLOY / "calibration.yaml"  # relative to the config file
+    # The robot's config keeps the stereo defaults chosen against phantom obstacles (docs/stereo.md).
+    assert s.stereo == StereoParams()
     env = configparser.ConfigParser()
     env.read_string("[env]\n" + (DEPLOY / "rig.env.example").read_text())
     assert "rig_api_token" in env["env"]

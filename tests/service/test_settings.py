@@ -36,7 +36,7 @@ def test_defaults_bind_loopback_and_build_nothing() -> None:
     assert s.server.cors_origins == []
     assert s.server.depth_scale_m == 0.001
     assert s.cameras is None
-    assert s.vpc.width == 640 and s.stereo.disparity_range == 128
+    assert s.vpc.width == 640 and s.stereo.disparity_range == 96 and s.stereo.lr_check
 
 
 def test_yaml_file_with_relative_paths_resolved_against_the_file(tmp_path: Path) -> None:

@@ -1,0 +1,130 @@
+"""How much memory the depth pipeline will need, estimated from its settings before anything is
+built, and whether the machine has it.
+
+A VPC or camera size that cannot fit must be refused at start-up with the reason, not discovered
+as gigabytes of RSS while health says ok. :func:`pipeline_parts` adds up, per part, the arrays the
+pipeline keeps or makes per frame (bytes per VPC pixel ``P``, per camera pixel ``C``, times the
+frames alive at once); the service adds its own parts (:mod:`service.memory`). The figures are
+upper bounds of what each part holds at its peak, so that the sum is a budget the process's
+resident size stays under (docs/reliability.md, "Memory budget", compares them with measured RSS).
+
+The parts, per frame alive (:data:`FRAMES_ALIVE`: one in each of the worker's three stages, the
+published result, the previous one the worker prefetches from, one a client still sends):
+
+- VPC arrays: gray pair 2, colour pair 6, disparity, depth and confidence float32 12, valid 1,
+  the matcher's int16 output 2, encoded bodies (PNG, npy, JPEG of depth, disparity, confidence)
+  up to 17 bytes per ``P``;
+- the raw camera frames behind them: stored bytes, gray and colour decodes, 5 bytes per ``C`` and
+  camera;
+
+and once: the lookup tables (float maps 8, fixed-point maps 6, mask 1 byte per ``P`` and camera),
+the matcher's buffers (SGBM: ``32·W·D`` per thread; its full 8-path mode keeps the whole cost
+volume, ``4·P·D``), the finish stage's temporaries (60 bytes per ``P``), and the frames waiting
+in the capture's buffers (``buffer_size + pair_buffer`` per camera, raw and gray: 2 bytes per
+``C``).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from rig.stereo import StereoParams
+from rig.vpc import VpcConfig
+
+__all__ = [
+    "FRAMES_ALIVE",
+    "MemoryEstimate",
+    "available_memory",
+    "pipeline_parts",
+]
+
+FRAMES_ALIVE = 6
+_VPC_BYTES_PER_FRAME = 2 + 6 + 12 + 1 + 2 + 17
+_CAMERA_BYTES_PER_FRAME = 5
+_LUT_BYTES = 8 + 6 + 1
+_FINISH_TEMPORARIES = 60
+_SGBM_THREAD_BYTES_PER_WD = 32
+_QUEUED_FRAME_BYTES = 2
+MIB = 1 << 20
+
+
+@dataclass(frozen=True)
+class MemoryEstimate:
+    """Bytes per part (insertion order = the order they are reported in)."""
+
+    parts: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def total(self) -> int:
+        return sum(self.parts.values())
+
+    def plus(self, **more: int) -> MemoryEstimate:
+        return MemoryEstimate({**self.parts, **more})
+
+    def largest(self, n: int = 3) -> str:
+        """``name X MiB, ...`` of the ``n`` largest parts."""
+        top = sorted(self.parts.items(), key=lambda kv: -kv[1])[:n]
+        return ", ".join(f"{name.replace('_', ' ')} {size / MIB:.0f} MiB" for name, size in top)
+
+
+def pipeline_parts(
+    vpc: VpcConfig,
+    stereo: StereoParams,
+    camera_sizes: Sequence[tuple[int, int]],
+    *,
+    queued_frames_per_camera: int = 12,
+    threads: int | None = None,
+) -> MemoryEstimate:
+    """The pipeline's parts for ``vpc``, ``stereo`` and cameras of ``camera_sizes`` (w, h)."""
+    p = vpc.width * vpc.height
+    c = sum(w * h for w, h in camera_sizes)
+    d = stereo.disparity_range
+    threads = threads or os.cpu_count() or 1
+    if stereo.stereo_algorithm == 1 and stereo.effective_mode == "hh":
+        matcher = 4 * p * d  # the whole cost volume, 16-bit, twice
+    else:
+        matcher = _SGBM_THREAD_BYTES_PER_WD * vpc.width * d * threads
+    return MemoryEstimate(
+        {
+            "lookup_tables": 2 * _LUT_BYTES * p,
+            "vpc_frames": FRAMES_ALIVE * _VPC_BYTES_PER_FRAME * p,
+            "camera_frames": FRAMES_ALIVE * _CAMERA_BYTES_PER_FRAME * c,
+            "matcher": matcher + _FINISH_TEMPORARIES * p,
+            "capture_buffers": queued_frames_per_camera * _QUEUED_FRAME_BYTES * c,
+        }
+    )
+
+
+def available_memory(meminfo: Path = Path("/proc/meminfo"), cgroup: Path | None = None) -> int | None:
+    """Bytes this process may still take: the kernel's MemAvailable, lowered to the room left
+    under a cgroup (v2) limit when it runs in one; None where neither is known."""
+    found: list[int] = []
+    try:
+        for line in meminfo.read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                found.append(int(line.split()[1]) * 1024)
+    except (OSError, ValueError, IndexError):
+        pass
+    root = cgroup if cgroup is not None else _own_cgroup()
+    if root is not None:
+        try:
+            limit = (root / "memory.max").read_text().strip()
+            if limit != "max":
+                used = int((root / "memory.current").read_text().strip())
+                found.append(max(0, int(limit) - used))
+        except (OSError, ValueError):
+            pass
+    return min(found) if found else None
+
+
+def _own_cgroup() -> Path | None:
+    try:
+        for line in Path("/proc/self/cgroup").read_text().splitlines():
+            if line.startswith("0::"):
+                return Path("/sys/fs/cgroup") / line[3:].strip().lstrip("/")
+    except OSError:
+        pass
+    return None

@@ -1,0 +1,141 @@
+"""`rig check` through the installed console script on file cameras replaying the small demo
+recording (as JPEG): a healthy rig passes; a half-rate camera, a corrupt camera, a calibration
+of another size and swapped cameras each fail the check that names them; bad input is exit 2."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from calibration import load_rig, save_rig
+from calibration.rig import Rig
+from rig.sim import scale_camera
+
+RIG = str(Path(sys.executable).with_name("rig"))
+SECONDS = "2"
+
+
+def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "COLUMNS": "300"}
+    env.pop("RIG_DEBUG", None)
+    return subprocess.run([RIG, *map(str, args)], capture_output=True, text=True, env=env, timeout=120)
+
+
+def write_config(
+    path: Path, recording: Path, lut: Path, *, left_faults: list[dict[str, Any]] | None = None, **more: Any
+) -> Path:
+    def cam(name: str, faults: list[dict[str, Any]] | None) -> dict[str, Any]:
+        return {"kind": "file", "recording": str(recording), "camera": name, "pace": 10.0, "loop": True,
+                "faults": faults or []}  # fmt: skip
+
+    doc = {
+        "cameras": {"left": cam("left", left_faults), "right": cam("right", None)},
+        "vpc": {"width": 320, "height": 240},
+        "stereo": {"disparity_range": 64},
+        "cache_dir": str(lut),
+        **more,
+    }
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def results(stdout: str) -> dict[tuple[str, str], tuple[str, str]]:
+    """(check, camera) → (result, measured) from the printed table."""
+    out = {}
+    for line in stdout.splitlines():
+        cells = [c.strip() for c in line.split("│")[1:-1]]
+        if len(cells) == 6 and cells[4] in ("pass", "warn", "fail", "n/a"):
+            out[(cells[0], cells[1])] = (cells[4], cells[2])
+    return out
+
+
+def test_a_healthy_rig_passes_every_check(jpeg_recording: Path, tmp_path: Path) -> None:
+    res = run(
+        "check", "-c", write_config(tmp_path / "rig.yaml", jpeg_recording, tmp_path / "lut"), "-s", SECONDS
+    )
+    assert res.returncode == 0, res.stdout + res.stderr
+    got = results(res.stdout)
+    assert {r for r, _ in got.values()} <= {"pass", "n/a"}, got
+    for check in ("camera", "format", "frame rate", "timestamps", "dropped", "corrupt", "calibration"):
+        assert got[(check, "left")][0] == got[(check, "right")][0] == "pass", check
+    assert got[("USB", "left")][0] == "n/a" and got[("exposure", "right")][0] == "n/a"
+    fps = float(got[("frame rate", "left")][1].split()[0])
+    assert 9.0 <= fps <= 11.0
+    assert got[("pairing", "")][0] == "pass" and "skew p50 0.0 ms" in got[("pairing", "")][1]
+    rows_px = float(got[("rectified rows", "")][1].split()[0])
+    assert rows_px < 0.5
+    assert f"all {len(got)} checks passed" in res.stdout
+
+
+def test_a_half_rate_camera_fails_its_frame_rate_and_drops(jpeg_recording: Path, tmp_path: Path) -> None:
+    half = [{"kind": "rate", "factor": 0.5, "duration_s": 3600.0}]
+    cfg = write_config(tmp_path / "rig.yaml", jpeg_recording, tmp_path / "lut", left_faults=half)
+    res = run("check", "-c", cfg, "-s", SECONDS)
+    assert res.returncode == 1, res.stdout + res.stderr
+    got = results(res.stdout)
+    assert got[("frame rate", "left")][0] == "fail" and got[("frame rate", "right")][0] == "pass"
+    assert 4.0 <= float(got[("frame rate", "left")][1].split()[0]) <= 6.0
+    assert got[("dropped", "left")][0] == "fail" and "lost" in got[("dropped", "left")][1]
+    assert got[("dropped", "right")][0] == "fail"  # half its frames find no partner
+    assert "checks failed" in res.stdout and "frame rate left" in res.stdout
+
+
+def test_a_corrupt_camera_fails_its_corrupt_check(jpeg_recording: Path, tmp_path: Path) -> None:
+    every_third = [{"kind": "corrupt", "count": 1, "at_frame": k} for k in range(1, 200, 3)]
+    cfg = write_config(tmp_path / "rig.yaml", jpeg_recording, tmp_path / "lut", left_faults=every_third)
+    res = run("check", "-c", cfg, "-s", SECONDS)
+    assert res.returncode == 1, res.stdout + res.stderr
+    got = results(res.stdout)
+    assert got[("corrupt", "left")][0] == "fail" and got[("corrupt", "right")][0] == "pass"
+    share = int(got[("corrupt", "left")][1].split("(")[1].split("%")[0])
+    assert 25 <= share <= 40
+
+
+def test_a_calibration_of_another_size_or_swapped_fails_and_says_why(
+    jpeg_recording: Path, tmp_path: Path
+) -> None:
+    rig = load_rig(jpeg_recording / "calibration.yaml")
+    double = Rig({n: scale_camera(m, 2.0) for n, m in rig.cameras.items()}, rig.T_rig_cam)
+    save_rig(double, tmp_path / "double.yaml")
+    swapped = Rig(
+        {"left": rig.cameras["right"], "right": rig.cameras["left"]},
+        {"left": rig.T_rig_cam["right"], "right": rig.T_rig_cam["left"]},
+    )
+    save_rig(swapped, tmp_path / "swapped.yaml")
+    for cal in ("double", "swapped"):
+        cfg = write_config(
+            tmp_path / f"{cal}-rig.yaml", jpeg_recording, tmp_path / "lut",
+            calibration={"path": str(tmp_path / f"{cal}.yaml")},
+        )  # fmt: skip
+        res = run("check", "-c", cfg, "-s", SECONDS)
+        assert res.returncode == 1, res.stdout + res.stderr
+        got = results(res.stdout)
+        if cal == "double":
+            assert got[("calibration", "left")][0] == got[("calibration", "right")][0] == "fail"
+            assert "×0.5 its size" in res.stdout
+            assert got[("rectified rows", "")][0] == "n/a"
+        else:
+            assert got[("calibration", "left")][0] == "pass"
+            assert got[("rectified rows", "")][0] == "fail" and "are swapped" in res.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["--seconds", "0"], "--seconds"),
+        (["-c", "missing.yaml"], "missing.yaml"),
+        (["-c", "no-cameras.yaml"], "field 'cameras' missing"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2(tmp_path: Path, args: list[str], needle: str) -> None:
+    (tmp_path / "no-cameras.yaml").write_text("server: {port: 8123}\n")
+    args = [str(tmp_path / a) if a.endswith(".yaml") else a for a in args]
+    res = run("check", *args)
+    assert res.returncode == 2, res.stdout + res.stderr
+    assert needle in res.stderr

@@ -1,0 +1,93 @@
+"""The settings ``rig serve`` runs with: every configured value is validated even where a flag
+takes its place, every mistake is listed at once, and what ``--demo`` or ``--recording`` replace
+is said to be ignored."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import cli.serve
+from cli.serve import serve_settings
+from service.errors import SettingsError
+from tests.helpers.command import assert_one_line_error, clean_env, run_rig
+from tests.helpers.service import SmallRecording
+
+V4L2_CAMERAS = """
+cameras:
+  left: {kind: v4l2, device: /dev/rig-left}
+  right: {kind: v4l2, device: /dev/rig-right}
+"""
+
+
+@pytest.fixture
+def demo_is(small_recording: SmallRecording, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """The demo recording without rendering it: the small recording stands in."""
+    monkeypatch.setattr(cli.serve, "demo_recording", lambda: small_recording.loop)
+    return small_recording.loop
+
+
+def test_several_wrong_fields_are_listed_in_one_line(tmp_path: Path) -> None:
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text("server: {port: 99999, jpeg_quality: true, stale_after_s: .inf}\nstereo: {median: 4}\n")
+    line = assert_one_line_error(run_rig(["serve", "--config", str(cfg)], clean_env(tmp_path)), str(cfg))
+    for field in ("server.port", "server.jpeg_quality", "server.stale_after_s", "stereo.median"):
+        assert f"field '{field}'" in line, line
+    assert "not a boolean" in line and "finite number" in line
+
+
+def test_a_flag_does_not_hide_a_wrong_value(tmp_path: Path) -> None:
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text("server: {port: eighty}\n")
+    args = ["serve", "--config", str(cfg), "--port", "0", "--recording", str(tmp_path / "none")]
+    assert_one_line_error(run_rig(args, clean_env(tmp_path)), str(cfg), "server.port")
+    with pytest.raises(SettingsError, match=r"server\.port"):
+        serve_settings(cfg, port=0)
+
+
+def test_the_demo_says_it_ignores_the_configured_cameras(
+    tmp_path: Path, demo_is: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(V4L2_CAMERAS + "calibration: {path: rig.yaml}\nvpc: {width: 320, height: 240}\n")
+    settings = serve_settings(cfg, demo=True)
+    err = capsys.readouterr().err
+    assert "--demo: the configured cameras and calibration are ignored" in " ".join(err.split())
+    assert settings.cameras is not None and settings.cameras.left.kind == "file"
+    assert settings.calibration.path == demo_is / "calibration.yaml"
+    assert settings.vpc.width == 320  # what the demo does not replace is used
+    serve_settings(cfg, demo=True, calibration=tmp_path / "other.yaml")
+    assert "--calibration is ignored with --demo" in " ".join(capsys.readouterr().err.split())
+
+
+def test_a_recording_says_it_ignores_the_configured_cameras(
+    tmp_path: Path, small_recording: SmallRecording, capsys: pytest.CaptureFixture[str]
+) -> None:
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(V4L2_CAMERAS)
+    settings = serve_settings(cfg, recording=small_recording.loop)
+    assert "--recording: the configured cameras are ignored" in " ".join(capsys.readouterr().err.split())
+    assert settings.cameras is not None and settings.cameras.right.kind == "file"
+
+
+def test_replaced_values_are_still_validated(tmp_path: Path, demo_is: Path) -> None:
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(V4L2_CAMERAS.replace("/dev/rig-right}", "/dev/rig-right, fps: true}"))
+    with pytest.raises(SettingsError, match=r"field 'cameras\.right\.fps': must be a number, not a boolean"):
+        serve_settings(cfg, demo=True)
+
+
+def test_a_vpc_that_cannot_fit_in_memory_is_refused_at_start(tmp_path: Path, jpeg_recording: Path) -> None:
+    # SGBM's full mode keeps a 4-byte cost per pixel and disparity: 8192² × 1024 × 4 = 256 GiB.
+    env = clean_env(
+        tmp_path,
+        RIG_VPC__WIDTH="8192",
+        RIG_VPC__HEIGHT="8192",
+        RIG_STEREO__DISPARITY_RANGE="1024",
+        RIG_STEREO__SGBM_MODE="hh",
+        RIG_STEREO__FULL_DP="true",
+    )
+    result = run_rig(["serve", "--recording", str(jpeg_recording), "--port", "0"], env)
+    line = assert_one_line_error(result, "field 'vpc': a 8192x8192 VPC with 1024 disparities needs about")
+    assert "matcher" in line and "MiB this machine has left" in line
