@@ -14,11 +14,13 @@ from rich.progress import (
     Progress,
     ProgressColumn,
     SpinnerColumn,
+    Task,
     TextColumn,
     TimeElapsedColumn,
 )
+from rich.text import Text
 
-__all__ = ["console", "err_console", "one_line", "progress_bar", "warn"]
+__all__ = ["RateColumn", "console", "err_console", "one_line", "progress_bar", "warn"]
 
 console = Console()
 err_console = Console(stderr=True)
@@ -51,3 +53,16 @@ def progress_bar(
         transient=transient,
         disable=disable,
     )
+
+
+class RateColumn(ProgressColumn):
+    """How many ``unit`` per second the task advances (rich's estimate over the last 30 s)."""
+
+    def __init__(self, unit: str) -> None:
+        super().__init__()
+        self.unit = unit
+
+    def render(self, task: Task) -> Text:
+        speed = task.finished_speed or task.speed
+        shown = "-" if speed is None else f"{speed:.1f}"
+        return Text(f"{shown} {self.unit}/s", style="progress.data.speed")

@@ -2,23 +2,85 @@
 
 Errors from every command go through :mod:`cli.errors` (one line on stderr, exit status 2 for bad
 input); ``-h``/``--help`` works on every command, ``--version`` on the root.
+
+A command's module is imported when the command is looked up (:class:`LazyCommands`): ``rig
+process`` imports what processing needs, not the service, the calibration solvers or the
+renderer; only ``rig -h``, which lists every command, imports them all.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator, MutableMapping
+from importlib import import_module
 from importlib.metadata import PackageNotFoundError, version
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+from typer.main import get_group
 
-from cli import calibrate, check, devices, evaluate, export, lut, process, record, serve, sim
 from cli.errors import MappedErrorsGroup
 
-__all__ = ["DISTRIBUTION", "build_app", "main", "package_version"]
+__all__ = ["COMMANDS", "DISTRIBUTION", "LazyCommands", "build_app", "main", "package_version"]
 
 DISTRIBUTION = "odfc-rig"
-#: Command groups in the order ``rig -h`` lists them.
-COMMAND_MODULES = (serve, process, record, export, check, devices, calibrate, lut, sim, evaluate)
+#: Each command (or command group) and the module that registers it, in the order ``rig -h``
+#: lists them.
+COMMANDS = {
+    "serve": "cli.serve",
+    "process": "cli.process",
+    "record": "cli.record",
+    "export": "cli.export",
+    "check": "cli.check",
+    "devices": "cli.devices",
+    "calibrate": "cli.calibrate",
+    "lut": "cli.lut",
+    "sim": "cli.sim",
+    "evaluate": "cli.evaluate",
+}
+
+
+def _commands_of(module_name: str) -> dict[str, Any]:
+    """The click commands a module's ``register(app)`` adds."""
+    module = import_module(module_name)
+    app = typer.Typer()
+    module.register(app)
+    app.callback()(lambda: None)  # a group even for one command
+    return dict(get_group(app).commands)
+
+
+class LazyCommands(MutableMapping[str, Any]):
+    """The root group's commands by name, each module imported on its first lookup."""
+
+    def __init__(self, table: dict[str, str]) -> None:
+        self._table = dict(table)
+        self._loaded: dict[str, Any] = {}
+
+    def __getitem__(self, name: str) -> Any:
+        if name not in self._loaded:
+            self._loaded.update(_commands_of(self._table[name]))
+        return self._loaded[name]
+
+    def __setitem__(self, name: str, command: Any) -> None:
+        self._loaded[name] = command
+        self._table.setdefault(name, "")
+
+    def __delitem__(self, name: str) -> None:
+        del self._table[name]
+        self._loaded.pop(name, None)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._table)
+
+    def __len__(self) -> int:
+        return len(self._table)
+
+
+class RigGroup(MappedErrorsGroup):
+    """The root group: errors mapped (:class:`MappedErrorsGroup`), commands loaded lazily."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.commands = LazyCommands(COMMANDS)
 
 
 def package_version() -> str:
@@ -37,7 +99,7 @@ def _print_version(value: bool) -> None:
 def build_app() -> typer.Typer:
     app = typer.Typer(
         name="rig",
-        cls=MappedErrorsGroup,
+        cls=RigGroup,
         help="Depth service for an orthogonally divergent fisheye stereo rig.",
         no_args_is_help=True,
         pretty_exceptions_enable=False,
@@ -56,8 +118,6 @@ def build_app() -> typer.Typer:
     ) -> None:
         """Depth service for an orthogonally divergent fisheye stereo rig."""
 
-    for module in COMMAND_MODULES:
-        module.register(app)
     return app
 
 

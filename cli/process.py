@@ -1,42 +1,46 @@
-"""`rig process RECORDING --calibration FILE --out DIR`: depth and range for every pair of a
-recording, headless (recording layout: see docs/cameras.md), or of a ROS bag's two image topics
-(see docs/ros.md); the rectified projections: docs/wide-pair.md.
+"""`rig process REC... --out DIR`: range (and the pinhole pair's depth) for every pair of one or
+many recordings, headless, on the staged pipeline the service runs, here or on a Dask cluster (see
+docs/offline.md); the rectified projections: docs/wide-pair.md.
 
-Output: ``DIR/range/NNNNNN.png`` (uint16 mm along each pixel's ray, 0 = invalid, aligned with
-the left rectified image), for the pinhole pair also ``DIR/depth/NNNNNN.png`` (uint16 mm of z),
-``DIR/left/NNNNNN.png``, ``DIR/right/NNNNNN.png`` (the rectified images), ``DIR/vpc.json``
-(``projection, width, height, fx, fy, cx, cy, baseline_m, R_rig_vpc``); with ``--ply`` also
-``DIR/cloud/NNNNNN.ply`` (rig frame), with ``--preview`` ``DIR/preview/NNNNNN.png`` (left view
-beside colour depth, or range for the lat-lon pair).
+RECORDING is a recording directory (see docs/cameras.md) or a ROS bag with ``--left-topic`` and
+``--right-topic`` (see docs/ros.md); several may be given, or a quoted glob (``'recs/*'``). One
+recording's outputs go to DIR, those of several (or of a glob) to ``DIR/NAME/`` (NAME = the
+recording folder's name), each in the layout of :mod:`rig.outputs`: ``range/`` (and for the
+pinhole pair ``depth/``), ``left/``, ``right/`` PNGs, ``vpc.json`` and ``run.json``; with
+``--ply`` ``cloud/``, with ``--preview`` ``preview/``.
 
-Before the first pair is processed, the calibration is checked against the first readable pair
-(:mod:`rig.calibration_check`): frames of another size, or cameras that look swapped, stop the
+Before any pair is processed, each calibration is checked against its recording's first readable
+pair (:mod:`rig.calibration_check`): frames of another size, or cameras that look swapped, stop the
 command with one line naming the likely cause; a poor fit (rows apart, little overlap or depth)
 is a warning, said once.
 
-A pair whose frame file is missing or not a readable image is reported on stderr by sequence
-number and skipped. Exit status: 0 when at least one pair was processed (a summary names how
-many were skipped), 2 when the calibration, recording or options are bad or no pair could be
-processed.
+``--scheduler``: ``none`` (this process, one recording after another; the default for one
+recording), ``local`` (a Dask LocalCluster on this machine; the default for several) or a Dask
+scheduler's address (``tcp://host:8786``; it must answer within ``--scheduler-timeout``).
+``--resume`` skips the pairs whose outputs are complete.
+
+A pair whose frame is missing or not a readable image is reported on stderr by sequence number
+and skipped; the summary names how many. Exit status: 0 when every recording gave at least one
+pair, 2 when a calibration, recording or option is bad, the scheduler does not answer, the output
+cannot be written (a full disk) or a recording gave no pair at all.
 """
 
 from __future__ import annotations
 
+import glob
+import hashlib
 import json
 import logging
+import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import cv2
-import numpy as np
 import typer
-import yaml
-from pydantic import ValidationError
-from rich.progress import TimeRemainingColumn
 
-from cli.console import console, one_line, progress_bar, warn
+from cli.console import RateColumn, console, err_console, one_line, progress_bar, warn
 from cli.errors import fail
-from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption, open_source
+from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption
 from cli.vpc_options import (
     CacheDirOption,
     CalibrationOption,
@@ -50,24 +54,32 @@ from cli.vpc_options import (
     load_calibration,
     make_vpc_config,
 )
-from rig.calibration_check import check_calibration, check_frame_sizes
-from rig.capture.recorded import RecordedPairs
-from rig.depth import depth_to_png_mm, write_ply
-from rig.errors import ConfigError, PipelineError, RecordingError
-from rig.lut import percent_valid
-from rig.pipeline import DepthPipeline
-from rig.recording import PairRecord
-from rig.settings_model import describe_field_errors, field_errors
-from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
+from rig.errors import ConfigError
 
-__all__ = ["StereoOption", "build_pipeline", "depth_preview", "load_stereo_params", "register"]
+if TYPE_CHECKING:
+    from numpy.typing import NDArray
 
-log = logging.getLogger(__name__)
+    from rig.capture.recorded import RecordedPairs
+    from rig.pipeline import DepthPipeline
+    from rig.process import PairFailure, ProcessOptions, RecordingJob, RecordingSource, RecordingSummary
+    from rig.recording import PairRecord
+    from rig.stereo import StereoParams
+    from rig.vpc import VpcConfig
+
+__all__ = ["StereoOption", "build_pipeline", "load_stereo_params", "register"]
+
+#: Failures listed per recording in the closing summary (all of them go to --summary FILE).
+SUMMARY_LINES = 20
 
 
 def load_stereo_params(path: Path) -> StereoParams:
     """StereoParams from a YAML/JSON mapping file; ConfigError naming file and field."""
+    import yaml
+    from pydantic import ValidationError
+
+    from rig.settings_model import describe_field_errors, field_errors
+    from rig.stereo import StereoParams
+
     try:
         doc = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
@@ -97,6 +109,9 @@ def build_pipeline(
     """The depth pipeline of the options (calibration, rectified pair, stereo file, cache), with a
     warning line when a pinhole VPC leaves a camera's field or a lat-lon field was clipped to the
     lenses' overlap; and the calibration file used."""
+    from rig.lut import percent_valid
+    from rig.pipeline import DepthPipeline
+
     rig, cal_path = load_calibration(calibration, fallback)
     params = load_stereo_params(stereo) if stereo is not None else None
     # The pipeline logs the same for the service's log: here it is one warning line, below.
@@ -111,13 +126,150 @@ def build_pipeline(
     return pipeline, cal_path
 
 
+def expand_recordings(arguments: Sequence[Path]) -> tuple[list[Path], bool]:
+    """The recordings the arguments name (a quoted glob expanded, sorted), and whether they get
+    one output directory each (several, or a glob)."""
+    paths: list[Path] = []
+    globbed = False
+    for arg in arguments:
+        text = str(arg)
+        if glob.has_magic(text):
+            globbed = True
+            matches = sorted(glob.glob(text))
+            if not matches:
+                fail(f"RECORDING {text!r}: no file or directory matches")
+            paths += [Path(m) for m in matches]
+        else:
+            paths.append(arg)
+    return paths, globbed or len(paths) > 1
+
+
+def _output_dirs(sources: Sequence[RecordingSource], out: Path, per_recording: bool) -> list[Path]:
+    if not per_recording:
+        return [out]
+    seen: dict[str, Path] = {}
+    for source in sources:
+        if source.name in seen:
+            fail(f"{seen[source.name]} and {source.path} would both write to {out / source.name}")
+        seen[source.name] = source.path
+    return [out / s.name for s in sources]
+
+
+class _Pipelines:
+    """One pipeline per calibration (by its file's content): recordings with the same
+    calibration share its lookup tables."""
+
+    def __init__(self, calibration: Path | None, config: VpcConfig, stereo: Path | None, cache: Path | None):
+        self._options = (calibration, config, stereo, cache)
+        self._built: dict[str, DepthPipeline] = {}
+
+    def for_recording(self, fallback: Path | None) -> tuple[DepthPipeline, Path]:
+        calibration, config, stereo, cache = self._options
+        chosen = calibration or fallback
+        if chosen is None:
+            raise ConfigError("--calibration FILE is required (the recording carries no calibration.yaml)")
+        try:
+            key = hashlib.sha256(chosen.read_bytes()).hexdigest()
+        except OSError as err:
+            raise ConfigError(f"{chosen}: unreadable calibration ({err.strerror or err})") from err
+        if key not in self._built:
+            self._built[key] = build_pipeline(calibration, fallback, config, stereo, cache)[0]
+        return self._built[key], chosen  # the file this recording names, not the first alike
+
+
+def _describe(pipeline: DepthPipeline, cal_path: Path) -> str:
+    cam = pipeline.pair.camera
+    if pipeline.pair.projection == "pinhole":
+        view = f"VPC {cam.width}x{cam.height} fx {cam.fx:.1f}"
+    else:
+        view = f"lat-lon {cam.width}x{cam.height} {math.radians(cam.fx):.3f} px/deg"
+    return f"calibration {cal_path}, {view}, B {pipeline.baseline_m:.4f} m"
+
+
+def _report(summary: RecordingSummary, described: str) -> None:
+    processed = summary.written + summary.resumed
+    notes = f", {summary.resumed} already complete" if summary.resumed else ""
+    if summary.failures:
+        notes += f", [yellow]{len(summary.failures)} skipped[/yellow]"
+    console.print(
+        f"processed {processed} of {summary.total} pairs{notes} -> {summary.out} ({described})",
+        highlight=False,
+        soft_wrap=True,
+    )
+    for failure in summary.failures[:SUMMARY_LINES]:
+        line = f"  failed seq {failure.seq}: {one_line(failure.reason)}"
+        err_console.print(line, highlight=False, soft_wrap=True)
+    if len(summary.failures) > SUMMARY_LINES:
+        err_console.print(f"  ... and {len(summary.failures) - SUMMARY_LINES} more", highlight=False)
+
+
+def _write_summary(path: Path, summaries: Sequence[RecordingSummary]) -> None:
+    from rig.atomic import write_atomic
+
+    doc = [
+        {
+            "recording": s.name,
+            "out": str(s.out),
+            "total": s.total,
+            "written": s.written,
+            "resumed": s.resumed,
+            "failed": [{"seq": f.seq, "reason": f.reason} for f in s.failures],
+        }
+        for s in summaries
+    ]
+    try:
+        write_atomic(path, json.dumps(doc, indent=2).encode() + b"\n")
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot write the summary ({err.strerror or err})") from err
+
+
+def _run(
+    jobs: list[RecordingJob],
+    options: ProcessOptions,
+    scheduler: str | None,
+    workers: int | None,
+    timeout_s: float,
+) -> list[RecordingSummary]:
+    """The jobs through :func:`rig.process.process_recordings` under a progress bar."""
+    from rig.process import process_recordings
+
+    several = len(jobs) > 1
+    from rich.progress import TimeRemainingColumn
+
+    with progress_bar(RateColumn("pairs"), TimeRemainingColumn()) as progress:
+        task = progress.add_task("depth" if scheduler is None else f"depth ({scheduler})", total=None)
+
+        def on_plan(planned: Sequence[RecordingJob]) -> None:
+            progress.update(task, total=sum(len(j.write) for j in planned))
+
+        def on_progress(name: str, pairs: int, failures: Sequence[PairFailure]) -> None:
+            for failure in failures:
+                where = f"{name} seq" if several else "seq"
+                progress.console.print(
+                    f"[yellow]skipped {where} {failure.seq}:[/yellow] {one_line(failure.reason)}",
+                    highlight=False,
+                    soft_wrap=True,
+                )
+            progress.advance(task, pairs)
+
+        return process_recordings(
+            jobs,
+            options,
+            scheduler=scheduler,
+            workers=workers,
+            connect_timeout_s=timeout_s,
+            on_plan=on_plan,
+            on_progress=on_progress,
+        )
+
+
 # Pairs tried for the calibration check before giving up on finding a readable one.
 _CHECK_TRIES = 10
 
 
-def _first_readable(
-    rec: RecordedPairs,
-) -> tuple[PairRecord, np.ndarray[Any, Any], np.ndarray[Any, Any]] | None:
+def _first_readable(rec: RecordedPairs) -> tuple[PairRecord, NDArray[Any], NDArray[Any]] | None:
+    from rig.errors import RecordingError
+
     for pair in rec.pairs[:_CHECK_TRIES]:
         try:
             left = rec.read_frame(pair, "left").pipeline_image()
@@ -131,6 +283,8 @@ def _first_readable(
 def check_against_frames(pipeline: DepthPipeline, rec: RecordedPairs) -> None:
     """The calibration against the recording's first readable pair: an error stops the command
     (one line, exit status 2), each warning is printed once."""
+    from rig.calibration_check import check_calibration, check_frame_sizes
+
     first = _first_readable(rec)
     if first is None:
         return  # the loop reports every unreadable pair
@@ -148,20 +302,15 @@ def check_against_frames(pipeline: DepthPipeline, rec: RecordedPairs) -> None:
         warn(f"calibration check on pair {pair.seq}: {problem.message}")
 
 
-def _write_png(path: Path, image: np.ndarray[Any, Any]) -> None:
-    if not cv2.imwrite(str(path), image):
-        raise RecordingError(f"{path}: could not write image")
-
-
 def register(app: typer.Typer) -> None:
     @app.command("process")
     def process(
-        recording: Annotated[
-            Path,
+        recordings: Annotated[
+            list[Path],
             typer.Argument(
                 metavar="RECORDING",
-                help="Recording directory (frames.csv, left/, right/), or a ROS bag (MCAP, .db3, bag dir) "
-                "with --left-topic and --right-topic.",
+                help="Recording directories (frames.csv, left/, right/) or a quoted glob of them, or ROS "
+                "bags (MCAP, .db3, bag dir) with --left-topic and --right-topic.",
             ),
         ],
         out: Annotated[Path, typer.Option("--out", "-o", metavar="DIR", help="Output directory.")],
@@ -185,6 +334,42 @@ def register(app: typer.Typer) -> None:
         left_topic: LeftTopicOption = None,
         right_topic: RightTopicOption = None,
         max_skew_ms: MaxSkewOption = None,
+        resume: Annotated[
+            bool, typer.Option("--resume", help="Skip the pairs whose outputs are complete in DIR.")
+        ] = False,
+        scheduler: Annotated[
+            str | None,
+            typer.Option(
+                "--scheduler",
+                metavar="WHERE",
+                help="none (this process), local (a Dask LocalCluster here) or a Dask scheduler address "
+                "(tcp://host:8786).",
+                show_default="none for one recording, local for several",
+            ),
+        ] = None,
+        workers: Annotated[
+            int | None,
+            typer.Option(
+                "--workers",
+                min=1,
+                metavar="N",
+                help="Worker processes of --scheduler local.",
+                show_default="one per two cores",
+            ),
+        ] = None,
+        chunk_size: Annotated[
+            int, typer.Option("--chunk-size", min=1, metavar="PAIRS", help="Pairs per Dask task.")
+        ] = 32,
+        scheduler_timeout: Annotated[
+            float,
+            typer.Option(
+                "--scheduler-timeout", min=0.1, metavar="S", help="How long a scheduler may take to answer."
+            ),
+        ] = 10.0,
+        summary: Annotated[
+            Path | None,
+            typer.Option("--summary", metavar="FILE", help="Also write the summary (every failure) as JSON."),
+        ] = None,
         no_check: Annotated[
             bool,
             typer.Option(
@@ -192,91 +377,60 @@ def register(app: typer.Typer) -> None:
             ),
         ] = False,
     ) -> None:
-        """Range (and the pinhole pair's depth) for every pair of RECORDING into --out: range/,
-        depth/, left/, right/ PNGs and vpc.json."""
-        rec = open_source(recording, left_topic, right_topic, max_skew_ms)
+        """Range (and the pinhole pair's depth) for every pair of each RECORDING into --out: range/,
+        depth/, left/, right/, vpc.json, run.json."""
+        from rig.process import ProcessOptions, RecordingSource
+
+        paths, per_recording = expand_recordings(recordings)
         config = make_vpc_config(
             vpc_size, vpc_hfov, yaw, pitch, projection=projection, px_per_deg=px_per_deg, field=field
         )
-        pipeline, cal_path = build_pipeline(calibration, rec.calibration_path, config, stereo, cache_dir)
-        if not no_check:
-            check_against_frames(pipeline, rec)
-        pinhole = pipeline.pair.projection == "pinhole"
-        extra = (
-            (("depth",) if pinhole else ()) + (("cloud",) if ply else ()) + (("preview",) if preview else ())
-        )
-        dirs = {k: out / k for k in ("range", "left", "right", *extra)}
-        try:
-            for d in dirs.values():
-                d.mkdir(parents=True, exist_ok=True)
-            (out / "vpc.json").write_text(json.dumps(pipeline.pair.as_json(), indent=2) + "\n")
-        except OSError as err:
-            raise RecordingError(f"{out}: cannot write output ({err.strerror or err})") from err
-        done, skipped = 0, 0
-        with progress_bar(TimeRemainingColumn()) as progress:
-            task = progress.add_task("depth", total=len(rec.pairs))
-            for pair in rec.pairs:
-                try:
-                    left = rec.read_frame(pair, "left").pipeline_image()
-                    right = rec.read_frame(pair, "right").pipeline_image()
-                    frame = pipeline.process(left, right, pair.seq, pair.left_ts_ns)
-                except (RecordingError, PipelineError) as err:
-                    skipped += 1
-                    progress.console.print(
-                        f"[yellow]skipped seq {pair.seq}:[/yellow] {one_line(err)}",
-                        highlight=False,
-                        soft_wrap=True,
-                    )
-                    progress.advance(task)
-                    continue
-                stem = f"{pair.seq:06d}.png"
-                _write_png(dirs["range"] / stem, depth_to_png_mm(frame.range))
-                if pinhole:
-                    _write_png(dirs["depth"] / stem, depth_to_png_mm(frame.depth))
-                _write_png(dirs["left"] / stem, frame.left_vpc)
-                _write_png(dirs["right"] / stem, frame.right_vpc)
-                if preview:
-                    _write_png(dirs["preview"] / stem, depth_preview(frame.left_vpc, frame.depth))
-                if ply:
-                    pts, colors = pipeline.point_cloud(frame)
-                    write_ply(dirs["cloud"] / f"{pair.seq:06d}.ply", pts, colors)
-                done += 1
-                progress.advance(task)
-        total = len(rec.pairs)
-        if total and not done:
-            fail(f"no pair of {total} in {recording} could be processed ({skipped} skipped)")
-        note = f", [yellow]{skipped} skipped[/yellow]" if skipped else ""
-        cam = pipeline.pair.camera
-        view = (
-            f"VPC {cam.width}x{cam.height} fx {cam.fx:.1f}"
-            if pinhole
-            else f"lat-lon {cam.width}x{cam.height} {np.radians(cam.fx):.3f} px/deg"
-        )
-        console.print(
-            f"processed {done} of {total} pairs{note} -> {out} (calibration {cal_path}, "
-            f"{view}, B {pipeline.baseline_m:.4f} m)",
-            highlight=False,
-            soft_wrap=True,
-        )
+        sources = [RecordingSource(p, left_topic, right_topic, max_skew_ms) for p in paths]
+        pipelines = _Pipelines(calibration, config, stereo, cache_dir)
+        jobs, described = _jobs(sources, _output_dirs(sources, out, per_recording), pipelines, not no_check)
+        where = _scheduler(scheduler, len(jobs))
+        extra = (("cloud",) if ply else ()) + (("preview",) if preview else ())
+        depth = ("depth",) if config.projection == "pinhole" else ()  # the lat-lon pair's depth is its range
+        products = ("range", *depth, "left", "right", *extra)
+        options = ProcessOptions(products=products, resume=resume, chunk_pairs=chunk_size)
+        summaries = _run(jobs, options, where, workers, scheduler_timeout)
+        for result, text in zip(summaries, described, strict=True):
+            _report(result, text)
+        if summary is not None:
+            _write_summary(summary, summaries)
+        empty = [
+            (s, j) for s, j in zip(summaries, jobs, strict=True) if s.total and not s.written + s.resumed
+        ]
+        if empty:
+            s, job = empty[0]
+            fail(f"no pair of {s.total} in {job.source.path} could be processed ({len(s.failures)} skipped)")
 
 
-def depth_preview(left_vpc: np.ndarray[Any, Any], depth: np.ndarray[Any, Any]) -> np.ndarray[Any, Any]:
-    """Left VPC image beside its depth in colour (turbo on log depth between the 2nd and 98th
-    percentiles: near is red, far blue; black = invalid), with that range written on it.
-    (H, 2W, 3) uint8 BGR."""
-    ok = np.isfinite(depth) & (depth > 0)
-    vis = np.zeros((*depth.shape, 3), dtype=np.uint8)
-    label = "no depth"
-    if ok.any():
-        near, far = np.percentile(depth[ok], [2.0, 98.0])
-        far = max(far, near * 1.001)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            t = (np.log(far) - np.log(np.clip(depth, near, far))) / (np.log(far) - np.log(near))
-        scaled = np.clip(np.nan_to_num(t, nan=0.0) * 255.0, 0, 255).astype(np.uint8)
-        vis = cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO)
-        vis[~ok] = 0
-        label = f"{near:.2f}-{far:.2f} m"
-    left = left_vpc if left_vpc.ndim == 3 else cv2.cvtColor(left_vpc, cv2.COLOR_GRAY2BGR)
-    out = np.hstack([left, vis])
-    cv2.putText(out, label, (left.shape[1] + 8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 2)
-    return out
+def _jobs(
+    sources: Sequence[RecordingSource], outs: Sequence[Path], pipelines: _Pipelines, check: bool
+) -> tuple[list[RecordingJob], list[str]]:
+    """One job per recording (each opened, and its calibration checked against its frames,
+    first: a bad one stops the command before any work), and the line describing its
+    calibration and rectified pair."""
+    from rig.process import RecordingJob
+
+    opened = [source.open() for source in sources]
+    jobs, described = [], []
+    for source, recording, out_dir in zip(sources, opened, outs, strict=True):
+        pipeline, cal_path = pipelines.for_recording(recording.calibration_path)
+        if check:
+            check_against_frames(pipeline, recording)
+        jobs.append(RecordingJob(source, recording, pipeline, out_dir))
+        described.append(_describe(pipeline, cal_path))
+    return jobs, described
+
+
+def _scheduler(option: str | None, recordings: int) -> str | None:
+    """None (this process), ``local`` or an address, from ``--scheduler``."""
+    if option is None:
+        return "local" if recordings > 1 else None
+    if option.lower() == "none":
+        return None
+    if option.lower() == "local" or "://" in option:
+        return option.lower() if option.lower() == "local" else option
+    raise ConfigError(f"--scheduler: expected none, local or an address like tcp://host:8786, got {option!r}")

@@ -4,11 +4,12 @@ gate, shared by ``rig process``, ``rig export mcap`` and ``rig serve --recording
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from rig.capture.recorded import RecordedPairs, open_recording
+if TYPE_CHECKING:
+    from rig.capture.recorded import RecordedPairs
 
 __all__ = ["LeftTopicOption", "MaxSkewOption", "RightTopicOption", "open_source"]
 
@@ -40,4 +41,6 @@ def open_source(
     recording: Path, left_topic: str | None, right_topic: str | None, max_skew_ms: float | None
 ) -> RecordedPairs:
     """A recording directory, or a ROS bag (MCAP, .db3, bag directory) with its two image topics."""
+    from rig.capture.recorded import open_recording
+
     return open_recording(recording, left_topic=left_topic, right_topic=right_topic, max_skew_ms=max_skew_ms)

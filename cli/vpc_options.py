@@ -6,16 +6,15 @@ direction; calibration loading and the LUT cache directory. Options not given ar
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from pydantic import ValidationError
 
-from calibration import load_rig
-from calibration.rig import Rig
 from rig.errors import ConfigError
-from rig.settings_model import field_errors
-from rig.vpc import DEFAULT_PROJECTION, PROJECTIONS, VpcConfig
+
+if TYPE_CHECKING:  # the libraries load when an option is used, not for --help
+    from calibration.rig import Rig
+    from rig.vpc import VpcConfig
 
 __all__ = [
     "CacheDirOption",
@@ -47,7 +46,7 @@ ProjectionOption = Annotated[
         "--projection",
         metavar="NAME",
         help="Rectified projection: pinhole or latlon.",
-        show_default=f"{DEFAULT_PROJECTION}; pinhole with --vpc-size or --vpc-hfov",
+        show_default="latlon; pinhole with --vpc-size or --vpc-hfov",
     ),
 ]
 VpcHfovOption = Annotated[
@@ -139,6 +138,11 @@ def make_vpc_config(
 ) -> VpcConfig:
     """A validated :class:`VpcConfig` of the options given (None: not given); ConfigError
     naming the offending option."""
+    from pydantic import ValidationError
+
+    from rig.settings_model import field_errors
+    from rig.vpc import PROJECTIONS, VpcConfig
+
     values: dict[str, Any] = {}
     if projection is not None:
         if projection not in PROJECTIONS:
@@ -165,6 +169,8 @@ def _check_projection_options(values: dict[str, Any]) -> None:
     """Options of the other projection than the one chosen, a look direction without a lat-lon
     field: one line naming the options. Sets ``values["projection"]``: as given, else the one
     whose own options are given, else the default."""
+    from rig.vpc import DEFAULT_PROJECTION
+
     pinhole = [o for k, o in (("width", "--vpc-size"), ("hfov_deg", "--vpc-hfov")) if k in values]
     latlon = [o for k, o in (("px_per_deg", "--px-per-deg"), ("az_span_deg", "--field")) if k in values]
     chosen = values.get("projection") or (
@@ -188,6 +194,8 @@ def load_calibration(path: Path | None, fallback: Path | None = None) -> tuple[R
     chosen = path or fallback
     if chosen is None:
         raise ConfigError("--calibration FILE is required (the recording carries no calibration.yaml)")
+    from calibration import load_rig
+
     rig = load_rig(chosen)
     for name in ("left", "right"):
         if name not in rig.cameras:

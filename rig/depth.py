@@ -22,7 +22,6 @@ PCD files (``x y z`` float32, colour as PCL's packed ``rgb``).
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from calibration.models import CameraModel, LatLonModel, PinholeModel
+from rig.atomic import write_atomic
 from rig.errors import PipelineError
 from rig.filters import fill_where
 
@@ -44,6 +44,7 @@ __all__ = [
     "latlon_range",
     "pack_xyzrgb",
     "pixel_ray_norms",
+    "ply_bytes",
     "range_points",
     "read_ply",
     "write_ply",
@@ -210,8 +211,9 @@ def pack_xyzrgb(points: ArrayLike, colors: ArrayLike | None = None) -> NDArray[n
     return out
 
 
-def write_ply(path: str | Path, points: ArrayLike, colors: ArrayLike | None = None) -> Path:
-    """Binary little-endian PLY of points (N, 3) (+ colours (N, 3) uint8 RGB); atomic write."""
+def ply_bytes(points: ArrayLike, colors: ArrayLike | None = None) -> bytes:
+    """Binary little-endian PLY: ``x y z`` float32 (+ ``red green blue`` uchar) per vertex, from
+    points (N, 3) and colours (N, 3) uint8 RGB, built in memory."""
     pts = np.asarray(points, dtype="<f4").reshape(-1, 3)
     props = ["property float x", "property float y", "property float z"]
     dtype: list[tuple[str, str]] = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
@@ -229,12 +231,13 @@ def write_ply(path: str | Path, points: ArrayLike, colors: ArrayLike | None = No
     header = "\n".join(
         ["ply", "format binary_little_endian 1.0", f"element vertex {pts.shape[0]}", *props, "end_header"]
     )
+    return header.encode("ascii") + b"\n" + rec.tobytes()
+
+
+def write_ply(path: str | Path, points: ArrayLike, colors: ArrayLike | None = None) -> Path:
+    """:func:`ply_bytes` of points (N, 3) (+ colours (N, 3) uint8 RGB) written atomically."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(header.encode("ascii") + b"\n")
-        f.write(rec.tobytes())
-    os.replace(tmp, path)
+    write_atomic(path, ply_bytes(points, colors), fsync=False)
     return path
 
 

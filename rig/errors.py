@@ -7,6 +7,7 @@ __all__ = [
     "CameraFormatError",
     "CameraUnavailable",
     "CaptureTimeout",
+    "ClusterError",
     "ConfigError",
     "CorruptFrameError",
     "DiskFullError",
@@ -14,6 +15,7 @@ __all__ = [
     "EvaluationError",
     "FaultNotSupported",
     "LutError",
+    "OutputError",
     "PipelineError",
     "RecordingError",
     "RectificationError",
@@ -54,6 +56,15 @@ class RecordingError(RigError):
 
 class DiskFullError(RecordingError):
     """The file system ran out of space while recording; what was written stays readable."""
+
+
+class OutputError(RigError):
+    """An output directory cannot be written (a full disk, no permission): the run stops, and
+    every pair written before stays complete."""
+
+
+class ClusterError(RigError):
+    """The Dask scheduler does not answer, or the cluster cannot run the job."""
 
 
 class UsbError(RigError):

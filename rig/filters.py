@@ -133,6 +133,16 @@ class TemporalFilter:
     def clear(self) -> None:
         self._state = None
 
+    @property
+    def state(self) -> F32 | None:
+        """The history: the last output (None before the first frame or after :meth:`clear`).
+        Setting it carries a history over from another filter (the frames before a chunk)."""
+        return self._state
+
+    @state.setter
+    def state(self, value: F32 | None) -> None:
+        self._state = None if value is None else np.array(value, dtype=np.float32)
+
     def __call__(self, disparity: F32, valid: Mask) -> F32:
         """Smoothed disparity (H, W) float32, NaN where ``valid`` is False."""
         prev = self._state

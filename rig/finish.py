@@ -276,6 +276,15 @@ class FinishStage:
             self._temporal_and_depth(out, stage)
         return out, prep.speckle_ms, stage
 
+    @property
+    def temporal_state(self) -> F32 | None:
+        """The temporal filter's history after the last frame (None: empty)."""
+        return self._temporal.state
+
+    @temporal_state.setter
+    def temporal_state(self, state: F32 | None) -> None:
+        self._temporal.state = state
+
     def _follow(self, matcher: StereoMatcher) -> None:
         if matcher is not self._temporal_owner:
             # New parameters: history made under the old ones is not averaged in.

@@ -23,6 +23,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -99,15 +100,23 @@ class VpcGeometry:
         cache: LutCache,
         blind_band_px: int = 0,
         camera: RectifiedCamera | None = None,
+        luts: Mapping[str, CachedLut] | None = None,
     ) -> VpcGeometry:
         """The pair of ``rig`` for ``config`` (a lat-lon field's default widened by the matcher's
         ``blind_band_px`` unmatched columns), tables from (or built into) ``cache``. ``camera``
         keeps a given rectified image grid (a corrected calibration moves the lenses' overlap,
-        and with it a lat-lon field's size, which frames in flight and the finish stage share)."""
+        and with it a lat-lon field's size, which frames in flight and the finish stage share).
+        ``luts``: the tables handed in instead (built once elsewhere for this calibration, e.g.
+        shipped to a cluster's workers)."""
         pair = design_vpc_pair(rig, config, blind_band_px=blind_band_px)
         if camera is not None:
             pair = replace(pair, camera=camera)
-        info = {n: cache.get(rig.cameras[n], pair.R_cam_vpc[n], pair.camera) for n in (pair.left, pair.right)}
+        info = {
+            n: _shipped(n, luts, pair)
+            if luts is not None
+            else cache.get(rig.cameras[n], pair.R_cam_vpc[n], pair.camera)
+            for n in (pair.left, pair.right)
+        }
         left, right = info[pair.left].lut, info[pair.right].lut
         return cls(
             rig,
@@ -116,6 +125,18 @@ class VpcGeometry:
             None if left.valid_fraction == 1.0 else left.valid,
             None if right.valid_fraction == 1.0 else right.valid,
         )
+
+
+def _shipped(name: str, luts: Mapping[str, CachedLut], pair: VpcPair) -> CachedLut:
+    """Camera ``name``'s table as handed in, checked against the pair's image size."""
+    info = luts.get(name)
+    expected = (pair.camera.height, pair.camera.width)
+    if info is None or info.lut.shape != expected:
+        got = "none" if info is None else "x".join(map(str, info.lut.shape[::-1]))
+        raise ConfigError(
+            f"lookup table of camera {name!r}: {got} handed in for a {expected[1]}x{expected[0]} VPC"
+        )
+    return info
 
 
 @dataclass
@@ -162,6 +183,7 @@ class DepthPipeline:
         cache_dir: str | Path | None = None,
         *,
         tune_malloc: bool = True,
+        luts: Mapping[str, CachedLut] | None = None,
     ) -> None:
         if tune_malloc:
             tune_allocator()
@@ -170,7 +192,7 @@ class DepthPipeline:
         # A lat-lon field's default leaves room for the matcher's unmatched columns.
         self._blind_band_px = params.blind_band_px
         self.cache = LutCache(cache_dir)
-        self._geometry = VpcGeometry.build(rig, self.vpc_config, self.cache, self._blind_band_px)
+        self._geometry = VpcGeometry.build(rig, self.vpc_config, self.cache, self._blind_band_px, luts=luts)
         self.names = (self.pair.left, self.pair.right)
         self._report_field(self._geometry)
         self._swap_lock = threading.Lock()
@@ -292,6 +314,18 @@ class DepthPipeline:
             )
         with self._swap_lock:
             self._matcher = matcher
+
+    def temporal_state(self) -> F32 | None:
+        """The temporal filter's history after the last finished frame (None: empty), to carry
+        into another pipeline of the same settings (the next chunk of a recording)."""
+        with self._finish_lock:
+            return self._finish.temporal_state
+
+    def restore_temporal_state(self, state: F32 | None) -> None:
+        """Continue from ``state`` (:meth:`temporal_state` of another pipeline; None: start a
+        new history, as at the start of a recording)."""
+        with self._finish_lock:
+            self._finish.temporal_state = state
 
     # ----- stages ------------------------------------------------------------------------------
     def _check_input(self, name: str, img: NDArray[np.generic]) -> None:

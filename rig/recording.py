@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from rig.atomic import write_atomic as _atomic_write
 from rig.errors import DiskFullError, RecordingError, ResourceExhausted
 
 __all__ = [
@@ -437,12 +438,3 @@ def fd_exhaustion(err: OSError) -> str:
 
     soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
     return f"the process has run out of file descriptors (EMFILE: all {soft} of ulimit -n are open)"
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)

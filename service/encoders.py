@@ -16,7 +16,7 @@ import numpy as np
 from isal import isal_zlib
 from numpy.typing import NDArray
 
-from rig.depth import pack_xyzrgb
+from rig.depth import pack_xyzrgb, ply_bytes
 from rig.errors import PipelineError
 
 __all__ = [
@@ -183,28 +183,6 @@ def colorize_depth(depth: F32, near_m: float, far_m: float) -> NDArray[np.uint8]
     out = np.asarray(cv2.applyColorMap(gray, cv2.COLORMAP_TURBO), dtype=np.uint8)
     out[~valid] = 0
     return out
-
-
-def ply_bytes(points: NDArray[np.float32], colors: NDArray[np.uint8] | None = None) -> bytes:
-    """Binary little-endian PLY: ``x y z`` float32 (+ ``red green blue`` uchar) per vertex,
-    the layout of :func:`rig.depth.write_ply`, built in memory."""
-    pts = np.asarray(points, dtype="<f4").reshape(-1, 3)
-    fields: list[tuple[str, str]] = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
-    props = ["property float x", "property float y", "property float z"]
-    if colors is not None:
-        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
-        props += ["property uchar red", "property uchar green", "property uchar blue"]
-    rec = np.empty(pts.shape[0], dtype=fields)
-    rec["x"], rec["y"], rec["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
-    if colors is not None:
-        rgb = np.asarray(colors, dtype=np.uint8).reshape(-1, 3)
-        if rgb.shape[0] != pts.shape[0]:
-            raise PipelineError(f"PLY: {pts.shape[0]} points but {rgb.shape[0]} colours")
-        rec["red"], rec["green"], rec["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-    header = "\n".join(
-        ["ply", "format binary_little_endian 1.0", f"element vertex {pts.shape[0]}", *props, "end_header"]
-    )
-    return header.encode("ascii") + b"\n" + rec.tobytes()
 
 
 def pcd_bytes(points: NDArray[np.float32], colors: NDArray[np.uint8] | None = None) -> bytes:

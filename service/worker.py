@@ -1,20 +1,19 @@
 """The depth worker: takes the newest pair from the capture, runs the pipeline and publishes the
-result, as a three-stage pipeline on three threads so that consecutive frames overlap on a
-multi-core CPU (OpenCV and numpy release the GIL):
+result, on the staged executor of :mod:`rig.staged` (the stages on three threads, so that
+consecutive frames overlap on a multi-core CPU):
 
 1. ``rig-depth-prepare``: take the newest pair, decode both frames' luma (unless the capture did)
-   and remap them to the VPC pair, one frame per thread (:meth:`DepthPipeline.rectify_camera`);
-2. ``rig-depth-match``: the stereo matcher (:meth:`DepthPipeline.match`);
-3. ``rig-depth-worker``: refinement, filters, depth (:meth:`DepthPipeline.finish`) and publishing.
+   and remap them to the VPC pair, one frame per thread;
+2. ``rig-depth-match``: the stereo matcher;
+3. ``rig-depth-worker``: refinement, filters, depth and publishing.
 
-Stages hand over through one-item slots, so frame N+1 is remapped and frame N-1 refined while
-frame N is matched. Frames stay fresh: the prepare stage takes a pair from the capture only *just
-in time* — when the match stage is expected to be free by the time the pair is remapped — so a
-slow pipeline drops older pairs in the capture (counted there as skipped) instead of holding a
-stale one. Publishing is a reference swap; clients encode what they need from the published
-result in their own threads. A failing frame is counted and reported, and the worker goes on: one
-that does not decode against its camera (``frames_undecodable``), any other failure (a wrong
-size, say) as the worker's error.
+Frames stay fresh: the prepare stage takes a pair from the capture only *just in time* — when
+the match stage is expected to be free by the time the pair is remapped
+(:class:`rig.staged.JustInTime`) — so a slow pipeline drops older pairs in the capture (counted
+there as skipped) instead of holding a stale one. Publishing is a reference swap; clients
+encode what they need from the published result in their own threads. A failing frame is
+counted and reported, and the worker goes on: one that does not decode against its camera
+(``frames_undecodable``), any other failure (a wrong size, say) as the worker's error.
 """
 
 from __future__ import annotations
@@ -26,17 +25,16 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Any, Protocol
 
 from numpy.typing import NDArray
 
 from rig.capture.frame import Frame, FramePair
 from rig.counters import Counts, Tally, complete
 from rig.errors import CorruptFrameError, RigError
-from rig.pipeline import DepthFrame, DepthPipeline, MatchedPair, RectifiedPair, VpcGeometry
-from rig.priority import apply_to_current_thread
+from rig.pipeline import DepthFrame, DepthPipeline
+from rig.staged import EndOfPairs, JustInTime, PairJob, StagedExecutor
 from service.store import PublishedResult, ResultStore
 
 __all__ = ["DepthWorker", "PairSource", "WorkerStats", "render_vpc"]
@@ -44,13 +42,6 @@ __all__ = ["DepthWorker", "PairSource", "WorkerStats", "render_vpc"]
 log = logging.getLogger("service.worker")
 
 STAGES = ("decode", "remap", "match", "refine", "filters", "depth", "total")
-# Weight of the newest sample in the stage-time averages that time the just-in-time take.
-_EMA_ALPHA = 0.2
-# Start the prepare stage this much earlier than "just in time" (fraction of its time, + s).
-_PREPARE_SLACK = 0.25
-_PREPARE_SLACK_S = 0.0005
-
-T = TypeVar("T")
 
 
 class PairSource(Protocol):
@@ -76,88 +67,6 @@ class WorkerStats:
     @property
     def alive(self) -> bool:
         return bool(self.counters["alive"])
-
-
-@dataclass
-class _Prepared:
-    pair: FramePair
-    rect: RectifiedPair
-    decode_ms: float
-
-
-@dataclass
-class _Matched:
-    pair: FramePair
-    matched: MatchedPair
-    decode_ms: float
-
-
-class _Slot(Generic[T]):
-    """A one-item hand-off between two stage threads; waits give up when ``stop`` is set."""
-
-    def __init__(self, stop: threading.Event, poll_s: float) -> None:
-        self._stop = stop
-        self._poll_s = poll_s
-        self._cond = threading.Condition()
-        self._item: T | None = None
-
-    def put(self, item: T) -> bool:
-        """Hand ``item`` over, waiting while the slot is full; False when stopped."""
-        with self._cond:
-            while self._item is not None:
-                if self._stop.is_set():
-                    return False
-                self._cond.wait(self._poll_s)
-            self._item = item
-            self._cond.notify_all()
-            return True
-
-    def take(self, on_take: Callable[[], None] | None = None) -> T | None:
-        """The item, waiting up to the poll interval; None if there was none. ``on_take`` runs
-        under the slot's lock before a waiting producer is woken."""
-        with self._cond:
-            if self._item is None:
-                self._cond.wait(self._poll_s)
-            item, self._item = self._item, None
-            if item is not None:
-                if on_take is not None:
-                    on_take()
-                self._cond.notify_all()
-            return item
-
-    def wait_empty(self, start_at_ns: Callable[[], float]) -> None:
-        """Wait until the slot is empty and ``time.monotonic_ns()`` has reached
-        ``start_at_ns()`` (re-read whenever the slot changes), or the worker stops."""
-        with self._cond:
-            while not self._stop.is_set():
-                now = time.monotonic_ns()
-                if self._item is None:
-                    wait_s = (start_at_ns() - now) / 1e9
-                    if wait_s <= 0.0:
-                        return
-                else:
-                    wait_s = self._poll_s
-                self._cond.wait(min(self._poll_s, wait_s))
-
-    def update(self, change: Callable[[], None]) -> None:
-        """Run ``change`` under the slot's lock and wake the waiters (they re-read their state)."""
-        with self._cond:
-            change()
-            self._cond.notify_all()
-
-    def notify(self) -> None:
-        with self._cond:
-            self._cond.notify_all()
-
-
-class _Ema:
-    """Exponential moving average of a duration in ns (0 before the first sample)."""
-
-    def __init__(self) -> None:
-        self.value_ns = 0.0
-
-    def add(self, ns: float) -> None:
-        self.value_ns = ns if self.value_ns == 0.0 else self.value_ns + _EMA_ALPHA * (ns - self.value_ns)
 
 
 def render_vpc(pipeline: DepthPipeline, camera: str, frame: Frame) -> NDArray[Any]:
@@ -198,127 +107,49 @@ class DepthWorker:
         self._on_result = on_result
         self._poll_s = poll_s
         self._window_ns = round(window_s * 1e9)
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
-        self._decoder: ThreadPoolExecutor | None = None
         self._lock = threading.Lock()
         self._recent: deque[tuple[int, dict[str, float], float]] = deque(maxlen=256)
         self._counters = Tally("worker")  # under self._lock
         self._last_error: tuple[str, int] | None = None
         self._last_seq: int | None = None
         self._last_published_ns: int | None = None
-        self._to_match: _Slot[_Prepared] = _Slot(self._stop, poll_s)
-        self._to_finish: _Slot[_Matched] = _Slot(self._stop, poll_s)
-        # Just-in-time take: when the match stage will be free, and how long preparing takes.
-        self._prepare_time = _Ema()
-        self._match_cycle = _Ema()
-        self._match_free_ns = 0
         self._prefetch = dict(prefetch or {})
         self._previous: PublishedResult | None = None
+        self._stages = StagedExecutor(
+            pipeline,
+            self._take,
+            self._publish,
+            on_error=self._on_error,
+            pacing=JustInTime(),
+            poll_s=poll_s,
+            prefix="rig-depth",
+        )
 
     # ----- lifecycle ---------------------------------------------------------------------------
     def start(self) -> None:
-        if self._threads:
-            return
-        self._decoder = ThreadPoolExecutor(
-            max_workers=1, thread_name_prefix="rig-depth-decode", initializer=apply_to_current_thread
-        )
-        for name, target in (
-            ("rig-depth-prepare", self._prepare_loop),
-            ("rig-depth-match", self._match_loop),
-            ("rig-depth-worker", self._finish_loop),
-        ):
-            thread = threading.Thread(target=self._guarded, args=(target,), name=name, daemon=True)
-            self._threads.append(thread)
-        for thread in self._threads:
-            thread.start()
+        self._stages.start()
 
     def stop(self, timeout_s: float = 10.0) -> None:
-        self._stop.set()
-        self._to_match.notify()
-        self._to_finish.notify()
-        deadline = time.monotonic() + timeout_s
-        for thread in self._threads:
-            if thread is not threading.current_thread():
-                thread.join(max(0.0, deadline - time.monotonic()))
-        if self._decoder is not None:
-            self._decoder.shutdown(wait=False, cancel_futures=True)
+        self._stages.stop(timeout_s)
 
     def is_alive(self) -> bool:
-        return bool(self._threads) and all(t.is_alive() for t in self._threads)
+        return self._stages.is_alive()
 
-    # ----- stages ------------------------------------------------------------------------------
-    def _guarded(self, step: Callable[[], None]) -> None:
-        """Run one stage's step until stopped; a failing frame is counted, never fatal."""
-        apply_to_current_thread()
-        while not self._stop.is_set():
-            try:
-                step()
-            except RigError as err:
-                self._failed(str(err))
-            except Exception as err:  # a bug must not kill the service's only worker
-                log.exception("depth worker: unexpected error")
-                self._failed(f"{type(err).__name__}: {err}")
-                self._stop.wait(self._poll_s)
-
-    def _start_prepare_at_ns(self) -> float:
-        """Just in time: the match stage is expected free at ``_match_free_ns``; a pair taken
-        now is ready after the prepare stage's usual time (plus some slack)."""
-        lead = self._prepare_time.value_ns * (1.0 + _PREPARE_SLACK) + _PREPARE_SLACK_S * 1e9
-        return self._match_free_ns - lead
-
-    def _prepare_loop(self) -> None:
-        self._to_match.wait_empty(self._start_prepare_at_ns)
-        if self._stop.is_set():
-            return
-        pair = self.source.next_pair(self._poll_s, newest=True)
+    # ----- the stages' source and sinks --------------------------------------------------------
+    def _take(self, timeout_s: float) -> PairJob[FramePair] | EndOfPairs | None:
+        """The newest pair of :attr:`source` (read on every take: a benchmark may gate it)."""
+        pair = self.source.next_pair(timeout_s, newest=True)
         if pair is None:
-            return
+            return None
         if self._on_pair is not None:
             self._on_pair(pair)
-        t0 = time.perf_counter_ns()
-        try:
-            rect, decode_ms = self._rectify(pair)
-        except CorruptFrameError:
-            return  # counted against its camera (_luma); the worker itself is fine
-        self._prepare_time.add(time.perf_counter_ns() - t0)
-        self._to_match.put(_Prepared(pair, rect, decode_ms))
-
-    def _rectify(self, pair: FramePair) -> tuple[RectifiedPair, float]:
-        """Decode (where the capture did not) and remap one pair, the two frames on two threads."""
-        pipe = self.pipeline
-        left_name, right_name = pipe.names
-        if self._decoder is None:
-            t0 = time.perf_counter()
-            left, right = self._luma(pair.left), self._luma(pair.right)
-            decode_ms = (time.perf_counter() - t0) * 1e3
-            return pipe.rectify(left, right), decode_ms
-        # Each frame decoded (unless the capture did) and remapped on its own thread: JPEG
-        # decoding is single-threaded, and two remaps at once beat one parallelised after another.
-        # One geometry for both frames: a corrected calibration swapped in meanwhile
-        # (DepthPipeline.replace_rig) starts with the next pair.
-        geometry = pipe.geometry
-        future: Future[tuple[NDArray[Any], NDArray[Any], float, float]] = self._decoder.submit(
-            self._decode_rectify, left_name, pair.left, geometry
+        return PairJob(
+            pair,
+            pair.seq,
+            pair.ts_ns,
+            functools.partial(self._luma, pair.left),
+            functools.partial(self._luma, pair.right),
         )
-        right_vpc, right_gray, right_decode, right_remap = self._decode_rectify(
-            right_name, pair.right, geometry
-        )
-        left_vpc, left_gray, left_decode, left_remap = future.result()
-        rect = RectifiedPair(
-            left_vpc, right_vpc, left_gray, right_gray, max(left_remap, right_remap), geometry
-        )
-        return rect, max(left_decode, right_decode)
-
-    def _decode_rectify(
-        self, name: str, frame: Frame, geometry: VpcGeometry
-    ) -> tuple[NDArray[Any], NDArray[Any], float, float]:
-        t0 = time.perf_counter()
-        image = self._luma(frame)
-        t1 = time.perf_counter()
-        vpc, gray = self.pipeline.rectify_camera(name, image, geometry)
-        t2 = time.perf_counter()
-        return vpc, gray, (t1 - t0) * 1e3, (t2 - t1) * 1e3
 
     def _luma(self, frame: Frame) -> NDArray[Any]:
         """The frame's luma (decoded now unless the capture thread did); a frame that does not
@@ -329,39 +160,15 @@ class DepthWorker:
             self.source.report_undecodable(frame, err)
             raise
 
-    def _match_loop(self) -> None:
-        t0 = 0
-
-        def taken() -> None:  # under the slot's lock: the prepare stage sees it when it wakes
-            nonlocal t0
-            t0 = time.monotonic_ns()
-            self._match_free_ns = round(t0 + self._match_cycle.value_ns)
-
-        item = self._to_match.take(taken)
-        if item is None:
+    def _on_error(self, pair: FramePair | None, err: BaseException) -> None:
+        if isinstance(err, CorruptFrameError):
+            return  # counted against its camera (_luma); the worker itself is fine
+        if isinstance(err, RigError):
+            self._failed(str(err))
             return
-        try:
-            matched = self.pipeline.match(item.rect)
-            self._to_finish.put(_Matched(item.pair, matched, item.decode_ms))
-        finally:
-            # The cycle includes any wait for the finish stage: that is when it is free again.
-            done = time.monotonic_ns()
-            self._match_cycle.add(done - t0)
-
-            def free() -> None:  # earlier than predicted: let the prepare stage start now
-                self._match_free_ns = min(self._match_free_ns, done)
-
-            self._to_match.update(free)
-
-    def _finish_loop(self) -> None:
-        item = self._to_finish.take()
-        if item is None:
-            return
-        pair = item.pair
-        frame = self.pipeline.finish(item.matched, pair.seq, pair.ts_ns)
-        timings = {"decode": item.decode_ms, **frame.timings_ms}
-        timings["total"] = frame.timings_ms.get("total", 0.0) + item.decode_ms
-        self._publish(pair, frame, timings)
+        # A bug must not kill the service's only worker.
+        log.error("depth worker: unexpected error", exc_info=err)
+        self._failed(f"{type(err).__name__}: {err}")
 
     def _publish(self, pair: FramePair, frame: DepthFrame, timings: dict[str, float]) -> None:
         arrived = max(pair.left.host_ns, pair.right.host_ns)

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench import api_load, hostile, lut_build, memory, rectification, startup, worker
+from bench import api_load, dask_scale, hostile, lut_build, memory, process, rectification, startup, worker
 from calibration.models import MODELS, KannalaBrandtModel
 from rig.sim import get_preset
 
@@ -51,6 +51,33 @@ def test_worker_bench_compares_the_service_worker_with_the_floor(bench_env: Path
     assert 0 < row["ours_cores_busy"] <= doc["machine"]["cpus_usable"] * 1.1
     assert row["throughput_ratio"] <= row["cpu_ceiling_ratio"] * 1.1
     assert set(row["ours_stage_ms"]) >= {"decode", "remap", "match", "refine", "total"}
+
+
+def test_process_bench_compares_rig_process_with_the_floor(bench_env: Path, tmp_path: Path) -> None:
+    doc = _written(tmp_path / "p.json", process.main(["--quick", "--json", str(tmp_path / "p.json")]))
+    (row,) = doc["rows"]
+    assert row["vpc"] == [160, 120] and row["failures"] == 0
+    assert row["floor_pairs_per_s"] > 0 and row["ours_pairs_per_s"] > 0 and row["floor_ms_per_pair"] > 0
+    ratios = row["runs"]["throughput_ratio"]
+    assert len(ratios) == doc["windows"] == 2 and all(r > 0 for r in ratios)
+    q1, q3 = row["throughput_ratio_iqr"]
+    assert min(ratios) <= q1 <= row["throughput_ratio"] <= q3 <= max(ratios)
+    start = row["startup"]
+    assert 0 < start["python"] < start["one_pair"] and start["help"] > 0 and start["imports"] > 0
+
+
+@pytest.mark.slow
+def test_dask_bench_runs_each_mode_over_every_recording(bench_env: Path, tmp_path: Path) -> None:
+    doc = _written(tmp_path / "d.json", dask_scale.main(["--quick", "--json", str(tmp_path / "d.json")]))
+    assert doc["pairs"] == doc["recordings"] * 4 and doc["recordings"] == 2
+    assert set(doc["pairs_per_s"]) == {"here", "1 worker", "2 workers"}
+    assert all(v > 0 for v in doc["pairs_per_s"].values())
+    for mode in ("1 worker", "2 workers"):
+        assert doc["ratio"][mode] == pytest.approx(doc["pairs_per_s"][mode] / doc["pairs_per_s"]["here"])
+        assert doc["cluster_start_s"][mode] > 0
+    # What bounds many machines: bytes per pair in and out, the tables shipped once per worker.
+    assert doc["bytes_per_pair"]["read"] > 0 and doc["bytes_per_pair"]["written"] > 0
+    assert doc["lut_bytes"] >= 2 * 160 * 120 * 15  # map_x, map_y, map1, map2, valid per camera
 
 
 def test_lut_bench_times_every_model_and_the_cache(bench_env: Path, tmp_path: Path) -> None:

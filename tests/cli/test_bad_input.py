@@ -141,10 +141,13 @@ def test_process_reports_each_damaged_pair_and_keeps_the_rest(
     result = run_rig(args, clean_env(tmp_path))
     assert result.returncode == 0, result.stderr
     assert "Traceback" not in result.stderr and "processed 1 of 3 pairs" in " ".join(result.stdout.split())
-    lines = [line for line in result.stderr.splitlines() if line.strip()]
-    assert len(lines) == 2 and all(line.startswith("skipped seq") for line in lines), result.stderr
-    for line, (seq, rel) in zip(lines, sorted(broken.items()), strict=True):
-        assert line.startswith(f"skipped seq {seq}:") and rel in line
+    lines = [line.strip() for line in result.stderr.splitlines() if line.strip()]
+    # Each damaged pair as it is skipped, then again in the closing summary.
+    live, summary = lines[:2], lines[2:]
+    assert len(lines) == 4 and all(line.startswith("skipped seq") for line in live), result.stderr
+    for kind, listed in (("skipped", live), ("failed", summary)):
+        for line, (seq, rel) in zip(listed, sorted(broken.items()), strict=True):
+            assert line.startswith(f"{kind} seq {seq}:") and rel in line, result.stderr
     assert sorted(p.name for p in (out / "depth").iterdir()) == ["000000.png"]
 
 
@@ -158,11 +161,14 @@ def test_process_with_no_readable_pair_fails_with_one_error_line(
     result = run_rig([*args, "--cache-dir", str(tmp_path / "c")], clean_env(tmp_path))
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     assert result.returncode == 2 and "Traceback" not in result.stderr
-    # One warning per pair as it is met, then the one error line.
-    assert [line.split(":")[0] for line in lines] == [
+    # One warning per pair as it is met, the summary's list of them, then the one error line.
+    assert [line.strip().split(":")[0] for line in lines] == [
         "skipped seq 0",
         "skipped seq 1",
         "skipped seq 2",
+        "failed seq 0",
+        "failed seq 1",
+        "failed seq 2",
         "error",
     ]
     assert lines[-1] == f"error: no pair of 3 in {root} could be processed (3 skipped)"

@@ -55,7 +55,15 @@ def test_process_writes_range_and_vpc_json_of_the_lat_lon_pair(room: Path, tmp_p
     )
     assert res.returncode == 0, res.stderr
     assert "processed 1 of 1 pairs" in res.stdout and "lat-lon" in res.stdout and "1.400 px/deg" in res.stdout
-    assert sorted(p.name for p in out.iterdir()) == ["cloud", "left", "preview", "range", "right", "vpc.json"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "cloud",
+        "left",
+        "preview",
+        "range",
+        "right",
+        "run.json",
+        "vpc.json",
+    ]
     doc = json.loads((out / "vpc.json").read_text())
     assert list(doc) == ["projection", "width", "height", "fx", "fy", "cx", "cy", "baseline_m", "R_rig_vpc"]
     assert doc["projection"] == "latlon" and doc["fx"] == pytest.approx(math.degrees(1.4))

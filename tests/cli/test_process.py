@@ -112,8 +112,12 @@ def test_output_layout_vpc_json_and_depth(tmp_path: Path, shot: StereoShot) -> N
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
     assert sorted(p.name for p in out.iterdir()) == [
-        "cloud", "depth", "left", "preview", "range", "right", "vpc.json"
+        "cloud", "depth", "left", "preview", "range", "right", "run.json", "vpc.json"
     ]  # fmt: skip
+    run_doc = json.loads((out / "run.json").read_text())
+    assert run_doc["recording"] == str(rec.resolve())
+    assert run_doc["products"] == ["range", "depth", "left", "right", "cloud", "preview"]
+    assert run_doc["stereo"]["disparity_range"] == 64 and run_doc["vpc"]["width"] == 320
     for sub in ("depth", "range", "left", "right"):
         assert sorted(p.name for p in (out / sub).iterdir()) == ["000003.png", "000004.png"]
     doc = json.loads((out / "vpc.json").read_text())

@@ -7,6 +7,9 @@
 - :mod:`~tests.helpers.boards`: rendered calibration boards through known lenses;
 - :mod:`~tests.helpers.service`: service settings for a replayed recording and ``create_app``
   under a real uvicorn server in a thread;
+- :mod:`~tests.helpers.offline`: noisy recordings of a rendered plane for the offline-processing
+  tests, and output trees by file;
+- :mod:`~tests.helpers.disks`: a real full disk (a small tmpfs);
 - :mod:`~tests.helpers.command`: the ``rig`` console command in subprocesses (one-shot runs and
   ``rig serve`` waited for until it answers).
 

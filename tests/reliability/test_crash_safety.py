@@ -22,7 +22,6 @@ import subprocess
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -33,6 +32,7 @@ import rig.recording
 from rig.recording import Recording
 from service.client import RigClient
 from tests.helpers.command import RIG, assert_one_line_error, clean_env, run_rig
+from tests.helpers.disks import SmallDisk, tmpfs_disk
 from tests.helpers.recordings import write_recording
 from tests.helpers.service import TOKEN, StartServer
 from tests.helpers.waiting import wait_for
@@ -137,42 +137,6 @@ def test_kill_9_at_random_moments_loses_at_most_the_pair_in_flight(source: Path,
 
 
 # ----- full disk ---------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class SmallDisk:
-    root: Path  # a directory with room for about ``size`` bytes
-    size: int
-    env: dict[str, str]  # environment a subprocess needs to see the same limit
-
-
-def _mount_tmpfs(where: Path, size: int) -> str | None:
-    """Mount a tmpfs of ``size`` bytes at ``where``; None, or why it could not be mounted."""
-    if os.geteuid() != 0:
-        return "mounting a tmpfs needs root"
-    try:
-        res = subprocess.run(
-            ["mount", "-t", "tmpfs", "-o", f"size={size},mode=0755", "rig-test-full-disk", str(where)],
-            capture_output=True,
-            text=True,
-            timeout=30,
-        )
-    except (OSError, subprocess.TimeoutExpired) as err:
-        return f"mount failed: {err}"
-    return None if res.returncode == 0 else f"mount failed: {res.stderr.strip() or res.returncode}"
-
-
-@contextmanager
-def tmpfs_disk(where: Path, size: int) -> Iterator[SmallDisk]:
-    """A real tmpfs of ``size`` bytes mounted at ``where``; skips the test if none can be mounted."""
-    where.mkdir(parents=True)
-    why = _mount_tmpfs(where, size)
-    if why is not None:
-        pytest.skip(f"no real full disk here ({why}); the injected-ENOSPC tests cover the code path")
-    try:
-        yield SmallDisk(where, size, {})
-    finally:
-        subprocess.run(["umount", "-l", str(where)], capture_output=True, timeout=30)
-
-
 @contextmanager
 def injected_disk(where: Path, size: int) -> Iterator[SmallDisk]:
     """A byte budget of ``size`` on rig.recording's writes under ``where`` (``fake_disk``), for a

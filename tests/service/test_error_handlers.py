@@ -49,6 +49,8 @@ EXPECTED: dict[str, int] = {
     "RecordingError": 500,
     "DiskFullError": 507,
     "UsbError": 500,
+    "OutputError": 500,  # rig process only; the service writes no output directories
+    "ClusterError": 500,  # rig process only
     "LutError": 500,
     "PipelineError": 500,
     "SimulationError": 500,

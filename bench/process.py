@@ -1,0 +1,335 @@
+"""``rig process`` against the bare OpenCV floor, per pair and at start-up.
+
+Input: the MJPEG recording of :mod:`bench.recordings` (``--pairs`` pairs of 1280×960 colour 4:2:2
+JPEG frames of the prototype rig in the demo room, each with fresh sensor noise), read from disk.
+
+**Floor** — a loop over the recording doing only the bare calls of the same work, per pair: read
+both files, ``cv2.imdecode`` ×2 (``IMREAD_UNCHANGED``: colour, as ``rig process`` reads frames to
+write colour VPC images), ``cv2.remap`` ×2 with the pipeline's fixed-point maps, ``cv2.cvtColor``
+to gray ×2, ``compute`` of a ``cv2.StereoSGBM`` with the same parameters, ``cv2.divide`` of the
+fixed-point disparity into uint16 millimetres of depth, and ``cv2.imwrite`` of the depth and both
+VPC images as PNG (OpenCV's default PNG settings, the encoder ``rig process`` uses too).
+
+**Ours** — :func:`rig.process.process_recordings` in this process (what ``rig process REC --out
+DIR`` runs): the staged pipeline with the default stages (subpixel refinement, confidence, 5×5
+median; the floor has none of them), reading ahead, atomic and fsynced writes, ``vpc.json`` and
+``run.json``. Its per-pair throughput is timed between its first and its last pair (the
+progress callback); the rest of a run (the stages filling and draining, planning the output
+directory) is its fixed cost, reported apart.
+
+Throughput is timed in alternating windows (ours, floor / floor, ours: a steady drift of the
+machine's speed cancels), a ratio per window pair; medians and interquartile ranges over
+``--windows`` pairs. Each window is one whole run over the recording into a fresh directory on
+the same file system.
+
+**Start-up**: the wall time of ``python -c pass`` (Python's own), of ``rig process --help``, the
+import time ``python -X importtime -m cli process --help`` reports, and the wall time of ``rig
+process`` on a one-pair copy of the recording (warm LUT cache): less Python's own start and the
+floor's time for that pair, it is the fixed cost of a run beyond Python's (target under 1 s).
+
+Run: ``flock /tmp/rig-bench.lock .venv/bin/python -m bench.process`` (``--quick``: seconds).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from rich.table import Table
+
+from bench.common import (
+    add_common_arguments,
+    console,
+    finish,
+    machine_info,
+    median,
+    percentile,
+    print_machine,
+)
+from bench.recordings import MjpegSpec, ensure_mjpeg_recording
+from bench.worker import floor_matcher
+from calibration import load_rig
+from rig.pipeline import DepthPipeline
+from rig.process import ProcessOptions, RecordingJob, RecordingSource, process_recordings
+from rig.recording import Recording, RecordingWriter
+from rig.stereo import StereoParams
+from rig.vpc import VpcConfig
+
+__all__ = ["BenchInput", "OursRun", "bench_input", "main", "run_floor", "run_ours", "startup_figures"]
+
+REPO = Path(__file__).resolve().parents[1]
+RIG = str(Path(sys.executable).with_name("rig"))
+
+
+@dataclass(frozen=True)
+class BenchInput:
+    """The recording, its calibration, the pipeline of the measured configuration and a
+    scratch directory on the file system the outputs go to."""
+
+    recording: Path
+    pipeline: DepthPipeline
+    scratch: Path
+
+    @property
+    def pairs(self) -> int:
+        return len(Recording(self.recording).pairs)
+
+
+def bench_input(spec: MjpegSpec, vpc: VpcConfig, stereo: StereoParams, scratch: Path) -> BenchInput:
+    recording = ensure_mjpeg_recording(spec)
+    pipeline = DepthPipeline(load_rig(recording / "calibration.yaml"), vpc, stereo, cache_dir=scratch / "lut")
+    return BenchInput(recording, pipeline, scratch)
+
+
+@dataclass(frozen=True)
+class FloorRun:
+    pair_ms: list[float]
+    pairs_per_s: float
+
+
+@dataclass(frozen=True)
+class OursRun:
+    """A run over the recording: pairs per second between its first and last pair, the
+    run's wall time, and its fixed cost (wall time less the pairs at that rate)."""
+
+    pairs_per_s: float
+    wall_s: float
+    fixed_s: float
+    failures: int
+    written: int
+
+
+def run_floor(data: BenchInput, out: Path) -> FloorRun:
+    """The bare calls (see the module doc) over every pair, writing into ``out``."""
+    rec, pipe = Recording(data.recording), data.pipeline
+    left_lut, right_lut = (pipe.luts[n] for n in pipe.names)
+    sgbm = floor_matcher(pipe.stereo)
+    mm16 = 1000.0 * 16.0 * pipe.pair.fx * pipe.baseline_m  # depth in mm = this / fixed-point disparity
+    for sub in ("depth", "left", "right"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    decode: Any = cv2.imdecode  # typed loosely: the floor is the bare calls, no checks
+    times = []
+    t_start = time.perf_counter()
+    for pair in rec.pairs:
+        t0 = time.perf_counter()
+        views = []
+        for cam, lut in (("left", left_lut), ("right", right_lut)):
+            data_bytes = rec.path(pair.file(cam)).read_bytes()
+            img = decode(np.frombuffer(data_bytes, np.uint8), cv2.IMREAD_UNCHANGED)
+            views.append(cv2.remap(img, lut.map1, lut.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
+        grays = [cv2.cvtColor(v, cv2.COLOR_BGR2GRAY) if v.ndim == 3 else v for v in views]
+        depth = cv2.divide(mm16, sgbm.compute(grays[0], grays[1]), dtype=cv2.CV_16U)
+        name = f"{pair.seq:06d}.png"
+        cv2.imwrite(str(out / "depth" / name), depth)
+        cv2.imwrite(str(out / "left" / name), views[0])
+        cv2.imwrite(str(out / "right" / name), views[1])
+        times.append((time.perf_counter() - t0) * 1e3)
+    return FloorRun(times, len(times) / (time.perf_counter() - t_start))
+
+
+def run_ours(
+    data: BenchInput, recordings: list[Path], out: Path, scheduler: str | None = None, chunk_pairs: int = 32
+) -> OursRun:
+    """:func:`process_recordings` over ``recordings`` into ``out/NAME`` (see the module doc)."""
+    jobs = [RecordingJob(RecordingSource(r), Recording(r), data.pipeline, out / r.name) for r in recordings]
+    stamps: list[float] = []
+    t0 = time.perf_counter()
+    summaries = process_recordings(
+        jobs,
+        ProcessOptions(chunk_pairs=chunk_pairs),
+        scheduler=scheduler,
+        on_progress=lambda *_: stamps.append(time.perf_counter()),
+    )
+    wall = time.perf_counter() - t0
+    pairs = sum(s.written for s in summaries)
+    rate = (len(stamps) - 1) / (stamps[-1] - stamps[0]) if len(stamps) > 1 else float("nan")
+    return OursRun(rate, wall, wall - pairs / rate, sum(len(s.failures) for s in summaries), pairs)
+
+
+def _wall(args: list[str], env: dict[str, str] | None = None) -> float:
+    t0 = time.perf_counter()
+    subprocess.run(args, check=True, capture_output=True, env=env, cwd=REPO)
+    return time.perf_counter() - t0
+
+
+def _import_s() -> float:
+    """Total import time ``python -X importtime -m cli process --help`` reports."""
+    res = subprocess.run(
+        [sys.executable, "-X", "importtime", "-m", "cli", "process", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=REPO,
+    )
+    total = 0
+    for line in res.stderr.splitlines():
+        parts = line.split("|")
+        if line.startswith("import time:") and len(parts) == 3 and parts[0].split(":")[1].strip().isdigit():
+            total += int(parts[0].split(":")[1])
+    return total / 1e6
+
+
+def one_pair_copy(recording: Path, out: Path) -> Path:
+    """The recording's first pair alone, with its calibration."""
+    src = Recording(recording)
+    pair = src.pairs[0]
+    with RecordingWriter(out, meta={"generator": "bench.process"}) as writer:
+        writer.write_pair(
+            pair.seq,
+            pair.left_ts_ns,
+            pair.right_ts_ns,
+            src.read_bytes(pair, "left"),
+            src.read_bytes(pair, "right"),
+        )
+    shutil.copyfile(recording / "calibration.yaml", out / "calibration.yaml")
+    return out
+
+
+def startup_figures(data: BenchInput, vpc_args: list[str], stereo_file: Path, repeat: int) -> dict[str, Any]:
+    """Python's own start, ``rig process --help`` and a one-pair run, medians of ``repeat``."""
+    env = {**os.environ, "RIG_CACHE_DIR": str(data.scratch / "lut")}
+    one = one_pair_copy(data.recording, data.scratch / "one")
+    runs: dict[str, list[float]] = {"python": [], "help": [], "imports": [], "one_pair": []}
+    for k in range(repeat):
+        runs["python"].append(_wall([sys.executable, "-c", "pass"]))
+        runs["help"].append(_wall([RIG, "process", "--help"]))
+        runs["imports"].append(_import_s())
+        out = data.scratch / f"one-out-{k}"
+        runs["one_pair"].append(
+            _wall([RIG, "process", str(one), "--out", str(out), *vpc_args, "--stereo", str(stereo_file)], env)
+        )
+        shutil.rmtree(out, ignore_errors=True)
+    return {k: median(v) for k, v in runs.items()} | {"runs": runs}
+
+
+def _windows(data: BenchInput, windows: int) -> list[tuple[FloorRun, OursRun]]:
+    out = []
+    for i in range(windows):
+        floor_dir, ours_dir = data.scratch / f"floor-{i}", data.scratch / f"ours-{i}"
+        if i % 2 == 0:
+            ours = run_ours(data, [data.recording], ours_dir)
+            floor = run_floor(data, floor_dir)
+        else:
+            floor = run_floor(data, floor_dir)
+            ours = run_ours(data, [data.recording], ours_dir)
+        shutil.rmtree(floor_dir)
+        shutil.rmtree(ours_dir)
+        out.append((floor, ours))
+    return out
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(prog="python -m bench.process", description=__doc__.split("\n\n")[0])
+    add_common_arguments(parser)
+    parser.add_argument("--pairs", type=int, default=None, help="pairs in the recording")
+    parser.add_argument("--windows", type=int, default=None, help="floor / ours window pairs")
+    args = parser.parse_args(argv)
+    quick = args.quick
+    spec = MjpegSpec(frames=4, views=1, scale=0.25) if quick else MjpegSpec(frames=args.pairs or 24)
+    w, h, disp = (160, 120, 32) if quick else (640, 480, 128)
+    vpc, stereo = VpcConfig(width=w, height=h), StereoParams(disparity_range=disp)
+    windows = args.windows or (2 if quick else 8)
+    repeat = args.repeat or (1 if quick else 5)
+    info = machine_info()
+    print_machine(info, "rig process vs the bare OpenCV floor")
+    with tempfile.TemporaryDirectory(
+        prefix="rig-bench-process-", dir=os.environ.get("RIG_BENCH_SCRATCH")
+    ) as tmp:
+        data = bench_input(spec, vpc, stereo, Path(tmp))
+        console.print(
+            f"input: {data.recording} ({data.pairs} pairs, colour JPEG q{spec.quality}); VPC {w}×{h}, "
+            f"{disp} disparities; {windows} alternating window pairs, one run over the recording each"
+        )
+        run_floor(data, data.scratch / "warm")  # page cache, encoder and matcher warm for both
+        pairs = _windows(data, windows)
+        stereo_file = data.scratch / "stereo.yaml"
+        stereo_file.write_text(f"disparity_range: {disp}\n")
+        vpc_args = ["--vpc-size", f"{w}x{h}"]
+        start = startup_figures(data, vpc_args, stereo_file, repeat)
+    ratios = [o.pairs_per_s / f.pairs_per_s for f, o in pairs]
+    floor_ms = median(median(f.pair_ms) for f, _ in pairs)
+    row = {
+        "vpc": [w, h],
+        "disparities": disp,
+        "pairs": data.pairs,
+        "floor_ms_per_pair": floor_ms,
+        "floor_pairs_per_s": median(f.pairs_per_s for f, _ in pairs),
+        "ours_pairs_per_s": median(o.pairs_per_s for _, o in pairs),
+        "throughput_ratio": median(ratios),
+        "throughput_ratio_iqr": [percentile(ratios, 25), percentile(ratios, 75)],
+        "ours_fixed_s": median(o.fixed_s for _, o in pairs),
+        "failures": sum(o.failures for _, o in pairs),
+        "startup": start,
+        "fixed_beyond_python_s": start["one_pair"] - start["python"] - floor_ms / 1e3,
+        "runs": {
+            "floor_pairs_per_s": [f.pairs_per_s for f, _ in pairs],
+            "ours_pairs_per_s": [o.pairs_per_s for _, o in pairs],
+            "throughput_ratio": ratios,
+        },
+    }
+    table = Table(
+        title="rig process per pair: floor (bare OpenCV) vs ours (the staged pipeline, default stages)"
+    )
+    for col in (
+        "VPC",
+        "disp",
+        "floor ms/pair",
+        "floor pairs/s",
+        "ours pairs/s",
+        "ours × floor (IQR)",
+        "ours fixed s",
+    ):
+        table.add_column(col, justify="right")
+    q1, q3 = row["throughput_ratio_iqr"]
+    table.add_row(
+        f"{w}×{h}",
+        str(disp),
+        f"{floor_ms:.1f}",
+        f"{row['floor_pairs_per_s']:.2f}",
+        f"{row['ours_pairs_per_s']:.2f}",
+        f"{row['throughput_ratio']:.2f} ({q1:.2f}–{q3:.2f})",
+        f"{row['ours_fixed_s']:.2f}",
+    )
+    console.print(table)
+    start_table = Table(title=f"start-up, median of {repeat} (s)")
+    for col in (
+        "python -c pass",
+        "rig process --help",
+        "its imports",
+        "rig process, 1 pair",
+        "fixed cost beyond Python",
+    ):
+        start_table.add_column(col, justify="right")
+    start_table.add_row(
+        f"{start['python']:.2f}",
+        f"{start['help']:.2f}",
+        f"{start['imports']:.2f}",
+        f"{start['one_pair']:.2f}",
+        f"{row['fixed_beyond_python_s']:.2f}",
+    )
+    console.print(
+        "ours × floor = ours pairs/s (first to last pair of a run) / the floor's pairs/s, per window pair "
+        "(target ≥ 1.0); ours fixed s = a run's wall time less its pairs at its rate; fixed cost beyond "
+        "Python = the one-pair run less python -c pass and the floor's time for one pair (target < 1 s)"
+    )
+    return finish(
+        "process",
+        info,
+        {"spec": spec.__dict__, "windows": windows, "repeat": repeat, "rows": [row]},
+        args.json,
+        start_table,
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,259 @@
+"""What ``rig process`` writes for one recording, and which of its pairs are complete.
+
+Layout of an output directory::
+
+    vpc.json              the rectified pair: projection, width, height, fx, fy, cx, cy,
+                          baseline_m, R_rig_vpc
+    run.json              what made the files: the recording, the lookup tables' content keys,
+                          the rectified pair's and stereo settings and the products written
+    range/NNNNNN.png      uint16 range in mm along each left pixel's ray, 0 = invalid
+    depth/NNNNNN.png      the pinhole pair's product: uint16 depth in mm along its z, 0 = invalid
+    left/NNNNNN.png       the left and right rectified images (gray or BGR like the recording)
+    right/NNNNNN.png
+    cloud/NNNNNN.ply      with ``ply``: the points in the rig frame, coloured from the left view
+    preview/NNNNNN.png    with ``preview``: the left view beside colour depth (lat-lon: range)
+
+Every file is written atomically (:func:`rig.atomic.write_atomic`: a temporary, fsynced, renamed
+into place), so a file that exists is complete, and a pair is complete when every product of it
+exists. ``--resume`` (:meth:`OutputLayout.prepare` with ``resume``) trusts those files only when
+``run.json`` names the same settings; a run without it first removes what an earlier run wrote
+for the pairs it is about to process, so a crashed run never leaves two runs' files mixed.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from rig.atomic import fsync_directory, is_temporary, sweep_temporaries, write_atomic
+from rig.depth import depth_to_png_mm, ply_bytes
+from rig.errors import ConfigError, OutputError, PipelineError
+from rig.pipeline import DepthFrame, DepthPipeline
+
+__all__ = [
+    "BASE_PRODUCTS",
+    "PRODUCTS",
+    "RUN_FILE",
+    "VPC_FILE",
+    "OutputLayout",
+    "Product",
+    "depth_preview",
+    "run_settings",
+]
+
+RUN_FILE = "run.json"
+VPC_FILE = "vpc.json"
+RUN_FORMAT = 1
+_NO_SPACE = {errno.ENOSPC, errno.EDQUOT}
+
+
+def _png(image: NDArray[Any]) -> bytes:
+    ok, buf = cv2.imencode(".png", image)
+    if not ok:
+        raise PipelineError(f"PNG encoding failed for an image of shape {image.shape}")
+    return bytes(buf.tobytes())
+
+
+@dataclass(frozen=True)
+class Product:
+    """One kind of output file: its directory, file suffix and encoder."""
+
+    name: str
+    suffix: str
+    encode: Callable[[DepthPipeline, DepthFrame], bytes]
+
+    def file_name(self, seq: int) -> str:
+        return f"{seq:06d}{self.suffix}"
+
+
+def _cloud(pipeline: DepthPipeline, frame: DepthFrame) -> bytes:
+    return ply_bytes(*pipeline.point_cloud(frame))
+
+
+PRODUCTS: dict[str, Product] = {
+    p.name: p
+    for p in (
+        Product("range", ".png", lambda _, f: _png(depth_to_png_mm(f.range))),
+        Product("depth", ".png", lambda _, f: _png(depth_to_png_mm(f.depth))),
+        Product("left", ".png", lambda _, f: _png(f.left_vpc)),
+        Product("right", ".png", lambda _, f: _png(f.right_vpc)),
+        Product("cloud", ".ply", _cloud),
+        Product("preview", ".png", lambda _, f: _png(depth_preview(f.left_vpc, f.depth))),
+    )
+}
+BASE_PRODUCTS = ("range", "left", "right")
+
+
+def run_settings(pipeline: DepthPipeline, products: Sequence[str]) -> dict[str, Any]:
+    """Everything that decides the bytes of the output files (``run.json`` without the
+    recording): the tables' content keys (calibration and VPC), VPC, stereo, products."""
+    return {
+        "format": RUN_FORMAT,
+        "luts": {name: pipeline.lut_info[name].key for name in pipeline.names},
+        "vpc": pipeline.vpc_config.model_dump(mode="json"),
+        "stereo": pipeline.stereo.model_dump(mode="json"),
+        "products": list(products),
+    }
+
+
+def _differing_key(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> str | None:
+    """The first key (dotted) whose value differs between two documents, or None."""
+    for key in sorted(set(a) | set(b)):
+        va, vb = a.get(key), b.get(key)
+        if isinstance(va, dict) and isinstance(vb, dict):
+            inner = _differing_key(va, vb, f"{prefix}{key}.")
+            if inner is not None:
+                return inner
+        elif va != vb:
+            return f"{prefix}{key}"
+    return None
+
+
+class OutputLayout:
+    """The output directory ``root`` of one recording with ``products`` (names of
+    :data:`PRODUCTS`); ``fsync`` forces each file to the disk before it is named."""
+
+    def __init__(self, root: str | Path, products: Sequence[str] = BASE_PRODUCTS, *, fsync: bool = True):
+        unknown = [p for p in products if p not in PRODUCTS]
+        if unknown:
+            known = ", ".join(PRODUCTS)
+            raise ConfigError(f"unknown output product(s) {', '.join(unknown)} (known: {known})")
+        self.root = Path(root)
+        self.products = [PRODUCTS[p] for p in products]
+        self.fsync = fsync
+
+    def path(self, product: str, seq: int) -> Path:
+        return self.root / product / PRODUCTS[product].file_name(seq)
+
+    # ----- before a run ------------------------------------------------------------------------
+    def prepare(
+        self, pipeline: DepthPipeline, recording: Path, seqs: Iterable[int], *, resume: bool
+    ) -> set[int]:
+        """Make the directories and write ``vpc.json`` and ``run.json``; returns the pairs of
+        ``seqs`` already complete (``resume`` with the same settings), after removing what an
+        earlier run left for the others (see the module doc). ConfigError when ``resume`` meets a
+        ``run.json`` of other settings; OutputError/DiskFullError when the directory cannot be
+        written."""
+        seqs = list(seqs)
+        settings = run_settings(pipeline, [p.name for p in self.products])
+        try:
+            self.root.mkdir(parents=True, exist_ok=True)
+            trusted = resume and self._same_settings(settings)
+            names = self._present()
+            complete = self._complete(seqs, names) if trusted else set()
+            self._remove(set(seqs) - complete, names)
+            for product in self.products:
+                (self.root / product.name).mkdir(exist_ok=True)
+            run = {"recording": str(recording.resolve()), **settings}
+            self._write_json(VPC_FILE, pipeline.pair.as_json())
+            self._write_json(RUN_FILE, run)
+            fsync_directory(self.root)
+        except OSError as err:
+            raise self.write_error(err, self.root) from err
+        return complete
+
+    def _same_settings(self, settings: dict[str, Any]) -> bool:
+        """Whether the existing ``run.json`` names ``settings`` (False when there is none);
+        ConfigError when it names others."""
+        path = self.root / RUN_FILE
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            return False
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+            raise ConfigError(f"{path}: unreadable ({err}); rerun without --resume to start over") from err
+        earlier = {k: v for k, v in doc.items() if k != "recording"} if isinstance(doc, dict) else {}
+        key = _differing_key(earlier, settings)
+        if key is not None:
+            raise ConfigError(
+                f"{path}: the files there were made with other settings ({key} differs); rerun "
+                "without --resume to replace them, or write to another --out"
+            )
+        return True
+
+    def _present(self) -> dict[str, set[str]]:
+        """The finished file names in each product directory (every product: a run without
+        ``--ply`` still removes an earlier run's clouds of the pairs it redoes)."""
+        names: dict[str, set[str]] = {}
+        for name in PRODUCTS:
+            directory = self.root / name
+            sweep_temporaries(directory)
+            try:
+                names[name] = {e.name for e in os.scandir(directory) if not is_temporary(e.name)}
+            except FileNotFoundError:
+                names[name] = set()
+        return names
+
+    def _complete(self, seqs: Sequence[int], names: dict[str, set[str]]) -> set[int]:
+        return {s for s in seqs if all(p.file_name(s) in names[p.name] for p in self.products)}
+
+    def _remove(self, seqs: set[int], names: dict[str, set[str]]) -> None:
+        for name, present in names.items():
+            product = PRODUCTS[name]
+            for seq in seqs:
+                if product.file_name(seq) in present:
+                    (self.root / name / product.file_name(seq)).unlink(missing_ok=True)
+
+    def _write_json(self, name: str, doc: dict[str, Any]) -> None:
+        write_atomic(self.root / name, json.dumps(doc, indent=2).encode() + b"\n", fsync=self.fsync)
+
+    # ----- during and after a run --------------------------------------------------------------
+    def write(self, pipeline: DepthPipeline, frame: DepthFrame) -> None:
+        """Every product of one processed pair, each file atomically."""
+        for product in self.products:
+            data = product.encode(pipeline, frame)
+            path = self.root / product.name / product.file_name(frame.seq)
+            try:
+                write_atomic(path, data, fsync=self.fsync)
+            except OSError as err:
+                raise self.write_error(err, path) from err
+
+    def sync(self) -> None:
+        """Make the renames of the files written so far durable (once per batch of pairs)."""
+        for product in self.products:
+            fsync_directory(self.root / product.name)
+
+    def finish(self) -> None:
+        """After the last writer is done: remove any temporary a crashed writer left, sync."""
+        for product in self.products:
+            sweep_temporaries(self.root / product.name)
+        self.sync()
+
+    def write_error(self, err: OSError, where: Path) -> OutputError:
+        if err.errno in _NO_SPACE:
+            return OutputError(
+                f"{self.root}: disk full (writing {where.name}); every pair written so far is complete: "
+                "free some space and rerun with --resume"
+            )
+        return OutputError(f"{where}: cannot write output ({err.strerror or err})")
+
+
+def depth_preview(left_vpc: NDArray[Any], depth: NDArray[Any]) -> NDArray[np.uint8]:
+    """Left VPC image beside its depth in colour (turbo on log depth between the 2nd and 98th
+    percentiles: near is red, far blue; black = invalid), with that range written on it.
+    (H, 2W, 3) uint8 BGR."""
+    ok = np.isfinite(depth) & (depth > 0)
+    vis = np.zeros((*depth.shape, 3), dtype=np.uint8)
+    label = "no depth"
+    if ok.any():
+        near, far = np.percentile(depth[ok], [2.0, 98.0])
+        far = max(far, near * 1.001)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            t = (np.log(far) - np.log(np.clip(depth, near, far))) / (np.log(far) - np.log(near))
+        scaled = np.clip(np.nan_to_num(t, nan=0.0) * 255.0, 0, 255).astype(np.uint8)
+        vis = np.asarray(cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO), dtype=np.uint8)
+        vis[~ok] = 0
+        label = f"{near:.2f}-{far:.2f} m"
+    left = left_vpc if left_vpc.ndim == 3 else cv2.cvtColor(left_vpc, cv2.COLOR_GRAY2BGR)
+    out = np.hstack([left, vis])
+    cv2.putText(out, label, (left.shape[1] + 8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 2)
+    return out
