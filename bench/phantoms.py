@@ -38,6 +38,7 @@ from bench.common import (
     print_machine,
 )
 from rig.evaluate.phantoms import (
+    PHANTOM_VPC,
     SCENES,
     PhantomScene,
     PhantomStats,
@@ -147,7 +148,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     info = machine_info()
     print_machine(info, "phantom obstacles per stereo setting (shared machine: CPU figures are noisy)")
     quick = args.quick
-    vpc = VpcConfig(width=320, height=240) if quick else VpcConfig()
+    vpc = VpcConfig(width=320, height=240) if quick else PHANTOM_VPC
     scenes = [SCENES["stripes"], SCENES["low-texture"]] if quick else list(SCENES.values())
     scenes += [room_walk(i, args.room_frames) for i in range(args.room_frames)]
     candidates = QUICK if quick else CANDIDATES

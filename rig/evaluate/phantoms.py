@@ -48,8 +48,13 @@ from rig.sim.patterns import spectral_noise
 from rig.sim.rays import camera_rays
 from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
 
+#: The rectified pair the phantom rates are measured on: the paper's 640×480, 90° pinhole pair,
+#: whose depth (z) the scenes' truth is.
+PHANTOM_VPC = VpcConfig(projection="pinhole")
+
 __all__ = [
     "PHANTOM_FACTOR",
+    "PHANTOM_VPC",
     "SCENES",
     "PhantomScene",
     "PhantomShot",
@@ -163,12 +168,12 @@ def render_phantom_shot(
     which: str | PhantomScene, *, vpc: VpcConfig | None = None, supersample: int = 2, seed: int = 0
 ) -> PhantomShot:
     """A scene (or a name of :data:`SCENES`) through the ``prototype`` rig, with its sensor
-    noise (seeded) and vignetting."""
+    noise (seeded) and vignetting; by default on the 640×480 pinhole pair (:data:`PHANTOM_VPC`)."""
     spec = SCENES[which] if isinstance(which, str) else which
     name = spec.name
     preset = get_preset("prototype")
     rig = preset.rig
-    pair = design_vpc_pair(rig, vpc or VpcConfig())
+    pair = design_vpc_pair(rig, vpc or PHANTOM_VPC)
     scene = spec.build()
     images = []
     for i, cam in enumerate((pair.left, pair.right)):

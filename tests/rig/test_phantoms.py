@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rig.evaluate.phantoms import PhantomShot, PhantomStats, phantom_stats, render_phantom_shot
+from rig.evaluate.phantoms import PHANTOM_VPC, PhantomShot, PhantomStats, phantom_stats, render_phantom_shot
 from rig.pipeline import DepthPipeline
 from rig.stereo import StereoParams
 
@@ -32,7 +32,7 @@ def measured(
     shots: dict[str, PhantomShot], tmp_path_factory: pytest.TempPathFactory
 ) -> dict[str, dict[str, PhantomStats]]:
     """Stats per setting ("defaults", "before") and scene."""
-    pipe = DepthPipeline(shots[SCENES[0]].rig, cache_dir=tmp_path_factory.mktemp("lut"))
+    pipe = DepthPipeline(shots[SCENES[0]].rig, PHANTOM_VPC, cache_dir=tmp_path_factory.mktemp("lut"))
     out: dict[str, dict[str, PhantomStats]] = {}
     for label, params in (("defaults", StereoParams()), ("before", BEFORE)):
         pipe.update_stereo(params)

@@ -4,8 +4,6 @@ formats, depth against the renderer's ground truth, point cloud geometry, calibr
 from __future__ import annotations
 
 import io
-from collections.abc import Callable
-from typing import Any
 
 import cv2
 import httpx
@@ -17,19 +15,10 @@ from calibration import load_rig
 from calibration.geometry import invert_transform, transform_points
 from rig.vpc import design_vpc_pair
 from service.client import RigClient, parse_ply
-from tests.helpers.service import SMALL_SPEC, LiveServer, SmallRecording
+from tests.helpers.service import SMALL_SPEC, LiveServer, SmallRecording, same_frame
 from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.timeout(120)
-
-
-def same_frame(fetch_a: Callable[[], Any], fetch_b: Callable[[], Any], tries: int = 30) -> tuple[Any, Any]:
-    """Two responses of the same frame (the worker publishes new frames all the time)."""
-    for _ in range(tries):
-        a, b = fetch_a(), fetch_b()
-        if a.seq == b.seq:
-            return a, b
-    raise AssertionError("could not fetch two responses of one frame")
 
 
 def test_depth_headers_and_formats(shared_server: LiveServer) -> None:

@@ -339,7 +339,7 @@ def test_tenth_millimetre_depth_scale(start_server: StartServer) -> None:
     assert r.headers["X-Depth-Scale"] == "0.0001"
     ok = np.isfinite(npy.depth)
     fits = np.zeros_like(ok)
-    fits[ok] = npy.depth[ok] <= 6.55345  # 16 bits of 0.1 mm reach 6.5535 m
+    fits[ok] = np.rint(npy.depth[ok].astype(np.float64) / 0.0001) <= 65535  # 16 bits of 0.1 mm: 6.5535 m
     assert fits.any() and np.array_equal(fits, np.isfinite(png.depth))
     assert np.abs(png.depth[fits] - npy.depth[fits]).max() <= 0.00005 + 1e-6
 
