@@ -22,15 +22,17 @@ import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from rosbags.highlevel import AnyReader, AnyReaderError
-from rosbags.interfaces import Connection
 
 from rig.errors import RecordingError
 from rig.recording import PairRecord, StoredFrame
 from rig.ros.images import decode_raw_image
+
+if TYPE_CHECKING:  # rosbags loads when a bag is opened, not for every command that reads recordings
+    from rosbags.highlevel import AnyReader
+    from rosbags.interfaces import Connection
 
 __all__ = ["BAG_SUFFIXES", "BagRecording", "is_bag", "pair_stamps"]
 
@@ -42,6 +44,13 @@ _DEFAULT_PERIOD_NS = 33_333_333
 def is_bag(path: Path) -> bool:
     """A bag file by its suffix, or a ROS 2 bag directory (``metadata.yaml``)."""
     return path.suffix.lower() in BAG_SUFFIXES or (path.is_dir() and (path / "metadata.yaml").is_file())
+
+
+def _reader_errors() -> tuple[type[Exception], ...]:
+    """What a bag reader raises on a file it cannot read (rosbags' own error among them)."""
+    from rosbags.highlevel import AnyReaderError
+
+    return (AnyReaderError, OSError, ValueError, KeyError, AssertionError)
 
 
 def _stamp_ns(message: Any) -> int:
@@ -110,10 +119,12 @@ class BagRecording:
         """This thread's open reader (one per thread: readers keep a file position)."""
         reader: AnyReader | None = getattr(self._local, "reader", None)
         if reader is None:
+            from rosbags.highlevel import AnyReader
+
             try:
                 reader = AnyReader([self.root])
                 reader.open()
-            except (AnyReaderError, OSError, ValueError, KeyError) as err:
+            except _reader_errors() as err:
                 raise RecordingError(_describe_open_error(self.root, err)) from None
             self._local.reader = reader
             with self._lock:
@@ -146,7 +157,7 @@ class BagRecording:
             ):
                 msg = reader.deserialize(raw, conn.msgtype)
                 out[by_id[conn.id]].append(_Entry(_stamp_ns(msg), int(log_ns)))
-        except (AnyReaderError, OSError, ValueError, KeyError, AssertionError) as err:
+        except _reader_errors() as err:
             raise RecordingError(_describe_open_error(self.root, err)) from None
         for cam, entries in out.items():
             if not entries:
@@ -203,7 +214,7 @@ class BagRecording:
                 msg = reader.deserialize(raw, conn.msgtype)
                 if _stamp_ns(msg) == entry.stamp_ns:
                     return _stored(msg, conn.msgtype, source)
-        except (AnyReaderError, OSError, ValueError, KeyError, AssertionError) as err:
+        except _reader_errors() as err:
             raise RecordingError(f"{source}: unreadable ({err})") from None
         raise RecordingError(f"{source}: message not found")
 
