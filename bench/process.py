@@ -6,7 +6,8 @@ JPEG frames of the prototype rig in the demo room, each with fresh sensor noise)
 **Floor** — a loop over the recording doing only the bare calls of the same work, per pair: read
 both files, ``cv2.imdecode`` ×2 (``IMREAD_UNCHANGED``: colour, as ``rig process`` reads frames to
 write colour VPC images), ``cv2.remap`` ×2 with the pipeline's fixed-point maps, ``cv2.cvtColor``
-to gray ×2, ``compute`` of a ``cv2.StereoSGBM`` with the same parameters, ``cv2.divide`` of the
+to gray ×2, ``compute`` of a ``cv2.StereoSGBM`` with the same parameters (twice with ``lr_check``,
+the default: the second run on the mirrored pair, as the left-right check does), ``cv2.divide`` of the
 fixed-point disparity into uint16 millimetres of depth, and ``cv2.imwrite`` of the depth and both
 VPC images as PNG (OpenCV's default PNG settings, the encoder ``rig process`` uses too).
 
@@ -114,6 +115,7 @@ def run_floor(data: BenchInput, out: Path) -> FloorRun:
     rec, pipe = Recording(data.recording), data.pipeline
     left_lut, right_lut = (pipe.luts[n] for n in pipe.names)
     sgbm = floor_matcher(pipe.stereo)
+    mirrored = pipe.stereo.lr_check
     mm16 = 1000.0 * 16.0 * pipe.pair.fx * pipe.baseline_m  # depth in mm = this / fixed-point disparity
     for sub in ("depth", "left", "right"):
         (out / sub).mkdir(parents=True, exist_ok=True)
@@ -129,6 +131,8 @@ def run_floor(data: BenchInput, out: Path) -> FloorRun:
             views.append(cv2.remap(img, lut.map1, lut.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
         grays = [cv2.cvtColor(v, cv2.COLOR_BGR2GRAY) if v.ndim == 3 else v for v in views]
         depth = cv2.divide(mm16, sgbm.compute(grays[0], grays[1]), dtype=cv2.CV_16U)
+        if mirrored:  # the left-right check's second run, on the mirrored pair (bench.worker's floor too)
+            sgbm.compute(np.ascontiguousarray(grays[1][:, ::-1]), np.ascontiguousarray(grays[0][:, ::-1]))
         name = f"{pair.seq:06d}.png"
         cv2.imwrite(str(out / "depth" / name), depth)
         cv2.imwrite(str(out / "left" / name), views[0])

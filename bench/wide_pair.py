@@ -83,6 +83,8 @@ def measure_variant(
         lv = remap(left, left_lut.map1, left_lut.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         rv = remap(right, right_lut.map1, right_lut.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         sgbm.compute(lv, rv)
+        if stereo.lr_check:  # the left-right check's second run, on the mirrored pair
+            sgbm.compute(np.ascontiguousarray(rv[:, ::-1]), np.ascontiguousarray(lv[:, ::-1]))
 
     valid_sr: list[float] = []
     solid = pixel_solid_angles(pipeline.pair.camera)
