@@ -58,7 +58,7 @@ from bench.common import (
     print_machine,
 )
 from bench.recordings import MjpegSpec, ensure_mjpeg_recording
-from bench.worker import floor_matcher
+from bench.worker import floor_match, floor_matcher
 from calibration import load_rig
 from rig.pipeline import DepthPipeline
 from rig.process import ProcessOptions, RecordingJob, RecordingSource, process_recordings
@@ -130,9 +130,7 @@ def run_floor(data: BenchInput, out: Path) -> FloorRun:
             img = decode(np.frombuffer(data_bytes, np.uint8), cv2.IMREAD_UNCHANGED)
             views.append(cv2.remap(img, lut.map1, lut.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
         grays = [cv2.cvtColor(v, cv2.COLOR_BGR2GRAY) if v.ndim == 3 else v for v in views]
-        depth = cv2.divide(mm16, sgbm.compute(grays[0], grays[1]), dtype=cv2.CV_16U)
-        if mirrored:  # the left-right check's second run, on the mirrored pair (bench.worker's floor too)
-            sgbm.compute(np.ascontiguousarray(grays[1][:, ::-1]), np.ascontiguousarray(grays[0][:, ::-1]))
+        depth = cv2.divide(mm16, floor_match(sgbm, grays[0], grays[1], mirrored), dtype=cv2.CV_16U)
         name = f"{pair.seq:06d}.png"
         cv2.imwrite(str(out / "depth" / name), depth)
         cv2.imwrite(str(out / "left" / name), views[0])

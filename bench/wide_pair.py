@@ -39,6 +39,7 @@ from rich.table import Table
 
 from bench.common import add_common_arguments, console, finish, machine_info, median, print_machine
 from bench.recordings import MjpegSpec, ensure_mjpeg_recording, load_jpeg_pairs
+from bench.worker import floor_match
 from calibration import load_rig
 from rig.evaluate.wide_pair import REFERENCE_VARIANT, Variant, default_variants
 from rig.field import pixel_solid_angles
@@ -82,9 +83,7 @@ def measure_variant(
         left, right = frames[i % len(frames)]
         lv = remap(left, left_lut.map1, left_lut.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         rv = remap(right, right_lut.map1, right_lut.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
-        sgbm.compute(lv, rv)
-        if stereo.lr_check:  # the left-right check's second run, on the mirrored pair
-            sgbm.compute(np.ascontiguousarray(rv[:, ::-1]), np.ascontiguousarray(lv[:, ::-1]))
+        floor_match(sgbm, lv, rv, stereo.lr_check)
 
     valid_sr: list[float] = []
     solid = pixel_solid_angles(pipeline.pair.camera)

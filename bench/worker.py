@@ -104,6 +104,16 @@ def floor_matcher(params: StereoParams) -> Any:
     return create_opencv_matcher(params)
 
 
+def floor_match(sgbm: Any, left: Any, right: Any, lr_check: bool) -> Any:
+    """The bare matcher on a rectified gray pair, and with ``lr_check`` its second run on the
+    mirrored pair (the work the left-right check adds, as :class:`rig.stereo.StereoMatcher` does
+    it); the first run's fixed-point disparity."""
+    disparity = sgbm.compute(left, right)
+    if lr_check:
+        sgbm.compute(np.ascontiguousarray(right[:, ::-1]), np.ascontiguousarray(left[:, ::-1]))
+    return disparity
+
+
 def _timed_loop(pairs: list[tuple[bytes, bytes]], frames: int, step: Any) -> FloorRun:
     """``step(left_bytes, right_bytes)`` (numpy views of the JPEGs) over ``frames`` pairs, cycling
     through ``pairs``: per-frame times, frames per second and process CPU per frame."""
@@ -136,9 +146,7 @@ def run_floor(
         right = decode(br, flags)
         lv = remap(left, lm1, lm2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         rv = remap(right, rm1, rm2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        sgbm.compute(lv, rv)
-        if mirrored:  # the left-right check's second run, on the mirrored pair
-            sgbm.compute(np.ascontiguousarray(rv[:, ::-1]), np.ascontiguousarray(lv[:, ::-1]))
+        floor_match(sgbm, lv, rv, mirrored)
 
     return _timed_loop(pairs, frames, step)
 

@@ -89,6 +89,13 @@ def render_for_vpc(
     )  # fmt: skip
 
 
+def _shot_rig(scale: float, angle_deg: float, pitch_deg: float) -> Rig:
+    """The prototype rig, or a mount of another divergence or pitch."""
+    if (angle_deg, pitch_deg) == (90.0, 0.0):
+        return prototype_rig(scale)
+    return mount_rig(scale, angle_deg, pitch_deg)
+
+
 def _reference_depth(scene: Scene, camera: PinholeModel, T_world_vpc: NDArray[np.float64]) -> F32:
     return render(scene, camera, T_world_vpc, supersample=1).depth
 
@@ -108,11 +115,7 @@ def plane_shot(
     vignetting: float = 0.0,
 ) -> StereoShot:
     """The paper's target: a textured fronto-parallel plane ``k_baselines`` baselines ahead."""
-    rig = (
-        prototype_rig(scale)
-        if (angle_deg, pitch_deg) == (90.0, 0.0)
-        else mount_rig(scale, angle_deg, pitch_deg)
-    )
+    rig = _shot_rig(scale, angle_deg, pitch_deg)
     pair = design_vpc_pair(rig, vpc or PINHOLE)
     scene = plane_scene(k_baselines * rig.baseline(), texture=texture, seed=seed)
     eye = np.eye(4)
@@ -136,11 +139,7 @@ def room_shot(
     pitch_deg: float = 0.0,
 ) -> StereoShot:
     """The demo room (walls and boxes: depth edges and occlusions), rig at (x_m, 0, -0.5)."""
-    rig = (
-        prototype_rig(scale)
-        if (angle_deg, pitch_deg) == (90.0, 0.0)
-        else mount_rig(scale, angle_deg, pitch_deg)
-    )
+    rig = _shot_rig(scale, angle_deg, pitch_deg)
     pair = design_vpc_pair(rig, vpc or PINHOLE)
     scene = room_scene(seed)
     T = make_transform(np.eye(3), [x_m, 0.0, -0.5])
