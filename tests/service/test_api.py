@@ -4,6 +4,7 @@ formats, depth against the renderer's ground truth, point cloud geometry, calibr
 from __future__ import annotations
 
 import io
+from typing import Any
 
 import cv2
 import httpx
@@ -173,10 +174,14 @@ def test_config_hides_the_token(shared_server: LiveServer) -> None:
 
 
 def test_health_ok_and_contract_fields(shared_server: LiveServer) -> None:
-    r = httpx.get(shared_server.base_url + "/health")
-    assert r.status_code == 200
-    h = r.json()
-    assert h["status"] == "ok", h["reasons"]
+    # A camera thread starved on a loaded machine turns /health degraded for a second, and a
+    # server just started has no frame rate yet; the contract is about the steady state.
+    def steady() -> dict[str, Any] | None:
+        r = httpx.get(shared_server.base_url + "/health")
+        h: dict[str, Any] = r.json()
+        return h if r.status_code == 200 and h["status"] == "ok" and h["worker"]["fps"] > 0 else None
+
+    h = wait_for(steady, 20, "/health ok with frames flowing")
     for cam in ("left", "right"):
         c = h["cameras"][cam]
         assert c["connected"] is True and c["state"] == "available"
