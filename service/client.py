@@ -247,13 +247,22 @@ class RigClient:
     def config(self) -> ConfigModel:
         return ConfigModel.model_validate_json(self._request("GET", "/config").content)
 
+    def config_revision(self) -> tuple[ConfigModel, str]:
+        """The configuration and its revision (``/config``'s ETag), for a conditional
+        :meth:`patch_config` (read, decide, change only if nobody changed it meanwhile)."""
+        r = self._request("GET", "/config")
+        return ConfigModel.model_validate_json(r.content), r.headers["etag"]
+
     def metrics(self) -> str:
         return self._request("GET", "/metrics").text
 
     # ----- changing (bearer token) -------------------------------------------------------------
-    def patch_config(self, **stereo: Any) -> ConfigModel:
-        """Change stereo parameters (rig.stereo.StereoParams names); returns the new config."""
-        r = self._request("PATCH", "/config", json={"stereo": stereo})
+    def patch_config(self, *, if_match: str | None = None, **stereo: Any) -> ConfigModel:
+        """Change stereo parameters (rig.stereo.StereoParams names); returns the new config.
+        ``if_match``: a revision from :meth:`config_revision`; the change applies only to it, else
+        :class:`ApiError` 412 and nothing changed."""
+        headers = {"If-Match": if_match} if if_match is not None else {}
+        r = self._request("PATCH", "/config", json={"stereo": stereo}, headers=headers)
         return ConfigModel.model_validate_json(r.content)
 
     def start_recording(self, name: str) -> RecordingInfo:

@@ -110,6 +110,17 @@ def test_patch_config_applies_validated_stereo_params(start_server: StartServer)
         assert c.config().stereo.median == median  # failed patches changed nothing
         kept = c.patch_config(median=None)  # null = keep the current value
         assert kept.stereo.median == median
+        # A conditional change: applies to the revision read, refused (412) once it is stale.
+        config, revision = c.config_revision()
+        assert config.stereo.median == median
+        ratio = config.stereo.uniqueness_ratio
+        assert (
+            c.patch_config(if_match=revision, uniqueness_ratio=ratio + 1).stereo.uniqueness_ratio == ratio + 1
+        )
+        with pytest.raises(ApiError) as info:
+            c.patch_config(if_match=revision, uniqueness_ratio=ratio + 2)
+        assert info.value.status == 412 and "revision" in str(info.value.detail)
+        assert c.config().stereo.uniqueness_ratio == ratio + 1
     r = httpx.patch(
         live.base_url + "/config", content=b"{not json", headers={**AUTH, "content-type": "application/json"}
     )
