@@ -127,6 +127,7 @@ async function loadCalibration() {
     if (v.projection === "latlon") {
       // The wide pair: a tall image over the whole overlap, range rather than depth.
       document.body.classList.add("wide");
+      document.body.style.setProperty("--pair-aspect", String(v.width / v.height));
       $("vpc-info").textContent =
         `lat-lon pair ${v.width}×${v.height}, ${v.px_per_deg.toFixed(2)} px/deg, ${baseline}`;
       $("depth-caption").textContent =
