@@ -9,7 +9,11 @@ write colour VPC images), ``cv2.remap`` ×2 with the pipeline's fixed-point maps
 to gray ×2, ``compute`` of a ``cv2.StereoSGBM`` with the same parameters (twice with ``lr_check``,
 the default: the second run on the mirrored pair, as the left-right check does), ``cv2.divide`` of the
 fixed-point disparity into uint16 millimetres of depth, and ``cv2.imwrite`` of the depth and both
-VPC images as PNG (OpenCV's default PNG settings, the encoder ``rig process`` uses too).
+VPC images as PNG (OpenCV's default PNG settings, the encoder ``rig process`` uses too). With
+``--projection latlon`` (the product's default pair, its default 96 disparities) the floor writes
+the range instead of the depth, as ``rig process`` does for that pair: ``B·(cos α·cot δ + sin α)``
+in uint16 millimetres from the disparity δ and the column's azimuth α, in numpy (there is no
+OpenCV call for it).
 
 **Ours** — :func:`rig.process.process_recordings` in this process (what ``rig process REC --out
 DIR`` runs): the staged pipeline with the default stages (subpixel refinement, confidence, 5×5
@@ -60,6 +64,7 @@ from bench.common import (
 from bench.recordings import MjpegSpec, ensure_mjpeg_recording
 from bench.worker import floor_match, floor_matcher
 from calibration import load_rig
+from calibration.models import LatLonModel
 from rig.pipeline import DepthPipeline
 from rig.process import ProcessOptions, RecordingJob, RecordingSource, process_recordings
 from rig.recording import Recording, RecordingWriter
@@ -116,8 +121,9 @@ def run_floor(data: BenchInput, out: Path) -> FloorRun:
     left_lut, right_lut = (pipe.luts[n] for n in pipe.names)
     sgbm = floor_matcher(pipe.stereo)
     mirrored = pipe.stereo.lr_check
-    mm16 = 1000.0 * 16.0 * pipe.pair.fx * pipe.baseline_m  # depth in mm = this / fixed-point disparity
-    for sub in ("depth", "left", "right"):
+    to_mm = _floor_millimetres(pipe)
+    product = "range" if pipe.pair.projection == "latlon" else "depth"
+    for sub in (product, "left", "right"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     decode: Any = cv2.imdecode  # typed loosely: the floor is the bare calls, no checks
     times = []
@@ -130,13 +136,33 @@ def run_floor(data: BenchInput, out: Path) -> FloorRun:
             img = decode(np.frombuffer(data_bytes, np.uint8), cv2.IMREAD_UNCHANGED)
             views.append(cv2.remap(img, lut.map1, lut.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT))
         grays = [cv2.cvtColor(v, cv2.COLOR_BGR2GRAY) if v.ndim == 3 else v for v in views]
-        depth = cv2.divide(mm16, floor_match(sgbm, grays[0], grays[1], mirrored), dtype=cv2.CV_16U)
+        millimetres = to_mm(floor_match(sgbm, grays[0], grays[1], mirrored))
         name = f"{pair.seq:06d}.png"
-        cv2.imwrite(str(out / "depth" / name), depth)
+        cv2.imwrite(str(out / product / name), millimetres)
         cv2.imwrite(str(out / "left" / name), views[0])
         cv2.imwrite(str(out / "right" / name), views[1])
         times.append((time.perf_counter() - t0) * 1e3)
     return FloorRun(times, len(times) / (time.perf_counter() - t_start))
+
+
+def _floor_millimetres(pipe: DepthPipeline) -> Any:
+    """The floor's fixed-point disparity → uint16 mm: the pinhole's depth (one ``cv2.divide``) or
+    the lat-lon pair's range along the ray (per-column azimuths, in numpy); 0 = invalid."""
+    fx, baseline, camera = pipe.pair.fx, pipe.baseline_m, pipe.pair.camera
+    if not isinstance(camera, LatLonModel):
+        mm16 = 1000.0 * 16.0 * fx * baseline  # depth in mm = this / fixed-point disparity
+        return lambda fixed: cv2.divide(mm16, fixed, dtype=cv2.CV_16U)
+    azimuths = camera.azimuths()
+    cos_a = (1000.0 * baseline * np.cos(azimuths)).astype(np.float32)
+    sin_a = (1000.0 * baseline * np.sin(azimuths)).astype(np.float32)
+
+    def latlon_mm(fixed: Any) -> Any:
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            r = cos_a / np.tan(fixed * np.float32(1.0 / (16.0 * fx))) + sin_a
+        r[fixed <= 0] = 0
+        return np.clip(np.nan_to_num(r, nan=0.0, posinf=0.0), 0, 65535).astype(np.uint16)
+
+    return latlon_mm
 
 
 def run_ours(
@@ -230,16 +256,34 @@ def _windows(data: BenchInput, windows: int) -> list[tuple[FloorRun, OursRun]]:
     return out
 
 
+def _configuration(projection: str, quick: bool) -> tuple[VpcConfig, StereoParams, list[str]]:
+    """The measured pair, its stereo parameters and the ``rig process`` options that choose it."""
+    if projection == "latlon":
+        stereo = StereoParams(disparity_range=32) if quick else StereoParams()
+        return (
+            VpcConfig(px_per_deg=1.5) if quick else VpcConfig(),
+            stereo,
+            ["--projection", "latlon"] + (["--px-per-deg", "1.5"] if quick else []),
+        )
+    w, h, disp = (160, 120, 32) if quick else (640, 480, 128)
+    return VpcConfig(width=w, height=h), StereoParams(disparity_range=disp), ["--vpc-size", f"{w}x{h}"]
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(prog="python -m bench.process", description=__doc__.split("\n\n")[0])
     add_common_arguments(parser)
     parser.add_argument("--pairs", type=int, default=None, help="pairs in the recording")
     parser.add_argument("--windows", type=int, default=None, help="floor / ours window pairs")
+    parser.add_argument(
+        "--projection",
+        choices=("pinhole", "latlon"),
+        default="pinhole",
+        help="the rectified pair: the pinhole pair (640×480, 128 disparities) or the default lat-lon pair",
+    )
     args = parser.parse_args(argv)
     quick = args.quick
     spec = MjpegSpec(frames=4, views=1, scale=0.25) if quick else MjpegSpec(frames=args.pairs or 24)
-    w, h, disp = (160, 120, 32) if quick else (640, 480, 128)
-    vpc, stereo = VpcConfig(width=w, height=h), StereoParams(disparity_range=disp)
+    vpc, stereo, vpc_args = _configuration(args.projection, quick)
     windows = args.windows or (2 if quick else 8)
     repeat = args.repeat or (1 if quick else 5)
     info = machine_info()
@@ -248,20 +292,23 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         prefix="rig-bench-process-", dir=os.environ.get("RIG_BENCH_SCRATCH")
     ) as tmp:
         data = bench_input(spec, vpc, stereo, Path(tmp))
+        cam = data.pipeline.pair.camera
+        w, h, disp = cam.width, cam.height, stereo.disparity_range
+        label = f"{'lat-lon ' if data.pipeline.pair.projection == 'latlon' else ''}{w}×{h}"
         console.print(
-            f"input: {data.recording} ({data.pairs} pairs, colour JPEG q{spec.quality}); VPC {w}×{h}, "
+            f"input: {data.recording} ({data.pairs} pairs, colour JPEG q{spec.quality}); VPC {label}, "
             f"{disp} disparities; {windows} alternating window pairs, one run over the recording each"
         )
         run_floor(data, data.scratch / "warm")  # page cache, encoder and matcher warm for both
         pairs = _windows(data, windows)
         stereo_file = data.scratch / "stereo.yaml"
         stereo_file.write_text(f"disparity_range: {disp}\n")
-        vpc_args = ["--vpc-size", f"{w}x{h}"]
         start = startup_figures(data, vpc_args, stereo_file, repeat)
     ratios = [o.pairs_per_s / f.pairs_per_s for f, o in pairs]
     floor_ms = median(median(f.pair_ms) for f, _ in pairs)
     row = {
         "vpc": [w, h],
+        "projection": data.pipeline.pair.projection,
         "disparities": disp,
         "pairs": data.pairs,
         "floor_ms_per_pair": floor_ms,
@@ -294,7 +341,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         table.add_column(col, justify="right")
     q1, q3 = row["throughput_ratio_iqr"]
     table.add_row(
-        f"{w}×{h}",
+        label,
         str(disp),
         f"{floor_ms:.1f}",
         f"{row['floor_pairs_per_s']:.2f}",

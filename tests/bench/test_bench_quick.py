@@ -13,6 +13,7 @@ import pytest
 
 from bench import api_load, dask_scale, hostile, lut_build, memory, process, rectification, startup, worker
 from calibration.models import MODELS, KannalaBrandtModel
+from rig.depth import latlon_range
 from rig.sim import get_preset
 
 
@@ -64,6 +65,32 @@ def test_process_bench_compares_rig_process_with_the_floor(bench_env: Path, tmp_
     assert min(ratios) <= q1 <= row["throughput_ratio"] <= q3 <= max(ratios)
     start = row["startup"]
     assert 0 < start["python"] < start["one_pair"] and start["help"] > 0 and start["imports"] > 0
+
+
+def test_process_bench_runs_the_lat_lon_pair_and_its_floor_writes_the_range(
+    bench_env: Path, tmp_path: Path
+) -> None:
+    doc = _written(
+        tmp_path / "p.json",
+        process.main(["--quick", "--projection", "latlon", "--json", str(tmp_path / "p.json")]),
+    )
+    (row,) = doc["rows"]
+    assert row["projection"] == "latlon" and row["failures"] == 0 and row["ours_pairs_per_s"] > 0
+    # The floor's range (uint16 mm) is the pipeline's formula on the same disparity.
+    pipe = process.bench_input(
+        process.MjpegSpec(frames=4, views=1, scale=0.25),
+        *process._configuration("latlon", True)[:2],
+        tmp_path,
+    ).pipeline
+    cam = pipe.pair.camera
+    rng = np.random.default_rng(1)
+    fixed = rng.integers(-16, 16 * 32, size=(cam.height, cam.width)).astype(np.int16)
+    floor_mm = process._floor_millimetres(pipe)(fixed)
+    ours_m = latlon_range(np.where(fixed > 0, fixed / 16.0, np.nan).astype(np.float32), cam, pipe.baseline_m)
+    ours_mm = np.where(np.isfinite(ours_m) & (ours_m * 1000 < 65535), np.rint(ours_m * 1000), -1)
+    both = (floor_mm > 0) & (ours_mm > 0)
+    assert both.mean() > 0.8 and np.abs(floor_mm[both] - ours_mm[both]).max() <= 1
+    assert not (floor_mm[fixed <= 0]).any()
 
 
 @pytest.mark.slow
