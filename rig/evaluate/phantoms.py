@@ -153,27 +153,36 @@ class PhantomShot:
 
 
 def truth_depth(scene: Scene, pair: VpcPair, T_world_rig: F64) -> F32:
-    """z of the nearest surface in the left VPC frame, per VPC pixel (NaN: none)."""
+    """What the pair's depth map holds for the nearest surface, per rectified pixel (NaN: none):
+    z in the left VPC frame for a pinhole pair, the range along the ray for a lat-lon pair."""
     T = T_world_rig @ pair.T_rig_vpc[pair.left]
     cam = pair.camera
     u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
     rays, ok = camera_rays(cam, np.stack([u.ravel(), v.ravel()], axis=1))
     depth = np.full(u.size, np.nan)
     hits = scene.intersect(T[:3, 3], rays[ok] @ T[:3, :3].T)
-    depth[ok] = np.where(hits.rect_index >= 0, hits.t * rays[ok][:, 2], np.nan)
+    along = hits.t if pair.projection == "latlon" else hits.t * rays[ok][:, 2]  # unit rays
+    depth[ok] = np.where(hits.rect_index >= 0, along, np.nan)
     return depth.reshape(u.shape).astype(np.float32)
 
 
 def render_phantom_shot(
-    which: str | PhantomScene, *, vpc: VpcConfig | None = None, supersample: int = 2, seed: int = 0
+    which: str | PhantomScene,
+    *,
+    vpc: VpcConfig | None = None,
+    blind_band_px: int = 0,
+    supersample: int = 2,
+    seed: int = 0,
 ) -> PhantomShot:
     """A scene (or a name of :data:`SCENES`) through the ``prototype`` rig, with its sensor
-    noise (seeded) and vignetting; by default on the 640×480 pinhole pair (:data:`PHANTOM_VPC`)."""
+    noise (seeded) and vignetting; by default on the 640×480 pinhole pair (:data:`PHANTOM_VPC`).
+    ``blind_band_px``: the matcher's unmatched columns, which a lat-lon pair's default field
+    adds (the pipeline's pair for those stereo parameters)."""
     spec = SCENES[which] if isinstance(which, str) else which
     name = spec.name
     preset = get_preset("prototype")
     rig = preset.rig
-    pair = design_vpc_pair(rig, vpc or PHANTOM_VPC)
+    pair = design_vpc_pair(rig, vpc or PHANTOM_VPC, blind_band_px=blind_band_px)
     scene = spec.build()
     images = []
     for i, cam in enumerate((pair.left, pair.right)):
