@@ -32,7 +32,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calibration.geometry import make_transform, rot_y
+from calibration.models import PinholeModel
 from calibration.rig import Rig
+from rig.depth import pixel_ray_norms
 from rig.evaluate.renders import lut_box, render_in_box
 from rig.lut import build_vpc_lut
 from rig.sim import (
@@ -45,7 +47,7 @@ from rig.sim import (
     room_scene,
 )
 from rig.sim.patterns import spectral_noise
-from rig.sim.rays import camera_rays
+from rig.sim.render import render_range
 from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
 
 #: The rectified pair the phantom rates are measured on: the paper's 640×480, 90° pinhole pair,
@@ -155,15 +157,10 @@ class PhantomShot:
 def truth_depth(scene: Scene, pair: VpcPair, T_world_rig: F64) -> F32:
     """What the pair's depth map holds for the nearest surface, per rectified pixel (NaN: none):
     z in the left VPC frame for a pinhole pair, the range along the ray for a lat-lon pair."""
-    T = T_world_rig @ pair.T_rig_vpc[pair.left]
-    cam = pair.camera
-    u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
-    rays, ok = camera_rays(cam, np.stack([u.ravel(), v.ravel()], axis=1))
-    depth = np.full(u.size, np.nan)
-    hits = scene.intersect(T[:3, 3], rays[ok] @ T[:3, :3].T)
-    along = hits.t if pair.projection == "latlon" else hits.t * rays[ok][:, 2]  # unit rays
-    depth[ok] = np.where(hits.rect_index >= 0, along, np.nan)
-    return depth.reshape(u.shape).astype(np.float32)
+    distance, _ = render_range(scene, pair.camera, T_world_rig @ pair.T_rig_vpc[pair.left])
+    if isinstance(pair.camera, PinholeModel):
+        return np.asarray(distance / pixel_ray_norms(pair.camera), dtype=np.float32)
+    return distance
 
 
 def render_phantom_shot(
