@@ -13,7 +13,7 @@ import pytest
 
 from bench import api_load, dask_scale, hostile, lut_build, memory, process, rectification, startup, worker
 from calibration.models import MODELS, KannalaBrandtModel
-from rig.depth import latlon_range
+from rig.depth import depth_to_png_mm, latlon_range
 from rig.sim import get_preset
 
 
@@ -87,9 +87,9 @@ def test_process_bench_runs_the_lat_lon_pair_and_its_floor_writes_the_range(
     fixed = rng.integers(-16, 16 * 32, size=(cam.height, cam.width)).astype(np.int16)
     floor_mm = process._floor_millimetres(pipe)(fixed)
     ours_m = latlon_range(np.where(fixed > 0, fixed / 16.0, np.nan).astype(np.float32), cam, pipe.baseline_m)
-    ours_mm = np.where(np.isfinite(ours_m) & (ours_m * 1000 < 65535), np.rint(ours_m * 1000), -1)
+    ours_mm = depth_to_png_mm(ours_m).astype(np.int64)  # 0: invalid or beyond 65.535 m
     both = (floor_mm > 0) & (ours_mm > 0)
-    assert both.mean() > 0.8 and np.abs(floor_mm[both] - ours_mm[both]).max() <= 1
+    assert both.mean() > 0.8 and np.abs(floor_mm[both].astype(np.int64) - ours_mm[both]).max() <= 1
     assert not (floor_mm[fixed <= 0]).any()
 
 
