@@ -7,8 +7,9 @@ calls the depth needs: ``cv2.imdecode`` ×2 to gray (what :attr:`rig.capture.fra
 the worker's decode, does: depth needs only luma), ``cv2.remap`` ×2 with the pipeline's own
 fixed-point maps, and ``compute`` of a ``cv2.StereoSGBM`` built with the same parameters
 (checked to give the identical disparity as the pipeline's matcher), run a second time on the
-mirrored pair when the left-right check is on (``lr_check``, a default). Per-frame time = one
-iteration; throughput = frames / time.
+mirrored pair when the left-right check is on (``lr_check``, a default), both on the whole image
+(ours' second run matches only the columns the right lens sees, :class:`rig.stereo.SeenColumns`).
+Per-frame time = one iteration; throughput = frames / time.
 
 **Ours** — the service itself minus HTTP: :meth:`service.runtime.Runtime.build` on settings whose
 cameras are file cameras replaying the recording (``FileCamera`` → ``StereoCapture`` →

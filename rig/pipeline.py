@@ -41,7 +41,7 @@ from rig.finish import FinishStage
 from rig.heap import tune_allocator
 from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
-from rig.stereo import MatchedDisparity, StereoMatcher, StereoParams, UnfilteredDisparity
+from rig.stereo import MatchedDisparity, SeenColumns, StereoMatcher, StereoParams, UnfilteredDisparity
 from rig.vpc import RectifiedCamera, VpcConfig, VpcPair, design_vpc_pair
 
 __all__ = ["DepthFrame", "DepthPipeline", "MatchedPair", "RectifiedPair", "VpcGeometry", "tune_allocator"]
@@ -79,14 +79,16 @@ class DepthFrame:
 @dataclass(frozen=True)
 class VpcGeometry:
     """What the calibration fixes for the depth pipeline: the rig, its VPC pair, one lookup table
-    per camera (and where it came from) and the masks the finish stage applies (None where a
-    table sees its whole VPC)."""
+    per camera (and where it came from), the masks the finish stage applies (None where a
+    table sees its whole VPC) and the columns each lens sees, which bound the matching (None:
+    all of them)."""
 
     rig: Rig
     pair: VpcPair
     lut_info: dict[str, CachedLut]
     left_mask: NDArray[np.bool_] | None
     right_mask: NDArray[np.bool_] | None
+    seen: SeenColumns | None = None
 
     @property
     def luts(self) -> dict[str, Lut]:
@@ -118,12 +120,14 @@ class VpcGeometry:
             for n in (pair.left, pair.right)
         }
         left, right = info[pair.left].lut, info[pair.right].lut
+        whole = left.valid_fraction == 1.0 and right.valid_fraction == 1.0
         return cls(
             rig,
             pair,
             info,
             None if left.valid_fraction == 1.0 else left.valid,
             None if right.valid_fraction == 1.0 else right.valid,
+            None if whole else SeenColumns.of(left.valid, right.valid),
         )
 
 
@@ -374,8 +378,9 @@ class DepthPipeline:
         with self._match_lock:
             with self._swap_lock:
                 matcher = self._matcher
+            seen = (rect.geometry or self._geometry).seen
             t0 = time.perf_counter()
-            unfiltered = matcher.compute(rect.left_gray, rect.right_gray)
+            unfiltered = matcher.compute(rect.left_gray, rect.right_gray, seen)
             return MatchedPair(rect, matcher, unfiltered, (time.perf_counter() - t0) * 1e3)
 
     def _disparity(self, matched: MatchedPair) -> MatchedDisparity:

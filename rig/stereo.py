@@ -33,6 +33,7 @@ from rig.settings_model import SettingsModel
 __all__ = [
     "SGBM_MODES",
     "MatchedDisparity",
+    "SeenColumns",
     "StereoMatcher",
     "StereoParams",
     "UnfilteredDisparity",
@@ -140,15 +141,37 @@ class MatchedDisparity:
     valid: NDArray[np.bool_]
 
 
+@dataclass(frozen=True)
+class SeenColumns:
+    """The columns ``[start, stop)`` of each rectified image that its lens sees on at least one
+    row (a lat-lon field's corners are outside a lens). The matcher never matches a reference
+    pixel outside them, so it leaves out the columns that only serve those pixels."""
+
+    left: tuple[int, int]
+    right: tuple[int, int]
+
+    @classmethod
+    def of(cls, left_valid: NDArray[np.bool_], right_valid: NDArray[np.bool_]) -> SeenColumns:
+        """From the two lookup tables' validity masks (H, W)."""
+        return cls(_span(left_valid), _span(right_valid))
+
+
+def _span(valid: NDArray[np.bool_]) -> tuple[int, int]:
+    cols = np.flatnonzero(valid.any(axis=0))
+    return (int(cols[0]), int(cols[-1]) + 1) if cols.size else (0, 0)
+
+
 @dataclass
 class UnfilteredDisparity:
     """OpenCV's fixed-point disparities of one pair (1/16 px, int16) before the speckle removal:
-    the left view's (H, W) and, with ``lr_check``, the mirrored pair's (H, W), still mirrored.
-    Made by :meth:`StereoMatcher.compute`, turned into a :class:`MatchedDisparity` by
-    :meth:`StereoMatcher.finish`."""
+    the left view's (H, W) and, with ``lr_check``, the mirrored pair's (H, W), still mirrored;
+    ``right_unsearched_from``: the right image's columns from this one on have no right-view
+    disparity (the mirrored run's unmatched band). Made by :meth:`StereoMatcher.compute`,
+    turned into a :class:`MatchedDisparity` by :meth:`StereoMatcher.finish`."""
 
     left: NDArray[np.int16]
     mirrored: NDArray[np.int16] | None = None
+    right_unsearched_from: int = 0
 
 
 def create_opencv_matcher(p: StereoParams) -> Any:
@@ -221,12 +244,39 @@ class StereoMatcher:
                 f"{self.params.disparity_range} + min_disparity {self.params.min_disparity}"
             )
 
-    def compute(self, left: U8, right: U8) -> UnfilteredDisparity:
+    def compute(self, left: U8, right: U8, seen: SeenColumns | None = None) -> UnfilteredDisparity:
         """The OpenCV matcher on gray images (H, W) uint8 (and on the mirrored pair with
-        ``lr_check``), speckles not yet removed."""
+        ``lr_check``), speckles not yet removed. With ``seen``, each run matches only the
+        columns its reference lens sees (and those their matches and windows need); the
+        others are invalid."""
         self._check(left, right)
-        mirrored = self._compute_mirrored(left, right) if self.params.lr_check else None
-        return UnfilteredDisparity(self._compute(left, right), mirrored)
+        width = left.shape[1]
+        mirrored, unsearched = None, width
+        if self.params.lr_check:
+            # In mirrored images the right view becomes the reference: its seen columns, mirrored.
+            span = (width - seen.right[1], width - seen.right[0]) if seen else (0, width)
+            mirrored, start = self._compute_columns(
+                np.ascontiguousarray(right[:, ::-1]), np.ascontiguousarray(left[:, ::-1]), span
+            )
+            unsearched = width - start - self.params.blind_band_px
+        left_disp, _ = self._compute_columns(left, right, seen.left if seen else (0, width))
+        return UnfilteredDisparity(left_disp, mirrored, unsearched)
+
+    def _compute_columns(self, ref: U8, other: U8, seen: tuple[int, int]) -> tuple[NDArray[np.int16], int]:
+        """The matcher on the columns of ``ref`` from ``seen[0]`` to ``seen[1]`` (and the ones
+        their matches and windows reach), pasted into a full-size disparity that is invalid
+        elsewhere; and the first column the crop starts at. Cost grows with the columns
+        matched, and a lat-lon pair's right lens sees none of its leftmost ones."""
+        p = self.params
+        width = ref.shape[1]
+        margin = p.correlation_window_size // 2 + 1  # the window and the pixel cost's neighbour
+        c0 = max(0, seen[0] - p.blind_band_px - margin)
+        c1 = min(width, seen[1] + margin)
+        if (c0, c1) == (0, width) or c1 - c0 <= p.blind_band_px + margin:
+            return self._compute(ref, other), 0
+        out = np.full(ref.shape, (p.min_disparity - 1) * 16, dtype=np.int16)
+        out[:, c0:c1] = self._compute(ref[:, c0:c1], other[:, c0:c1])
+        return out, c0
 
     def _compute_mirrored(self, left: U8, right: U8) -> NDArray[np.int16]:
         # In mirrored images the right view becomes the reference.
@@ -258,7 +308,7 @@ class StereoMatcher:
             right_disp = self._right_from_mirrored(unfiltered.mirrored)
             # Mirrored, the right view's unmatched band (the first min + range columns) is on
             # the right: no evidence there.
-            blind = fixed.shape[1] - (self.params.min_disparity + self.params.disparity_range)
+            blind = unfiltered.right_unsearched_from
             valid &= left_right_consistent(disp, valid, right_disp, self.params.lr_max_diff, blind)
         # OpenCV's masked copy: numpy's boolean assignment branches per pixel (~6 ms on a
         # 1280×960 frame against ~0.3), and this is on every frame's critical path.

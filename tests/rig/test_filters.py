@@ -46,6 +46,31 @@ def test_lr_consistency_on_constructed_disparities() -> None:
     assert left_right_consistent(left, valid, right, 4.5)[:, 25:30].all()
 
 
+def test_lr_consistency_agrees_with_a_numpy_lookup() -> None:
+    # Disparities in 1/16 px put many matches exactly half-way between two columns: OpenCV's
+    # nearest-neighbour lookup must round those like np.rint and clip at the borders.
+    rng = np.random.default_rng(7)
+    h, w = 50, 120
+    left = (rng.integers(-16, 60 * 16, (h, w)) / 16.0).astype(np.float32)
+    valid = rng.random((h, w)) > 0.2
+    right = (rng.integers(0, 60 * 16, (h, w)) / 16.0).astype(np.float32)
+    right[rng.random((h, w)) < 0.1] = np.nan
+    x = np.arange(w, dtype=np.float32)[None, :]
+    cols = np.rint(x - np.where(valid, left, 0.0))
+    at = np.take_along_axis(right, np.clip(cols, 0, w - 1).astype(np.intp), axis=1)
+    with np.errstate(invalid="ignore"):
+        agree = (np.abs(left - at) <= 2.0) | (cols >= 90)
+    expected = valid & agree & (x - np.where(valid, left, 0.0) >= -0.5)
+    got = left_right_consistent(left, valid, right, 2.0, right_blind_from=90)
+    assert 0.01 < expected.mean() < 0.99
+    np.testing.assert_array_equal(got, expected)
+    seen = rng.random((h, w)) > 0.3
+    np.testing.assert_array_equal(
+        visible_in_right(left, valid, seen),
+        valid & np.take_along_axis(seen, np.clip(cols, 0, w - 1).astype(np.intp), axis=1),
+    )
+
+
 def test_visible_in_right_uses_the_right_lut_mask() -> None:
     disp = np.full((3, 30), 10.0, dtype=np.float32)
     right_ok = np.ones((3, 30), dtype=bool)

@@ -15,7 +15,7 @@ from pydantic import ValidationError
 
 from rig.errors import PipelineError
 from rig.filters import left_right_consistent
-from rig.stereo import SGBM_MODES, StereoMatcher, StereoParams, create_opencv_matcher
+from rig.stereo import SGBM_MODES, SeenColumns, StereoMatcher, StereoParams, create_opencv_matcher
 from rig.subpixel import confidence_from_sigma, refine_disparity, refine_rows, refinement_inputs
 
 U8 = NDArray[np.uint8]
@@ -195,6 +195,39 @@ def test_speckles_removed_after_compute_are_the_bare_matchers(stereo: dict[str, 
     np.testing.assert_array_equal(res.valid, valid)
     np.testing.assert_array_equal(res.disparity[valid], disparity[valid])
     assert np.isnan(res.disparity[~valid]).all()
+
+
+def test_matching_only_the_seen_columns() -> None:
+    # The right lens sees nothing left of column 60: the mirrored run leaves those columns (and
+    # the ones only they need) out, and gives the whole image's right disparity elsewhere.
+    left, right = shifted_pair(17.6, w=240)
+    params = StereoParams(disparity_range=64)
+    matcher = StereoMatcher(params)
+    whole = matcher.compute(left, right)
+    seen = SeenColumns(left=(0, 240), right=(60, 240))
+    cropped = matcher.compute(left, right, seen)
+    np.testing.assert_array_equal(cropped.left, whole.left)  # the left lens sees every column
+    assert cropped.mirrored is not None and whole.mirrored is not None
+    invalid = (params.min_disparity - 1) * 16
+    margin = params.correlation_window_size // 2 + 1
+    # Mirrored, original column x is 239 - x: left of column 60 - margin nothing was matched.
+    assert (cropped.mirrored[:, 240 - 60 + margin :] == invalid).all()
+    assert (whole.mirrored[:, 240 - 60 + margin :] != invalid).mean() > 0.9, "nothing to leave out"
+    seen_part = (slice(10, -10), slice(64, 240 - 60))  # mirrored columns of x in [60, 176)
+    same = cropped.mirrored[seen_part] == whole.mirrored[seen_part]
+    assert same.mean() > 0.97, f"{same.mean():.4f}"
+    close = np.abs(cropped.mirrored[seen_part].astype(int) - whole.mirrored[seen_part]) <= 16
+    assert close.mean() > 0.999
+    assert cropped.right_unsearched_from == whole.right_unsearched_from == 240 - 64
+    # A lens that sees every column: the whole image, bit for bit.
+    full = matcher.compute(left, right, SeenColumns(left=(0, 240), right=(0, 240)))
+    assert full.mirrored is not None
+    np.testing.assert_array_equal(full.mirrored, whole.mirrored)
+    # Masks to spans: the first and past-the-last column any row sees.
+    valid = np.zeros((5, 240), dtype=bool)
+    valid[2, 30:200] = True
+    valid[4, 25:90] = True
+    assert SeenColumns.of(valid, np.zeros_like(valid)) == SeenColumns(left=(25, 200), right=(0, 0))
 
 
 def test_matcher_rejects_bad_images() -> None:
