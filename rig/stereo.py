@@ -270,8 +270,10 @@ class StereoMatcher:
         p = self.params
         width = ref.shape[1]
         margin = p.correlation_window_size // 2 + 1  # the window and the pixel cost's neighbour
+        # A reference column x is matched against x - d for d in [min, min + range): the crop
+        # reaches that far either side (a negative min_disparity looks right of x).
         c0 = max(0, seen[0] - p.blind_band_px - margin)
-        c1 = min(width, seen[1] + margin)
+        c1 = min(width, seen[1] + margin + max(0, -p.min_disparity))
         if (c0, c1) == (0, width) or c1 - c0 <= p.blind_band_px + margin:
             return self._compute(ref, other), 0
         out = np.full(ref.shape, (p.min_disparity - 1) * 16, dtype=np.int16)
