@@ -269,7 +269,9 @@ class StereoMatcher:
         matched, and a lat-lon pair's right lens sees none of its leftmost ones."""
         p = self.params
         width = ref.shape[1]
-        margin = p.correlation_window_size // 2 + 1  # the window and the pixel cost's neighbour
+        # The window and the pixel cost's neighbour (BM: its prefilter's window too).
+        window = max(p.correlation_window_size, p.prefilter_size if p.stereo_algorithm == 0 else 0)
+        margin = window // 2 + 1
         # A reference column x is matched against x - d for d in [min, min + range): the crop
         # reaches that far either side (a negative min_disparity looks right of x).
         c0 = max(0, seen[0] - p.blind_band_px - margin)

@@ -197,12 +197,14 @@ def test_speckles_removed_after_compute_are_the_bare_matchers(stereo: dict[str, 
     assert np.isnan(res.disparity[~valid]).all()
 
 
-@pytest.mark.parametrize("min_disparity", [0, -8])
-def test_matching_only_the_seen_columns(min_disparity: int) -> None:
+@pytest.mark.parametrize(
+    "stereo", [{}, {"min_disparity": -8}, {"stereo_algorithm": 0}], ids=["sgbm", "negative-min", "bm"]
+)
+def test_matching_only_the_seen_columns(stereo: dict[str, int]) -> None:
     # The right lens sees nothing left of column 60: the mirrored run leaves those columns (and
     # the ones only they need) out, and gives the whole image's right disparity elsewhere.
     left, right = shifted_pair(17.6, w=240)
-    params = StereoParams(disparity_range=64, min_disparity=min_disparity)
+    params = StereoParams(disparity_range=64, **stereo)
     matcher = StereoMatcher(params)
     whole = matcher.compute(left, right)
     seen = SeenColumns(left=(0, 240), right=(60, 240))
@@ -210,7 +212,9 @@ def test_matching_only_the_seen_columns(min_disparity: int) -> None:
     np.testing.assert_array_equal(cropped.left, whole.left)  # the left lens sees every column
     assert cropped.mirrored is not None and whole.mirrored is not None
     invalid = (params.min_disparity - 1) * 16
-    margin = params.correlation_window_size // 2 + 1
+    margin = (
+        max(params.correlation_window_size, params.prefilter_size * (params.stereo_algorithm == 0)) // 2 + 1
+    )
     # Mirrored, original column x is 239 - x: left of column 60 - margin nothing was matched.
     assert (cropped.mirrored[:, 240 - 60 + margin :] == invalid).all()
     assert (whole.mirrored[:, 240 - 60 + margin :] != invalid).mean() > 0.8, "nothing to leave out"
