@@ -7,6 +7,7 @@ Speckle removal is the matcher's own (``speckle_size``/``speckle_range``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TypeVar
 
 import cv2
@@ -27,22 +28,34 @@ Mask = NDArray[np.bool_]
 _Pixel = TypeVar("_Pixel", np.uint8, np.float32)
 
 
-# Constant images for fill_where by the value's bit pattern (so that NaN is a key like any
-# other), grown to the largest size asked for; smaller ones are views of them.
-_constants: dict[int, F32] = {}
+# Read-only images the filters reuse on every frame (constants for fill_where, keyed by the
+# value's bit pattern so that NaN is a key like any other; row indices for cv2.remap), each grown
+# to the largest size asked for; smaller ones are views of them.
+_images: dict[object, F32] = {}
+
+
+def _reused_image(key: object, shape: tuple[int, ...], make: Callable[[tuple[int, int]], F32]) -> F32:
+    """``make(size)`` cached under ``key`` and kept read-only, viewed at ``shape`` (H, W)."""
+    h, w = shape
+    img = _images.get(key)
+    if img is None or img.shape[0] < h or img.shape[1] < w:
+        img = make((h, w) if img is None else (max(h, img.shape[0]), max(w, img.shape[1])))
+        img.flags.writeable = False
+        _images[key] = img  # threads racing here each make one: harmless
+    return img[:h, :w]
 
 
 def _constant_image(shape: tuple[int, ...], value: float) -> F32:
     """A read-only float32 image of ``value`` and ``shape`` (H, W)."""
-    h, w = shape
     bits = int(np.float32(value).view(np.uint32))
-    img = _constants.get(bits)
-    if img is None or img.shape[0] < h or img.shape[1] < w:
-        size = (h, w) if img is None else (max(h, img.shape[0]), max(w, img.shape[1]))
-        img = np.full(size, bits, dtype=np.uint32).view(np.float32)
-        img.flags.writeable = False
-        _constants[bits] = img  # threads racing here each make one: harmless
-    return img[:h, :w]
+    return _reused_image(bits, shape, lambda size: np.full(size, bits, dtype=np.uint32).view(np.float32))
+
+
+def _row_map(shape: tuple[int, ...]) -> F32:
+    """Each pixel's row index, float32 (H, W): the y map of a remap along rows."""
+    return _reused_image(
+        "rows", shape, lambda size: np.repeat(np.arange(size[0], dtype=np.float32)[:, None], size[1], axis=1)
+    )
 
 
 def copy_where(dst: F32, src: F32, where: Mask) -> None:
@@ -59,22 +72,6 @@ def fill_where(dst: F32, value: float, where: Mask) -> None:
     """``dst[where] = value`` in place for (H, W) float32 ``dst`` (:func:`copy_where` from a
     cached constant image)."""
     copy_where(dst, _constant_image(dst.shape, value), where)
-
-
-# Row indices as float32 maps for cv2.remap, grown to the largest size asked for (like
-# _constants); smaller ones are views.
-_row_maps: dict[str, F32] = {}
-
-
-def _row_map(shape: tuple[int, ...]) -> F32:
-    h, w = shape
-    rows = _row_maps.get("rows")
-    if rows is None or rows.shape[0] < h or rows.shape[1] < w:
-        size = (h, w) if rows is None else (max(h, rows.shape[0]), max(w, rows.shape[1]))
-        rows = np.repeat(np.arange(size[0], dtype=np.float32)[:, None], size[1], axis=1)
-        rows.flags.writeable = False
-        _row_maps["rows"] = rows
-    return rows[:h, :w]
 
 
 def _match_columns(disparity: F32, valid: Mask) -> F32:

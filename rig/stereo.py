@@ -253,11 +253,7 @@ class StereoMatcher:
         width = left.shape[1]
         mirrored, unsearched = None, width
         if self.params.lr_check:
-            # In mirrored images the right view becomes the reference: its seen columns, mirrored.
-            span = (width - seen.right[1], width - seen.right[0]) if seen else (0, width)
-            mirrored, start = self._compute_columns(
-                np.ascontiguousarray(right[:, ::-1]), np.ascontiguousarray(left[:, ::-1]), span
-            )
+            mirrored, start = self._compute_mirrored(left, right, seen.right if seen else (0, width))
             unsearched = width - start - self.params.blind_band_px
         left_disp, _ = self._compute_columns(left, right, seen.left if seen else (0, width))
         return UnfilteredDisparity(left_disp, mirrored, unsearched)
@@ -282,9 +278,15 @@ class StereoMatcher:
         out[:, c0:c1] = self._compute(ref[:, c0:c1], other[:, c0:c1])
         return out, c0
 
-    def _compute_mirrored(self, left: U8, right: U8) -> NDArray[np.int16]:
-        # In mirrored images the right view becomes the reference.
-        return self._compute(np.ascontiguousarray(right[:, ::-1]), np.ascontiguousarray(left[:, ::-1]))
+    def _compute_mirrored(self, left: U8, right: U8, seen: tuple[int, int]) -> tuple[NDArray[np.int16], int]:
+        """:meth:`_compute_columns` on the mirrored pair, where the right view becomes the
+        reference: ``seen`` are the right image's seen columns, mirrored here."""
+        width = left.shape[1]
+        return self._compute_columns(
+            np.ascontiguousarray(right[:, ::-1]),
+            np.ascontiguousarray(left[:, ::-1]),
+            (width - seen[1], width - seen[0]),
+        )
 
     def remove_speckles(self, fixed: NDArray[np.int16]) -> None:
         """OpenCV's speckle removal on a fixed-point disparity (H, W) int16 from :meth:`compute`,
@@ -341,4 +343,5 @@ class StereoMatcher:
         """Disparity of the right image (H, W) float32 px (NaN invalid), by matching the
         mirrored pair: in mirrored images the right view becomes the reference."""
         self._check(left, right)
-        return self._right_from_mirrored(self._compute_mirrored(left, right))
+        mirrored, _ = self._compute_mirrored(left, right, (0, left.shape[1]))
+        return self._right_from_mirrored(mirrored)
