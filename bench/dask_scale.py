@@ -43,8 +43,8 @@ from bench.common import (
 from bench.process import bench_input, run_ours
 from bench.recordings import MjpegSpec
 from rig.cluster import local_cluster
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
 
 __all__ = ["main"]
 
@@ -92,7 +92,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(
         prefix="rig-bench-dask-", dir=os.environ.get("RIG_BENCH_SCRATCH")
     ) as tmp:
-        data = bench_input(spec, VpcConfig(width=w, height=h), StereoParams(disparity_range=disp), Path(tmp))
+        data = bench_input(
+            spec, RectifiedPairConfig(width=w, height=h), StereoParams(disparity_range=disp), Path(tmp)
+        )
         recs = Path(tmp) / "recs"
         recs.mkdir()
         recordings = []

@@ -10,10 +10,10 @@ over 60° and the VPC grid is the same.
 What is timed:
 
 * **OpenCV** — ``cv2.fisheye.initUndistortRectifyMap(K, D, R, P, (640, 480), cv2.CV_16SC2)`` with
-  the prototype's K and D (k1..k4), ``R = R_cam_vpc^T`` and ``P`` = the VPC's K: the fixed-point
+  the prototype's K and D (k1..k4), ``R = R_cam_rect^T`` and ``P`` = the VPC's K: the fixed-point
   map pair (CV_16SC2 + CV_16UC1) OpenCV's own remap uses. (OpenCV cannot follow rays past 90°;
   it maps those pixels nowhere, which does not make it slower.)
-* **ours, cold** — :func:`rig.lut.build_vpc_lut`: the same fixed-point maps plus the float maps
+* **ours, cold** — :func:`rig.lut.build_rectified_lut`: the same fixed-point maps plus the float maps
   and the validity mask, rays followed up to the lens limit, for any model.
 * **ours, warm** — :meth:`rig.lut_cache.LutCache.load` of the stored table: read, checksum over
   the whole payload, and the arrays (what a service start with a warm cache costs per camera).
@@ -41,11 +41,11 @@ from rich.table import Table
 from bench.common import add_common_arguments, console, finish, machine_info, median, print_machine
 from calibration.initial_guess import convert_model, seed_model
 from calibration.models import MODELS, CameraModel, KannalaBrandtModel, PinholeModel
-from rig.lut import build_vpc_lut
+from rig.lut import build_rectified_lut
 from rig.lut_cache import LutCache, lut_key
 from rig.pipeline import tune_allocator
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from rig.sim import get_preset
-from rig.vpc import VpcConfig, design_vpc_pair
 
 __all__ = ["fitted_models", "main"]
 
@@ -93,12 +93,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     info = machine_info()
     print_machine(info, "VPC LUT build per model vs cv2.fisheye.initUndistortRectifyMap")
     preset = get_preset("prototype")
-    vpc_cfg = VpcConfig(width=160, height=120) if args.quick else VpcConfig(projection="pinhole")
-    pair = design_vpc_pair(preset.rig, vpc_cfg)
+    pair_cfg = (
+        RectifiedPairConfig(width=160, height=120)
+        if args.quick
+        else RectifiedPairConfig(projection="pinhole")
+    )
+    pair = design_rectified_pair(preset.rig, pair_cfg)
     lens = preset.rig.cameras[pair.left]
     if not isinstance(lens, KannalaBrandtModel):
         raise SystemExit("the prototype preset's lens is expected to be Kannala-Brandt")
-    R = pair.R_cam_vpc[pair.left]
+    R = pair.R_cam_rect[pair.left]
     vpc = pair.camera
     if not isinstance(vpc, PinholeModel):
         raise SystemExit("OpenCV's fisheye map is a pinhole view's: the benchmark needs the pinhole pair")
@@ -117,7 +121,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             raise SystemExit(f"unknown model(s) {', '.join(unknown)}; known: {', '.join(models)}")
         models = {k: v for k, v in models.items() if k in wanted}
     console.print(
-        f"grid: VPC {vpc.width}×{vpc.height} (hfov {vpc_cfg.hfov_deg:g}°), prototype left lens "
+        f"grid: VPC {vpc.width}×{vpc.height} (hfov {pair_cfg.hfov_deg:g}°), prototype left lens "
         f"{lens.width}×{lens.height} rotated {math.degrees(math.acos((np.trace(R) - 1) / 2)):.1f}° off its "
         f"axis; {repeat} timed calls per figure (median); malloc tuned as in the service: {tuned}"
     )
@@ -138,11 +142,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         cache = LutCache(Path(tmp))
         for name, model in models.items():
             key = lut_key(model, R, vpc)
-            built = build_vpc_lut(model, R, vpc)
+            built = build_rectified_lut(model, R, vpc)
             cache.store(key, built)
 
             def cold(m: CameraModel = model) -> Any:
-                return build_vpc_lut(m, R, vpc)
+                return build_rectified_lut(m, R, vpc)
 
             def warm(k: str = key) -> Any:
                 lut = cache.load(k, (vpc.height, vpc.width))

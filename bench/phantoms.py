@@ -47,9 +47,9 @@ from rig.evaluate.phantoms import (
     room_walk,
 )
 from rig.pipeline import DepthPipeline
+from rig.rectified import RectifiedPairConfig
 from rig.sim import get_preset
 from rig.stereo import StereoParams, create_opencv_matcher
-from rig.vpc import VpcConfig
 
 __all__ = ["CANDIDATES", "Candidate", "main"]
 
@@ -90,7 +90,7 @@ class Shot:
     truth: np.ndarray[Any, Any]
 
 
-def cached_shot(scene: PhantomScene, vpc: VpcConfig) -> Shot:
+def cached_shot(scene: PhantomScene, vpc: RectifiedPairConfig) -> Shot:
     """The scene's render, from the bench cache or rendered (and kept) now."""
     folder = bench_cache_dir() / "phantoms"
     path = folder / f"{scene.name}-v{RENDER_VERSION}-{vpc.width}x{vpc.height}-ss{SUPERSAMPLE}.npz"
@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     info = machine_info()
     print_machine(info, "phantom obstacles per stereo setting (shared machine: CPU figures are noisy)")
     quick = args.quick
-    vpc = VpcConfig(width=320, height=240) if quick else PHANTOM_VPC
+    vpc = RectifiedPairConfig(width=320, height=240) if quick else PHANTOM_VPC
     scenes = [SCENES["stripes"], SCENES["low-texture"]] if quick else list(SCENES.values())
     scenes += [room_walk(i, args.room_frames) for i in range(args.room_frames)]
     candidates = QUICK if quick else CANDIDATES
@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rig = get_preset("prototype").rig
     tmp = bench_cache_dir() / "phantoms" / "lut"
     pipe = DepthPipeline(rig, vpc, cache_dir=tmp)
-    big = None if quick else DepthPipeline(rig, VpcConfig(width=1280, height=960), cache_dir=tmp)
+    big = None if quick else DepthPipeline(rig, RectifiedPairConfig(width=1280, height=960), cache_dir=tmp)
     bare = {"small": _bare_cpu_ms(pipe, shots, repeat)}
     if big is not None:
         bare["big"] = _bare_cpu_ms(big, shots[:2], repeat)

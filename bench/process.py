@@ -68,8 +68,8 @@ from calibration.models import LatLonModel
 from rig.pipeline import DepthPipeline
 from rig.process import ProcessOptions, RecordingJob, RecordingSource, process_recordings
 from rig.recording import Recording, RecordingWriter
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
 
 __all__ = ["BenchInput", "OursRun", "bench_input", "main", "run_floor", "run_ours", "startup_figures"]
 
@@ -91,7 +91,7 @@ class BenchInput:
         return len(Recording(self.recording).pairs)
 
 
-def bench_input(spec: MjpegSpec, vpc: VpcConfig, stereo: StereoParams, scratch: Path) -> BenchInput:
+def bench_input(spec: MjpegSpec, vpc: RectifiedPairConfig, stereo: StereoParams, scratch: Path) -> BenchInput:
     recording = ensure_mjpeg_recording(spec)
     pipeline = DepthPipeline(load_rig(recording / "calibration.yaml"), vpc, stereo, cache_dir=scratch / "lut")
     return BenchInput(recording, pipeline, scratch)
@@ -256,17 +256,21 @@ def _windows(data: BenchInput, windows: int) -> list[tuple[FloorRun, OursRun]]:
     return out
 
 
-def _configuration(projection: str, quick: bool) -> tuple[VpcConfig, StereoParams, list[str]]:
+def _configuration(projection: str, quick: bool) -> tuple[RectifiedPairConfig, StereoParams, list[str]]:
     """The measured pair, its stereo parameters and the ``rig process`` options that choose it."""
     if projection == "latlon":
         stereo = StereoParams(disparity_range=32) if quick else StereoParams()
         return (
-            VpcConfig(px_per_deg=1.5) if quick else VpcConfig(),
+            RectifiedPairConfig(px_per_deg=1.5) if quick else RectifiedPairConfig(),
             stereo,
             ["--projection", "latlon"] + (["--px-per-deg", "1.5"] if quick else []),
         )
     w, h, disp = (160, 120, 32) if quick else (640, 480, 128)
-    return VpcConfig(width=w, height=h), StereoParams(disparity_range=disp), ["--vpc-size", f"{w}x{h}"]
+    return (
+        RectifiedPairConfig(width=w, height=h),
+        StereoParams(disparity_range=disp),
+        ["--vpc-size", f"{w}x{h}"],
+    )
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:

@@ -34,9 +34,9 @@ from bench.common import add_common_arguments, console, finish, machine_info, me
 from bench.recordings import MjpegSpec, ensure_mjpeg_recording, load_jpeg_pairs
 from bench.worker import bench_settings
 from rig.rectification.monitor import RectificationConfig, RectificationMonitor
+from rig.rectified import RectifiedPairConfig
 from rig.sim import get_preset
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
 
 __all__ = ["main"]
 
@@ -60,7 +60,7 @@ def worker_impact(recording: Path, interval_s: float, windows: int, seconds: flo
     windows of one runtime (see the module doc)."""
     with tempfile.TemporaryDirectory(prefix="rig-bench-rect-") as tmp:
         settings = bench_settings(
-            recording, VpcConfig(), StereoParams(disparity_range=128), Path(tmp) / "lut", Path(tmp),
+            recording, RectifiedPairConfig(), StereoParams(disparity_range=128), Path(tmp) / "lut", Path(tmp),
             pace="fast", decode="auto",
         )  # fmt: skip
         settings = settings.model_copy(
@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     pairs = [(_gray(a), _gray(b)) for a, b in load_jpeg_pairs(recording)]
     rig = get_preset("prototype").scaled(scale).rig
     options = RectificationConfig()
-    vpc = VpcConfig(width=320, height=240) if args.quick else VpcConfig()
+    vpc = RectifiedPairConfig(width=320, height=240) if args.quick else RectifiedPairConfig()
     monitor = RectificationMonitor(rig, vpc, lambda: None, options)
     sift = cv2.SIFT.create(nfeatures=options.max_features)
 

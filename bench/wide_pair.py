@@ -44,8 +44,8 @@ from calibration import load_rig
 from rig.evaluate.wide_pair import REFERENCE_VARIANT, Variant, default_variants
 from rig.field import pixel_solid_angles
 from rig.pipeline import DepthPipeline
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoMatcher, StereoParams, create_opencv_matcher
-from rig.vpc import VpcConfig
 
 __all__ = ["main", "measure_variant"]
 
@@ -181,7 +181,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     frames = _decode(load_jpeg_pairs(recording))
     rig = load_rig(recording / "calibration.yaml")
     stereo = StereoParams(disparity_range=32) if quick else StereoParams()
-    pinhole = VpcConfig(width=160, height=120) if quick else VpcConfig(projection="pinhole")
+    pinhole = (
+        RectifiedPairConfig(width=160, height=120) if quick else RectifiedPairConfig(projection="pinhole")
+    )
     variants = default_variants(rig, stereo, pinhole, ())
     console.print(
         f"input: {recording} ({len(frames)} pairs decoded to gray up front); {rounds} alternating "

@@ -71,8 +71,8 @@ from calibration import load_rig
 from rig.capture.config import CaptureConfig, FileCameraConfig, PairingConfig, SupervisorConfig
 from rig.pipeline import DepthPipeline
 from rig.rectification import RectificationConfig
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoMatcher, StereoParams, create_opencv_matcher
-from rig.vpc import VpcConfig
 from service.settings import CalibrationSettings, ServerSettings, Settings
 
 __all__ = ["FloorRun", "floor_matcher", "main", "measure_config", "run_floor", "run_same_work"]
@@ -187,7 +187,7 @@ def _decode(data: bytes) -> NDArray[np.uint8]:
 
 def bench_settings(
     recording: Path,
-    vpc: VpcConfig,
+    vpc: RectifiedPairConfig,
     stereo: StereoParams,
     lut_dir: Path,
     scratch: Path,
@@ -236,22 +236,22 @@ def _stereo_overrides(text: str | None) -> dict[str, Any]:
     return out
 
 
-def _configs(quick: bool) -> list[tuple[VpcConfig, int]]:
+def _configs(quick: bool) -> list[tuple[RectifiedPairConfig, int]]:
     if quick:
-        return [(VpcConfig(width=160, height=120), 32)]
-    return [(VpcConfig(width=w, height=h), d) for (w, h) in FULL_SIZES for d in FULL_DISPARITIES]
+        return [(RectifiedPairConfig(width=160, height=120), 32)]
+    return [(RectifiedPairConfig(width=w, height=h), d) for (w, h) in FULL_SIZES for d in FULL_DISPARITIES]
 
 
-def parse_config(item: str) -> tuple[VpcConfig, int]:
+def parse_config(item: str) -> tuple[RectifiedPairConfig, int]:
     """``640x480/128`` (a pinhole pair), ``latlon/128`` (the lat-lon pair at its default
     resolution) or ``latlon@4.5/128`` (at 4.5 px/deg): the rectified pair and its disparities."""
     view, disp = item.split("/")
     view = view.strip().lower()
     if view.startswith("latlon"):
         ppd = float(view.split("@", 1)[1]) if "@" in view else None
-        return VpcConfig(projection="latlon", px_per_deg=ppd), int(disp)
+        return RectifiedPairConfig(projection="latlon", px_per_deg=ppd), int(disp)
     w, h = (int(v) for v in view.split("x"))
-    return VpcConfig(width=w, height=h), int(disp)
+    return RectifiedPairConfig(width=w, height=h), int(disp)
 
 
 def _label(row: dict[str, Any]) -> str:
@@ -299,7 +299,7 @@ def alternate_windows(
 
 
 def measure_config(
-    vpc: VpcConfig,
+    vpc: RectifiedPairConfig,
     disp: int,
     *,
     stages: str,

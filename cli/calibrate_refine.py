@@ -20,14 +20,14 @@ from rich.table import Table
 from calibration.relative_pose import RelativePoseOptions
 from cli.console import console, progress_bar
 from cli.errors import fail
-from cli.vpc_options import (
+from cli.pair_options import (
     CalibrationOption,
+    PinholeHfovOption,
+    PinholeSizeOption,
     PitchOption,
-    VpcHfovOption,
-    VpcSizeOption,
     YawOption,
     load_calibration,
-    make_vpc_config,
+    make_pair_config,
 )
 from rig.recording import Recording
 from rig.rectification import RectificationRefinement, RefineOptions, refine_recording
@@ -81,8 +81,8 @@ def register_refine(cal: typer.Typer) -> None:
         min_matches: Annotated[
             int, typer.Option("--min-matches", metavar="N", help="Fewest consistent matches to accept.")
         ] = 100,
-        vpc_size: VpcSizeOption = "640x480",
-        vpc_hfov: VpcHfovOption = 90.0,
+        vpc_size: PinholeSizeOption = "640x480",
+        vpc_hfov: PinholeHfovOption = 90.0,
         yaw: YawOption = 0.0,
         pitch: PitchOption = 0.0,
     ) -> None:
@@ -93,7 +93,7 @@ def register_refine(cal: typer.Typer) -> None:
             fail(f"--frames must be in [1, 100000], got {frames}")
         if min_matches < 10:
             fail(f"--min-matches must be at least 10, got {min_matches}")
-        vpc = make_vpc_config(vpc_size, vpc_hfov, yaw, pitch)
+        vpc = make_pair_config(vpc_size, vpc_hfov, yaw, pitch)
         rec = Recording(recording)
         rig, cal_path = load_calibration(calibration, rec.calibration_path)
         options = RefineOptions(

@@ -17,20 +17,20 @@ from pydantic import ValidationError
 from rich.progress import TimeRemainingColumn
 
 from cli.console import console, one_line, progress_bar
-from cli.process import StereoOption, build_pipeline
-from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption, open_source
-from cli.vpc_options import (
+from cli.pair_options import (
     CacheDirOption,
     CalibrationOption,
     FieldOption,
+    PinholeHfovOption,
+    PinholeSizeOption,
     PitchOption,
     ProjectionOption,
     PxPerDegOption,
-    VpcHfovOption,
-    VpcSizeOption,
     YawOption,
-    make_vpc_config,
+    make_pair_config,
 )
+from cli.process import StereoOption, build_pipeline
+from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption, open_source
 from rig.errors import ConfigError
 from rig.recording import PairRecord
 from rig.ros.mcap_export import export_mcap
@@ -70,8 +70,8 @@ def register(app: typer.Typer) -> None:
         right_topic: RightTopicOption = None,
         max_skew_ms: MaxSkewOption = None,
         projection: ProjectionOption = None,
-        vpc_hfov: VpcHfovOption = None,
-        vpc_size: VpcSizeOption = None,
+        vpc_hfov: PinholeHfovOption = None,
+        vpc_size: PinholeSizeOption = None,
         px_per_deg: PxPerDegOption = None,
         field: FieldOption = None,
         yaw: YawOption = None,
@@ -110,7 +110,7 @@ def register(app: typer.Typer) -> None:
         """Depth and everything around it for every pair of REC, as a ROS 2 MCAP file."""
         names = _names(namespace, frame_prefix, depth_encoding)
         rec = open_source(recording, left_topic, right_topic, max_skew_ms)
-        config = make_vpc_config(
+        config = make_pair_config(
             vpc_size, vpc_hfov, yaw, pitch, projection=projection, px_per_deg=px_per_deg, field=field
         )
         pipeline, cal_path = build_pipeline(calibration, rec.calibration_path, config, stereo, cache_dir)

@@ -9,24 +9,24 @@ import typer
 from rich.table import Table
 
 from cli.console import console, warn
-from cli.vpc_options import (
+from cli.pair_options import (
     CacheDirOption,
     CalibrationOption,
     FieldOption,
+    PinholeHfovOption,
+    PinholeSizeOption,
     PitchOption,
     ProjectionOption,
     PxPerDegOption,
-    VpcHfovOption,
-    VpcSizeOption,
     YawOption,
     load_calibration,
-    make_vpc_config,
+    make_pair_config,
 )
 from rig.errors import ConfigError
 from rig.lut import percent_valid
 from rig.lut_cache import LutCache, lut_key
+from rig.rectified import design_rectified_pair
 from rig.stereo import StereoParams
-from rig.vpc import design_vpc_pair
 
 __all__ = ["register"]
 
@@ -48,8 +48,8 @@ def register(app: typer.Typer) -> None:
     def build(
         calibration: CalibrationOption = None,
         projection: ProjectionOption = None,
-        vpc_hfov: VpcHfovOption = None,
-        vpc_size: VpcSizeOption = None,
+        vpc_hfov: PinholeHfovOption = None,
+        vpc_size: PinholeSizeOption = None,
         px_per_deg: PxPerDegOption = None,
         field: FieldOption = None,
         yaw: YawOption = None,
@@ -65,10 +65,10 @@ def register(app: typer.Typer) -> None:
         if calibration is None:
             raise ConfigError("rig lut build: --calibration FILE is required")
         rig, _ = load_calibration(calibration)
-        config = make_vpc_config(
+        config = make_pair_config(
             vpc_size, vpc_hfov, yaw, pitch, projection=projection, px_per_deg=px_per_deg, field=field
         )
-        pair = design_vpc_pair(rig, config, blind_band_px=StereoParams().blind_band_px)
+        pair = design_rectified_pair(rig, config, blind_band_px=StereoParams().blind_band_px)
         if pair.field_note:
             warn(pair.field_note)
         cache = LutCache(cache_dir)
@@ -82,7 +82,7 @@ def register(app: typer.Typer) -> None:
         for col in ("camera", "path", "key", "valid", "build ms", "source"):
             table.add_column(col)
         for name in (pair.left, pair.right):
-            model, R = rig.cameras[name], pair.R_cam_vpc[name]
+            model, R = rig.cameras[name], pair.R_cam_rect[name]
             if rebuild:
                 cache.discard(lut_key(model, R, pair.camera))
             t0 = time.perf_counter()

@@ -22,8 +22,14 @@ from rich.progress import TimeRemainingColumn
 
 from cli.console import console, progress_bar
 from cli.errors import fail
+from cli.pair_options import (
+    FieldOption,
+    PinholeSizeOption,
+    ProjectionOption,
+    PxPerDegOption,
+    make_pair_config,
+)
 from cli.process import load_stereo_params
-from cli.vpc_options import FieldOption, ProjectionOption, PxPerDegOption, VpcSizeOption, make_vpc_config
 from rig.sim.presets import PRESETS, get_preset
 from rig.sim.simulate import DEFAULT_DISTANCES, DEFAULT_ROOM_FRAMES, SCENES, simulate_recording
 from rig.sim.textures import TEXTURES, texture_name
@@ -117,7 +123,7 @@ def register(app: typer.Typer) -> None:
             ),
         ] = "1",
         projection: ProjectionOption = None,
-        vpc_size: VpcSizeOption = None,
+        vpc_size: PinholeSizeOption = None,
         vpc_hfov: Annotated[
             str | None,
             typer.Option(
@@ -163,7 +169,7 @@ def register(app: typer.Typer) -> None:
         ss = _int("--supersample", supersample, 1, 16)
         factor = _float("--scale", scale, 0.01, 8.0)
         hfov = _float("--vpc-hfov", vpc_hfov, 1.0, 179.0) if vpc_hfov is not None else None
-        vpc = make_vpc_config(vpc_size, hfov, projection=projection, px_per_deg=px_per_deg, field=field)
+        vpc = make_pair_config(vpc_size, hfov, projection=projection, px_per_deg=px_per_deg, field=field)
         params = load_stereo_params(stereo) if stereo is not None else StereoParams()
 
         chosen = get_preset(preset)

@@ -44,9 +44,9 @@ from rig.capture.protocol import Camera, CameraInfo
 from rig.capture.v4l2 import V4L2Camera
 from rig.errors import RigError
 from rig.pipeline import DepthPipeline
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
 from rig.usb import bus_budget_mbps, format_bandwidth_mbps, sysfs_usb_device_of_video
-from rig.vpc import VpcConfig
 
 __all__ = ["MIN_FPS_SHARE", "BringupReport", "CheckRow", "Result", "run_bringup"]
 
@@ -82,7 +82,7 @@ def run_bringup(
     config: CaptureConfig,
     rig: Rig,
     *,
-    vpc: VpcConfig | None = None,
+    vpc: RectifiedPairConfig | None = None,
     stereo: StereoParams | None = None,
     cache_dir: str | Path | None = None,
     seconds: float = 5.0,

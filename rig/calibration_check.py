@@ -230,7 +230,7 @@ def check_calibration(
     left_lut, right_lut = (pipeline.luts[n] for n in pipeline.names)
     if overlap and min(overlap.values()) < 1.0:
         mask = ((left_lut.valid & right_lut.valid) * 255).astype(np.uint8)
-    dx, dy = matched_disparities(_gray(frame.left_vpc), _gray(frame.right_vpc), mask)
+    dx, dy = matched_disparities(_gray(frame.left_rect), _gray(frame.right_rect), mask)
     if _fits(dx, dy):
         problems = []
     else:

@@ -62,8 +62,8 @@ from rig.process import (
     process_pairs,
 )
 from rig.recording import PairRecord
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
 
 __all__ = [
     "Chunk",
@@ -97,13 +97,13 @@ class PipelineSpec:
     """What a worker needs to build the pipeline of one calibration: shipped once per worker."""
 
     rig: Rig
-    vpc: VpcConfig
+    vpc: RectifiedPairConfig
     stereo: StereoParams
     luts: dict[str, CachedLut]
 
     @classmethod
     def of(cls, pipeline: DepthPipeline) -> PipelineSpec:
-        return cls(pipeline.rig, pipeline.vpc_config, pipeline.stereo, dict(pipeline.lut_info))
+        return cls(pipeline.rig, pipeline.pair_config, pipeline.stereo, dict(pipeline.lut_info))
 
     @property
     def key(self) -> str:

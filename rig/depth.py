@@ -124,9 +124,9 @@ def _valid_samples(image: F32, stride: int) -> tuple[NDArray[np.intp], NDArray[n
     return r_idx * stride, c_idx * stride
 
 
-def _to_frame(pts: NDArray[np.float64], T_rig_vpc: ArrayLike | None) -> NDArray[np.float32]:
-    if T_rig_vpc is not None:
-        T = np.asarray(T_rig_vpc, dtype=np.float64)
+def _to_frame(pts: NDArray[np.float64], T_rig_rect: ArrayLike | None) -> NDArray[np.float32]:
+    if T_rig_rect is not None:
+        T = np.asarray(T_rig_rect, dtype=np.float64)
         pts = pts @ T[:3, :3].T + T[:3, 3]
     return pts.astype(np.float32)
 
@@ -134,26 +134,26 @@ def _to_frame(pts: NDArray[np.float64], T_rig_vpc: ArrayLike | None) -> NDArray[
 def depth_points(
     depth: F32,
     camera: PinholeModel,
-    T_rig_vpc: ArrayLike | None = None,
+    T_rig_rect: ArrayLike | None = None,
     stride: int = 1,
 ) -> tuple[NDArray[np.float32], NDArray[np.intp]]:
     """3D points of the valid depth pixels: ray through the pixel scaled to z = depth.
 
     ``depth`` (H, W) float32 m, NaN invalid; ``camera`` the VPC pinhole (distortion-free);
-    ``T_rig_vpc`` (4, 4) maps the result into the rig frame (None: stay in the VPC frame).
+    ``T_rig_rect`` (4, 4) maps the result into the rig frame (None: stay in the VPC frame).
     Returns points (N, 3) float32 and the flat pixel indices (N,) they came from.
     """
     rows, cols = _valid_samples(depth, stride)
     z = depth[rows, cols].astype(np.float64)
     v, u = rows.astype(np.float64), cols.astype(np.float64)
     pts = np.stack([(u - camera.cx) / camera.fx * z, (v - camera.cy) / camera.fy * z, z], axis=1)
-    return _to_frame(pts, T_rig_vpc), rows * depth.shape[1] + cols
+    return _to_frame(pts, T_rig_rect), rows * depth.shape[1] + cols
 
 
 def range_points(
     range_m: F32,
     camera: CameraModel,
-    T_rig_vpc: ArrayLike | None = None,
+    T_rig_rect: ArrayLike | None = None,
     stride: int = 1,
 ) -> tuple[NDArray[np.float32], NDArray[np.intp]]:
     """3D points of the valid range pixels: the pixel's unit ray (``camera.unproject``, any
@@ -161,7 +161,7 @@ def range_points(
     rows, cols = _valid_samples(range_m, stride)
     rays, _ = camera.unproject(np.stack([cols, rows], axis=1).astype(np.float64), in_image=False)
     pts = rays * range_m[rows, cols].astype(np.float64)[:, None]
-    return _to_frame(pts, T_rig_vpc), rows * range_m.shape[1] + cols
+    return _to_frame(pts, T_rig_rect), rows * range_m.shape[1] + cols
 
 
 def pixel_ray_norms(camera: PinholeModel) -> F32:

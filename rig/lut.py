@@ -2,7 +2,7 @@
 paper eq. 10).
 
 For every pixel ``p`` of the rectified view (a virtual pinhole camera, "VPC", or a lat-lon view):
-``p_fisheye = π_f(R_cam_vpc · π_rect⁻¹(p))``. Unlike OpenCV's
+``p_fisheye = π_f(R_cam_rect · π_rect⁻¹(p))``. Unlike OpenCV's
 ``cv2.fisheye.initUndistortRectifyMap``, rays are followed up to the lens's own limit
 (``model.max_theta``, past 90° for a 190° lens). Pixels whose ray the fisheye cannot see are
 flagged in ``valid`` and mapped to :data:`INVALID_COORD`, outside the image, so ``cv2.remap``
@@ -22,7 +22,7 @@ from calibration.geometry import is_rotation
 from calibration.models import CameraModel, LatLonModel, PinholeModel
 from rig.errors import LutError
 
-__all__ = ["CHUNK_ROWS", "INVALID_COORD", "Lut", "build_vpc_lut", "percent_valid", "vpc_rays"]
+__all__ = ["CHUNK_ROWS", "INVALID_COORD", "Lut", "build_rectified_lut", "percent_valid", "rect_rays"]
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
@@ -30,7 +30,7 @@ F64 = NDArray[np.float64]
 # Where invalid VPC pixels point in the fisheye image: a whole pixel left of/above the image so
 # bilinear interpolation touches only border pixels (weight 1 on the out-of-image neighbour).
 INVALID_COORD = -1.0
-# Rows per block when building a table (see build_vpc_lut).
+# Rows per block when building a table (see build_rectified_lut).
 CHUNK_ROWS = 32
 
 
@@ -93,25 +93,25 @@ class Lut:
         return np.asarray(out, dtype=np.uint8)
 
 
-def _check_rotation(R_cam_vpc: ArrayLike) -> F64:
-    R = np.asarray(R_cam_vpc, dtype=np.float64)
+def _check_rotation(R_cam_rect: ArrayLike) -> F64:
+    R = np.asarray(R_cam_rect, dtype=np.float64)
     if R.shape != (3, 3) or not np.isfinite(R).all():
-        raise LutError(f"R_cam_vpc must be a finite 3x3 rotation, got shape {R.shape}")
+        raise LutError(f"R_cam_rect must be a finite 3x3 rotation, got shape {R.shape}")
     if not is_rotation(R):
-        raise LutError("R_cam_vpc is not a rotation matrix")
+        raise LutError("R_cam_rect is not a rotation matrix")
     return R
 
 
-def _is_plain(vpc_camera: CameraModel) -> TypeGuard[PinholeModel]:
+def _is_plain(rect_camera: CameraModel) -> TypeGuard[PinholeModel]:
     """A distortion-free pinhole."""
-    if not isinstance(vpc_camera, PinholeModel):
+    if not isinstance(rect_camera, PinholeModel):
         return False
-    d = vpc_camera.distortion
+    d = rect_camera.distortion
     return (d.k1, d.k2, d.p1, d.p2) == (0.0, 0.0, 0.0, 0.0)
 
 
 def _ray_rows(
-    vpc_camera: CameraModel, R: F64, r0: int, r1: int
+    rect_camera: CameraModel, R: F64, r0: int, r1: int
 ) -> tuple[F64, F64, F64, NDArray[np.bool_] | None]:
     """Rays (X, Y, Z each (r1 - r0, W)) of rectified rows r0..r1 in the fisheye frame, and ok
     (None: every ray exists).
@@ -120,20 +120,20 @@ def _ray_rows(
     within ±90° of azimuth and ±180° of elevation) are outer products of one row and one column
     per component: no per-pixel unprojection. Other models go through ``unproject``.
     """
-    w = vpc_camera.width
-    if _is_plain(vpc_camera):
-        xn = (np.arange(w, dtype=np.float64) - vpc_camera.cx) / vpc_camera.fx  # (W,)
-        yn = ((np.arange(r0, r1, dtype=np.float64) - vpc_camera.cy) / vpc_camera.fy)[:, None]  # (n, 1)
+    w = rect_camera.width
+    if _is_plain(rect_camera):
+        xn = (np.arange(w, dtype=np.float64) - rect_camera.cx) / rect_camera.fx  # (W,)
+        yn = ((np.arange(r0, r1, dtype=np.float64) - rect_camera.cy) / rect_camera.fy)[:, None]  # (n, 1)
         X, Y, Z = (R[i, 0] * xn + (R[i, 1] * yn + R[i, 2]) for i in range(3))
         return X, Y, Z, None
-    if isinstance(vpc_camera, LatLonModel) and _latlon_in_domain(vpc_camera):
-        az, el = vpc_camera.azimuths(), vpc_camera.elevations()[r0:r1, None]
+    if isinstance(rect_camera, LatLonModel) and _latlon_in_domain(rect_camera):
+        az, el = rect_camera.azimuths(), rect_camera.elevations()[r0:r1, None]
         sin_az, cos_az = np.sin(az), np.cos(az)  # (W,)
         sin_el, cos_el = np.sin(el), np.cos(el)  # (n, 1)
         X, Y, Z = (R[i, 0] * sin_az + cos_az * (R[i, 1] * sin_el + R[i, 2] * cos_el) for i in range(3))
         return X, Y, Z, None
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(r0, r1, dtype=np.float64))
-    rays, ok = vpc_camera.unproject(np.stack([u.ravel(), v.ravel()], axis=1), in_image=False)
+    rays, ok = rect_camera.unproject(np.stack([u.ravel(), v.ravel()], axis=1), in_image=False)
     cam = rays @ R.T
     shape = (r1 - r0, w)
     return cam[:, 0].reshape(shape), cam[:, 1].reshape(shape), cam[:, 2].reshape(shape), ok.reshape(shape)
@@ -145,17 +145,17 @@ def _latlon_in_domain(camera: LatLonModel) -> bool:
     return bool(np.abs(az).max() <= np.pi / 2 and np.abs(el).max() <= np.pi)
 
 
-def vpc_rays(vpc_camera: CameraModel, R_cam_vpc: ArrayLike) -> tuple[F64, F64, F64, NDArray[np.bool_]]:
+def rect_rays(rect_camera: CameraModel, R_cam_rect: ArrayLike) -> tuple[F64, F64, F64, NDArray[np.bool_]]:
     """Rays of every VPC pixel in the fisheye frame: (X, Y, Z) each (H, W) float64, and ok (H, W)."""
-    X, Y, Z, ok = _ray_rows(vpc_camera, _check_rotation(R_cam_vpc), 0, vpc_camera.height)
+    X, Y, Z, ok = _ray_rows(rect_camera, _check_rotation(R_cam_rect), 0, rect_camera.height)
     return X, Y, Z, np.ones(X.shape, dtype=bool) if ok is None else ok
 
 
-def build_vpc_lut(model: CameraModel, R_cam_vpc: ArrayLike, vpc_camera: CameraModel) -> Lut:
-    """Table of one fisheye camera for one rectified view: ``p_f = π_f(R_cam_vpc · π_rect⁻¹(p))``.
+def build_rectified_lut(model: CameraModel, R_cam_rect: ArrayLike, rect_camera: CameraModel) -> Lut:
+    """Table of one fisheye camera for one rectified view: ``p_f = π_f(R_cam_rect · π_rect⁻¹(p))``.
 
-    ``model`` any :class:`CameraModel`; ``R_cam_vpc`` (3, 3) rotates rectified rays into the
-    fisheye frame; ``vpc_camera`` the (H, W) rectified view (a pinhole or a lat-lon view). Valid
+    ``model`` any :class:`CameraModel`; ``R_cam_rect`` (3, 3) rotates rectified rays into the
+    fisheye frame; ``rect_camera`` the (H, W) rectified view (a pinhole or a lat-lon view). Valid
     where the model projects the ray (within its ``max_theta``, including > 90°) into its
     image. Raises :class:`LutError` when the view sees nothing of the lens.
 
@@ -165,14 +165,14 @@ def build_vpc_lut(model: CameraModel, R_cam_vpc: ArrayLike, vpc_camera: CameraMo
     rays into (N, 3) arrays). A 640×480 Kannala-Brandt table takes ~0.7× the time of
     ``cv2.fisheye.initUndistortRectifyMap`` for the same grid (``python -m bench.lut_build``).
     """
-    R = _check_rotation(R_cam_vpc)
-    h, w = vpc_camera.height, vpc_camera.width
+    R = _check_rotation(R_cam_rect)
+    h, w = rect_camera.height, rect_camera.width
     map_x = np.empty((h, w), dtype=np.float32)
     map_y = np.empty((h, w), dtype=np.float32)
     valid = np.empty((h, w), dtype=bool)
     for r0 in range(0, h, CHUNK_ROWS):
         r1 = min(h, r0 + CHUNK_ROWS)
-        X, Y, Z, ray_ok = _ray_rows(vpc_camera, R, r0, r1)
+        X, Y, Z, ray_ok = _ray_rows(rect_camera, R, r0, r1)
         u, v, ok = model.project_xyz(X, Y, Z)
         if ray_ok is not None:
             ok &= ray_ok
@@ -186,7 +186,7 @@ def build_vpc_lut(model: CameraModel, R_cam_vpc: ArrayLike, vpc_camera: CameraMo
     map_y[invalid] = INVALID_COORD
     if not valid.any():
         raise LutError(
-            f"the {w}x{h} {vpc_camera.name} view sees nothing of the {model.name} camera's image "
+            f"the {w}x{h} {rect_camera.name} view sees nothing of the {model.name} camera's image "
             "(look direction or field of view outside the lens)"
         )
     return Lut.from_float_maps(map_x, map_y, valid)

@@ -2,7 +2,7 @@
 
 Key: sha256 of a canonical JSON of everything that determines a table (format version, the
 fisheye model's name, size, lens limit and parameters, the VPC intrinsics and distortion, and
-``R_cam_vpc`` rounded to 1e-12 so the same rotation computed two ways hits the same entry).
+``R_cam_rect`` rounded to 1e-12 so the same rotation computed two ways hits the same entry).
 
 File ``<key>.lut``::
 
@@ -60,7 +60,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from calibration.models import CameraModel, PinholeModel
 from rig.errors import LutError
-from rig.lut import Lut, build_vpc_lut
+from rig.lut import Lut, build_rectified_lut
 
 __all__ = [
     "CACHE_ENV",
@@ -85,9 +85,9 @@ _LEN = struct.Struct("<I")
 _ALIGN = 64
 #: Longest header a cache file may have (a real one is ~400 bytes).
 MAX_HEADER_BYTES = 64 * 1024
-#: Largest table side a cache file may hold: the largest VPC side rig.vpc.VpcConfig accepts.
+#: Largest table side a cache file may hold: the largest VPC side rig.rectified.RectifiedPairConfig accepts.
 MAX_SIDE = 8192
-# R_cam_vpc is rounded to this many decimals in the key: 1e-12 rad moves a pixel by ~1e-9 px.
+# R_cam_rect is rounded to this many decimals in the key: 1e-12 rad moves a pixel by ~1e-9 px.
 _R_DECIMALS = 12
 
 
@@ -104,13 +104,13 @@ def _canonical_rotation(R: ArrayLike) -> list[list[float]]:
     return [[float(x) for x in row] for row in Rr]
 
 
-def lut_key(model: CameraModel, R_cam_vpc: ArrayLike, vpc_camera: CameraModel) -> str:
+def lut_key(model: CameraModel, R_cam_rect: ArrayLike, rect_camera: CameraModel) -> str:
     """sha256 hex of the canonical description of one table (see module doc)."""
     doc = {
         "format": LUT_FORMAT_VERSION,
         "fisheye": model.to_dict(),
-        "vpc": vpc_camera.to_dict(),
-        "R_cam_vpc": _canonical_rotation(R_cam_vpc),
+        "vpc": rect_camera.to_dict(),
+        "R_cam_vpc": _canonical_rotation(R_cam_rect),
     }
     text = json.dumps(doc, sort_keys=True, separators=(",", ":"), allow_nan=False)
     return hashlib.sha256(text.encode()).hexdigest()
@@ -177,9 +177,9 @@ def _payload_bytes(h: int, w: int) -> int:
     return sum(dt.itemsize * int(np.prod(shape)) for _, dt, shape in _payload_layout(h, w))
 
 
-def _summary(model: CameraModel, vpc_camera: CameraModel) -> str:
-    kind = "" if isinstance(vpc_camera, PinholeModel) else f" {vpc_camera.name}"
-    return f"{model.name} {model.width}x{model.height} -> vpc {vpc_camera.width}x{vpc_camera.height}{kind}"
+def _summary(model: CameraModel, rect_camera: CameraModel) -> str:
+    kind = "" if isinstance(rect_camera, PinholeModel) else f" {rect_camera.name}"
+    return f"{model.name} {model.width}x{model.height} -> vpc {rect_camera.width}x{rect_camera.height}{kind}"
 
 
 class LutCache:
@@ -196,18 +196,18 @@ class LutCache:
         return self.directory / f"{key}{SUFFIX}"
 
     # ----- lookup ------------------------------------------------------------------------------
-    def get(self, model: CameraModel, R_cam_vpc: ArrayLike, vpc_camera: CameraModel) -> CachedLut:
+    def get(self, model: CameraModel, R_cam_rect: ArrayLike, rect_camera: CameraModel) -> CachedLut:
         """The table from the cache, or built (and stored) when missing, stale or corrupt."""
-        key = lut_key(model, R_cam_vpc, vpc_camera)
+        key = lut_key(model, R_cam_rect, rect_camera)
         path = self.path(key)
-        lut, problem = self._load(key, (vpc_camera.height, vpc_camera.width))
+        lut, problem = self._load(key, (rect_camera.height, rect_camera.width))
         if lut is not None:
             return CachedLut(lut, key, path, True, 0.0)
         t0 = time.perf_counter()
-        lut = build_vpc_lut(model, R_cam_vpc, vpc_camera)
+        lut = build_rectified_lut(model, R_cam_rect, rect_camera)
         build_ms = (time.perf_counter() - t0) * 1e3
         try:
-            self.store(key, lut, build_ms=build_ms, summary=_summary(model, vpc_camera))
+            self.store(key, lut, build_ms=build_ms, summary=_summary(model, rect_camera))
         except OSError as err:
             # A read-only or full cache costs a rebuild next time; it must not stop the pipeline.
             where = f"LUT cache file {path} {problem}" if problem else f"LUT cache {self.directory}"

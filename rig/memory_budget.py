@@ -31,8 +31,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
 
 __all__ = [
     "FRAMES_ALIVE",
@@ -71,7 +71,7 @@ class MemoryEstimate:
 
 
 def pipeline_parts(
-    vpc: VpcConfig,
+    vpc: RectifiedPairConfig,
     stereo: StereoParams,
     camera_sizes: Sequence[tuple[int, int]],
     *,
@@ -90,7 +90,7 @@ def pipeline_parts(
     return MemoryEstimate(
         {
             "lookup_tables": 2 * _LUT_BYTES * p,
-            "vpc_frames": FRAMES_ALIVE * _VPC_BYTES_PER_FRAME * p,
+            "rect_frames": FRAMES_ALIVE * _VPC_BYTES_PER_FRAME * p,
             "camera_frames": FRAMES_ALIVE * _CAMERA_BYTES_PER_FRAME * c,
             "matcher": matcher + _FINISH_TEMPORARIES * p,
             "capture_buffers": queued_frames_per_camera * _QUEUED_FRAME_BYTES * c,

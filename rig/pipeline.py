@@ -1,7 +1,7 @@
 """The depth pipeline: fisheye pair → VPC pair (cached LUT remap) → disparity → depth.
 
 ``DepthPipeline(rig)`` builds (or loads from the cache) one LUT per camera for the VPC pair of
-:func:`rig.vpc.design_vpc_pair`; ``process(left, right)`` runs the stages configured by
+:func:`rig.rectified.design_rectified_pair`; ``process(left, right)`` runs the stages configured by
 :class:`rig.stereo.StereoParams` and returns a :class:`DepthFrame` with per-stage timings.
 
 ``process`` is three stages that a pipelined caller (the service's worker) may run on three
@@ -14,7 +14,7 @@ Thread safety: ``process`` may be called from several threads (a lock serialises
 ``update_stereo`` may be called from any thread: it builds a new matcher and swaps it in
 atomically, and the next frame to reach :meth:`match` uses it. ``replace_rig`` likewise builds
 the lookup tables of a corrected calibration (the online rectification refinement) on the
-calling thread and swaps them in as one :class:`VpcGeometry`: a pair is rectified and finished
+calling thread and swaps them in as one :class:`PairGeometry`: a pair is rectified and finished
 with one geometry, whichever it started with, so no frame mixes two or is dropped.
 """
 
@@ -41,10 +41,17 @@ from rig.finish import FinishStage
 from rig.heap import tune_allocator
 from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
+from rig.rectified import RectifiedCamera, RectifiedPair, RectifiedPairConfig, design_rectified_pair
 from rig.stereo import MatchedDisparity, SeenColumns, StereoMatcher, StereoParams, UnfilteredDisparity
-from rig.vpc import RectifiedCamera, VpcConfig, VpcPair, design_vpc_pair
 
-__all__ = ["DepthFrame", "DepthPipeline", "MatchedPair", "RectifiedPair", "VpcGeometry", "tune_allocator"]
+__all__ = [
+    "DepthFrame",
+    "DepthPipeline",
+    "MatchedImages",
+    "PairGeometry",
+    "RectifiedImages",
+    "tune_allocator",
+]
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +67,7 @@ class DepthFrame:
     z in the left VPC frame for the pinhole pair, the range itself (the same array) for the
     lat-lon pair, whose rays reach past 90° off its z axis; ``disparity`` float32 px, NaN
     invalid; ``valid`` bool; ``confidence`` float32 in [0, 1] (0 where invalid) or None;
-    ``left_vpc``/``right_vpc`` uint8, gray or BGR like the input; ``timings_ms`` per stage
+    ``left_rect``/``right_rect`` uint8, gray or BGR like the input; ``timings_ms`` per stage
     (remap, match, refine, filters, depth, total).
     """
 
@@ -71,20 +78,20 @@ class DepthFrame:
     disparity: F32
     valid: NDArray[np.bool_]
     confidence: F32 | None
-    left_vpc: U8
-    right_vpc: U8
+    left_rect: U8
+    right_rect: U8
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
-class VpcGeometry:
+class PairGeometry:
     """What the calibration fixes for the depth pipeline: the rig, its VPC pair, one lookup table
     per camera (and where it came from), the masks the finish stage applies (None where a
     table sees its whole VPC) and the columns each lens sees, which bound the matching (None:
     all of them)."""
 
     rig: Rig
-    pair: VpcPair
+    pair: RectifiedPair
     lut_info: dict[str, CachedLut]
     left_mask: NDArray[np.bool_] | None
     right_mask: NDArray[np.bool_] | None
@@ -98,25 +105,25 @@ class VpcGeometry:
     def build(
         cls,
         rig: Rig,
-        config: VpcConfig,
+        config: RectifiedPairConfig,
         cache: LutCache,
         blind_band_px: int = 0,
         camera: RectifiedCamera | None = None,
         luts: Mapping[str, CachedLut] | None = None,
-    ) -> VpcGeometry:
+    ) -> PairGeometry:
         """The pair of ``rig`` for ``config`` (a lat-lon field's default widened by the matcher's
         ``blind_band_px`` unmatched columns), tables from (or built into) ``cache``. ``camera``
         keeps a given rectified image grid (a corrected calibration moves the lenses' overlap,
         and with it a lat-lon field's size, which frames in flight and the finish stage share).
         ``luts``: the tables handed in instead (built once elsewhere for this calibration, e.g.
         shipped to a cluster's workers)."""
-        pair = design_vpc_pair(rig, config, blind_band_px=blind_band_px)
+        pair = design_rectified_pair(rig, config, blind_band_px=blind_band_px)
         if camera is not None:
             pair = replace(pair, camera=camera)
         info = {
             n: _shipped(n, luts, pair)
             if luts is not None
-            else cache.get(rig.cameras[n], pair.R_cam_vpc[n], pair.camera)
+            else cache.get(rig.cameras[n], pair.R_cam_rect[n], pair.camera)
             for n in (pair.left, pair.right)
         }
         left, right = info[pair.left].lut, info[pair.right].lut
@@ -131,7 +138,7 @@ class VpcGeometry:
         )
 
 
-def _shipped(name: str, luts: Mapping[str, CachedLut], pair: VpcPair) -> CachedLut:
+def _shipped(name: str, luts: Mapping[str, CachedLut], pair: RectifiedPair) -> CachedLut:
     """Camera ``name``'s table as handed in, checked against the pair's image size."""
     info = luts.get(name)
     expected = (pair.camera.height, pair.camera.width)
@@ -144,26 +151,26 @@ def _shipped(name: str, luts: Mapping[str, CachedLut], pair: VpcPair) -> CachedL
 
 
 @dataclass
-class RectifiedPair:
+class RectifiedImages:
     """Output of :meth:`DepthPipeline.rectify`: the VPC images (H, W[, 3]) uint8, their gray
     versions (H, W) uint8 (the same arrays for gray input), the stage's time and the geometry
     that made them (None: the pipeline's current one)."""
 
-    left_vpc: U8
-    right_vpc: U8
+    left_rect: U8
+    right_rect: U8
     left_gray: U8
     right_gray: U8
     remap_ms: float
-    geometry: VpcGeometry | None = None
+    geometry: PairGeometry | None = None
 
 
 @dataclass
-class MatchedPair:
+class MatchedImages:
     """Output of :meth:`DepthPipeline.match`: the matcher's output before its speckle removal
     and the matcher that made it (its parameters drive :meth:`DepthPipeline.finish`, which
     removes the speckles in place: a second ``finish`` of the same pair finds none left)."""
 
-    rectified: RectifiedPair
+    rectified: RectifiedImages
     matcher: StereoMatcher
     unfiltered: UnfilteredDisparity
     match_ms: float
@@ -182,7 +189,7 @@ class DepthPipeline:
     def __init__(
         self,
         rig: Rig,
-        vpc: VpcConfig | None = None,
+        vpc: RectifiedPairConfig | None = None,
         stereo: StereoParams | None = None,
         cache_dir: str | Path | None = None,
         *,
@@ -191,12 +198,12 @@ class DepthPipeline:
     ) -> None:
         if tune_malloc:
             tune_allocator()
-        self.vpc_config = vpc or VpcConfig()
+        self.pair_config = vpc or RectifiedPairConfig()
         params = stereo or StereoParams()
         # A lat-lon field's default leaves room for the matcher's unmatched columns.
         self._blind_band_px = params.blind_band_px
         self.cache = LutCache(cache_dir)
-        self._geometry = VpcGeometry.build(rig, self.vpc_config, self.cache, self._blind_band_px, luts=luts)
+        self._geometry = PairGeometry.build(rig, self.pair_config, self.cache, self._blind_band_px, luts=luts)
         self.names = (self.pair.left, self.pair.right)
         self._report_field(self._geometry)
         self._swap_lock = threading.Lock()
@@ -209,7 +216,7 @@ class DepthPipeline:
 
     # ----- configuration -----------------------------------------------------------------------
     @property
-    def geometry(self) -> VpcGeometry:
+    def geometry(self) -> PairGeometry:
         """The current geometry (take it once per pair: :meth:`replace_rig` may swap it)."""
         return self._geometry
 
@@ -218,7 +225,7 @@ class DepthPipeline:
         return self._geometry.rig
 
     @property
-    def pair(self) -> VpcPair:
+    def pair(self) -> RectifiedPair:
         return self._geometry.pair
 
     @property
@@ -241,10 +248,10 @@ class DepthPipeline:
     def _latlon(self) -> bool:
         return isinstance(self.pair.camera, LatLonModel)
 
-    def _report_field(self, geometry: VpcGeometry) -> None:
+    def _report_field(self, geometry: PairGeometry) -> None:
         """Log what the rectified view leaves out: for the pinhole pair the share of its pixels a
         lens does not see (an unusual VPC); the lat-lon field is the lenses' overlap by design,
-        an explicit field wider than it is clipped (:attr:`VpcPair.field_note`)."""
+        an explicit field wider than it is clipped (:attr:`RectifiedPair.field_note`)."""
         pair = geometry.pair
         c = pair.camera
         fractions = {n: info.lut.valid_fraction for n, info in geometry.lut_info.items()}
@@ -261,7 +268,7 @@ class DepthPipeline:
                 *(percent_valid(fractions[n]) for n in (pair.left, pair.right)),
             )
             return
-        v = self.vpc_config
+        v = self.pair_config
         for name, frac in fractions.items():
             if frac < 1.0:
                 log.warning(
@@ -270,7 +277,7 @@ class DepthPipeline:
                     v.width, v.height, v.hfov_deg, v.yaw_deg, v.pitch_deg, name, percent_valid(frac),
                 )  # fmt: skip
 
-    def replace_rig(self, rig: Rig) -> VpcGeometry:
+    def replace_rig(self, rig: Rig) -> PairGeometry:
         """Swap in a corrected calibration of the same cameras and baseline length (the online
         rectification refinement): its tables are built (or read from the cache) here, then
         swapped in at once; pairs already rectified finish with the geometry they began with.
@@ -281,7 +288,7 @@ class DepthPipeline:
                 raise ConfigError(
                     f"replace_rig: camera {name!r} is not the same lens; restart with the new calibration"
                 )
-        geometry = VpcGeometry.build(rig, self.vpc_config, self.cache, self._blind_band_px, old.pair.camera)
+        geometry = PairGeometry.build(rig, self.pair_config, self.cache, self._blind_band_px, old.pair.camera)
         if abs(geometry.pair.baseline_m - old.pair.baseline_m) > 1e-9 * old.pair.baseline_m:
             raise ConfigError(
                 f"replace_rig: the baseline changes from {old.pair.baseline_m:.6f} m to "
@@ -346,7 +353,7 @@ class DepthPipeline:
                 f"{model.width}x{model.height}"
             )
 
-    def rectify_camera(self, name: str, image: U8, geometry: VpcGeometry | None = None) -> tuple[U8, U8]:
+    def rectify_camera(self, name: str, image: U8, geometry: PairGeometry | None = None) -> tuple[U8, U8]:
         """One camera's VPC image (gray or BGR like ``image``) and its gray version, which is
         the same array for gray input, through ``geometry``'s table (default: the current one).
         Thread-safe: reads only the camera's LUT."""
@@ -362,16 +369,16 @@ class DepthPipeline:
         self._check_input(pair.right, right)
         return geometry.lut_info[pair.left].lut.remap(left), geometry.lut_info[pair.right].lut.remap(right)
 
-    def rectify(self, left: U8, right: U8) -> RectifiedPair:
+    def rectify(self, left: U8, right: U8) -> RectifiedImages:
         """Stage 1 of :meth:`process`: the VPC pair and its gray images (thread-safe)."""
         t0 = time.perf_counter()
         geometry = self._geometry
-        left_vpc, left_gray = self.rectify_camera(geometry.pair.left, left, geometry)
-        right_vpc, right_gray = self.rectify_camera(geometry.pair.right, right, geometry)
+        left_rect, left_gray = self.rectify_camera(geometry.pair.left, left, geometry)
+        right_rect, right_gray = self.rectify_camera(geometry.pair.right, right, geometry)
         ms = (time.perf_counter() - t0) * 1e3
-        return RectifiedPair(left_vpc, right_vpc, left_gray, right_gray, ms, geometry)
+        return RectifiedImages(left_rect, right_rect, left_gray, right_gray, ms, geometry)
 
-    def match(self, rect: RectifiedPair) -> MatchedPair:
+    def match(self, rect: RectifiedImages) -> MatchedImages:
         """Stage 2 of :meth:`process`: the current matcher's OpenCV call (its parallel part; the
         speckle removal after it is :meth:`finish`'s, so that it overlaps the next pair's call).
         Callers are serialised (an OpenCV matcher keeps scratch buffers)."""
@@ -381,9 +388,9 @@ class DepthPipeline:
             seen = (rect.geometry or self._geometry).seen
             t0 = time.perf_counter()
             unfiltered = matcher.compute(rect.left_gray, rect.right_gray, seen)
-            return MatchedPair(rect, matcher, unfiltered, (time.perf_counter() - t0) * 1e3)
+            return MatchedImages(rect, matcher, unfiltered, (time.perf_counter() - t0) * 1e3)
 
-    def _disparity(self, matched: MatchedPair) -> MatchedDisparity:
+    def _disparity(self, matched: MatchedImages) -> MatchedDisparity:
         """The matcher's disparity of ``matched`` (speckles removed), LUT masks applied."""
         raw = matched.matcher.finish(matched.unfiltered)
         disparity, valid = raw.disparity, raw.valid
@@ -397,7 +404,7 @@ class DepthPipeline:
             fill_where(disparity, np.nan, ~valid)
         return MatchedDisparity(disparity, valid)
 
-    def finish(self, matched: MatchedPair, seq: int = 0, ts_ns: int = 0) -> DepthFrame:
+    def finish(self, matched: MatchedImages, seq: int = 0, ts_ns: int = 0) -> DepthFrame:
         """Stage 3 of :meth:`process`: the matcher's speckle removal, then refinement, filters,
         confidence and depth with the parameters of the matcher that made ``matched``
         (:class:`rig.finish.FinishStage`, in row bands across the cores). Call in frame order
@@ -418,8 +425,8 @@ class DepthPipeline:
             out.disparity,
             out.valid,
             out.confidence,
-            rect.left_vpc,
-            rect.right_vpc,
+            rect.left_rect,
+            rect.right_rect,
             timings,
         )
 
@@ -435,10 +442,10 @@ class DepthPipeline:
     ) -> tuple[NDArray[np.float32], U8]:
         """Points (N, 3) float32 in the rig frame and their colours (N, 3) uint8 RGB (gray
         images give gray colours), every ``stride``-th pixel of each axis. Colours come from
-        ``image`` (the left VPC image, (H, W[, 3]) uint8) or else ``frame.left_vpc``."""
+        ``image`` (the left VPC image, (H, W[, 3]) uint8) or else ``frame.left_rect``."""
         pair = self.pair
-        pts, idx = range_points(frame.range, pair.camera, pair.T_rig_vpc[pair.left], stride)
-        img = frame.left_vpc if image is None else image
+        pts, idx = range_points(frame.range, pair.camera, pair.T_rig_rect[pair.left], stride)
+        img = frame.left_rect if image is None else image
         if img.shape[:2] != frame.depth.shape:
             raise PipelineError(
                 f"point_cloud: colour image is {img.shape[1]}x{img.shape[0]}, depth is "
@@ -469,5 +476,5 @@ class DepthPipeline:
         else:
             outline = image_border(c.width, c.height, samples)
         rays, _ = c.unproject(outline, in_image=False)
-        pix, ok = geometry.rig.cameras[camera].project(rays @ pair.R_cam_vpc[camera].T, in_image=False)
+        pix, ok = geometry.rig.cameras[camera].project(rays @ pair.R_cam_rect[camera].T, in_image=False)
         return pix[ok]

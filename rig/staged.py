@@ -40,7 +40,7 @@ from typing import Any, Generic, Literal, TypeVar
 from numpy.typing import NDArray
 
 from rig.errors import RigError
-from rig.pipeline import DepthFrame, DepthPipeline, MatchedPair, RectifiedPair, VpcGeometry
+from rig.pipeline import DepthFrame, DepthPipeline, MatchedImages, PairGeometry, RectifiedImages
 from rig.priority import apply_to_current_thread
 
 __all__ = [
@@ -191,14 +191,14 @@ class JustInTime:
 @dataclass
 class _Prepared(Generic[K]):
     job: PairJob[K]
-    rect: RectifiedPair
+    rect: RectifiedImages
     decode_ms: float
 
 
 @dataclass
 class _Matched(Generic[K]):
     job: PairJob[K]
-    matched: MatchedPair
+    matched: MatchedImages
     decode_ms: float
 
 
@@ -326,7 +326,7 @@ class StagedExecutor:
         self._to_match.put(_Prepared(job, rect, decode_ms))
         return True
 
-    def _rectify(self, job: PairJob[Any]) -> tuple[RectifiedPair, float]:
+    def _rectify(self, job: PairJob[Any]) -> tuple[RectifiedImages, float]:
         """Load and remap one pair, the two cameras on two threads: JPEG decoding is
         single-threaded, and two remaps at once beat one parallelised after another."""
         left_name, right_name = self.pipeline.names
@@ -343,14 +343,16 @@ class StagedExecutor:
                 right = self._load_rectify(right_name, job.right, geometry)
             finally:
                 left = future.result()  # also when the right failed: no thread left on this pair
-        right_vpc, right_gray, right_decode, right_remap = right
-        left_vpc, left_gray, left_decode, left_remap = left
-        rect = RectifiedPair(
-            left_vpc, right_vpc, left_gray, right_gray, max(left_remap, right_remap), geometry
+        right_rect, right_gray, right_decode, right_remap = right
+        left_rect, left_gray, left_decode, left_remap = left
+        rect = RectifiedImages(
+            left_rect, right_rect, left_gray, right_gray, max(left_remap, right_remap), geometry
         )
         return rect, max(left_decode, right_decode)
 
-    def _load_rectify(self, name: str, load: Callable[[], NDArray[Any]], geometry: VpcGeometry) -> _Rectified:
+    def _load_rectify(
+        self, name: str, load: Callable[[], NDArray[Any]], geometry: PairGeometry
+    ) -> _Rectified:
         t0 = time.perf_counter()
         image = load()
         t1 = time.perf_counter()

@@ -24,9 +24,9 @@ import numpy as np
 import platformdirs
 
 from rig.recording import RECORDING_VERSION, Recording, RecordingWriter
+from rig.rectified import RectifiedPairConfig
 from rig.sim import get_preset, simulate_recording
 from rig.sim.simulate import GROUND_TRUTH_VERSION
-from rig.vpc import VpcConfig
 
 __all__ = [
     "DEMO_FPS",
@@ -56,7 +56,7 @@ class DemoSpec:
     frames: int = 30
     supersample: int = 2
     seed: int = 0
-    vpc: VpcConfig = field(default_factory=VpcConfig)
+    vpc: RectifiedPairConfig = field(default_factory=RectifiedPairConfig)
 
     def as_json(self) -> dict[str, Any]:
         return {

@@ -44,11 +44,11 @@ def service_estimate(settings: Settings, rig: Rig) -> MemoryEstimate:
     queued = (pairing.buffer_size + pairing.pair_buffer) if pairing is not None else 12
     parts = pipeline_parts(settings.vpc, settings.stereo, sizes, queued_frames_per_camera=queued)
     camera_px = sum(w * h for w, h in sizes)
-    vpc_px = settings.vpc.width * settings.vpc.height
+    rect_px = settings.vpc.width * settings.vpc.height
     return parts.plus(
         recording_queue=server.recording_queue * _QUEUED_FRAME_BYTES * camera_px,
         connections=server.max_connections * (server.max_body_bytes + _CONNECTION_BUFFERS),
-        streams=server.max_streams * (vpc_px + _STREAM_SOCKET),
+        streams=server.max_streams * (rect_px + _STREAM_SOCKET),
         interpreter=BASE_BYTES,
     )
 

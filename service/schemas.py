@@ -9,8 +9,8 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model
 
 from rig.capture.faults import Fault
 from rig.counters import CounterSpec, CounterValue, Group, Kind, counters_of
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
 from service.recordings import NAME_PATTERN, validate_name
 
 __all__ = [
@@ -34,9 +34,9 @@ __all__ = [
     "RecordingStart",
     "RectificationHealthBase",
     "RectificationHealthModel",
+    "RectifiedPairModel",
     "ServerPublicModel",
     "StereoPatch",
-    "VpcModel",
     "WorkerHealthBase",
     "WorkerHealthModel",
 ]
@@ -250,7 +250,7 @@ class HealthModel(BaseModel):
     )
 
 
-class VpcModel(BaseModel):
+class RectifiedPairModel(BaseModel):
     projection: Literal["pinhole", "latlon"] = Field(
         description="pinhole: u = cx + fx·x/z, v = cy + fy·y/z; latlon: u = cx + fx·asin(x/|p|), "
         "v = cy + fy·atan2(y, z) (fx, fy in px per radian), in the left rectified frame"
@@ -283,7 +283,7 @@ class CameraCalibrationModel(BaseModel):
 
 class CalibrationModel(BaseModel):
     cameras: dict[str, CameraCalibrationModel]
-    vpc: VpcModel
+    vpc: RectifiedPairModel
     baseline_m: float
     depth_scale_m: float
     source: str | None
@@ -303,7 +303,7 @@ class ServerPublicModel(BaseModel):
 
 class ConfigModel(BaseModel):
     stereo: StereoParams
-    vpc: VpcConfig
+    vpc: RectifiedPairConfig
     server: ServerPublicModel
     cameras: dict[str, Any] | None
 

@@ -21,7 +21,7 @@ from rig.capture.frame import Frame
 from rig.pipeline import DepthFrame
 from service.errors import ConfidenceOff
 
-__all__ = ["EncodeCache", "EncodeCounter", "PublishedResult", "ResultStore", "VpcRenderer"]
+__all__ = ["EncodeCache", "EncodeCounter", "PublishedResult", "RectifiedRenderer", "ResultStore"]
 
 
 class EncodeCounter:
@@ -70,7 +70,7 @@ class EncodeCache:
             return cached
 
 
-VpcRenderer = Callable[[str, Frame], NDArray[np.uint8]]
+RectifiedRenderer = Callable[[str, Frame], NDArray[np.uint8]]
 """``(camera, raw frame) → that camera's VPC image`` from the frame's full (colour) image."""
 
 
@@ -78,8 +78,8 @@ VpcRenderer = Callable[[str, Frame], NDArray[np.uint8]]
 class PublishedResult:
     """One processed pair. ``index`` counts published results (1, 2, …); ``seq``/``ts_ns`` are
     the pair's (left camera's); ``left``/``right`` the raw frames as the cameras delivered them;
-    ``published_ns`` when the worker published it (time.monotonic_ns). ``render_vpc`` makes the
-    colour VPC images on request (:meth:`vpc_image`)."""
+    ``published_ns`` when the worker published it (time.monotonic_ns). ``render_rectified`` makes the
+    colour VPC images on request (:meth:`rect_image`)."""
 
     index: int
     frame: DepthFrame
@@ -88,17 +88,17 @@ class PublishedResult:
     published_ns: int
     latency_ms: float
     cache: EncodeCache = field(default_factory=EncodeCache)
-    render_vpc: VpcRenderer | None = None
+    render_rectified: RectifiedRenderer | None = None
     # Made on request and kept with the result (carried over by dataclasses.replace).
-    _vpc_images: dict[str, NDArray[np.uint8]] = field(default_factory=dict, repr=False)
-    _vpc_locks: dict[str, threading.Lock] = field(
+    _rect_images: dict[str, NDArray[np.uint8]] = field(default_factory=dict, repr=False)
+    _rect_locks: dict[str, threading.Lock] = field(
         default_factory=lambda: {"left": threading.Lock(), "right": threading.Lock()}, repr=False
     )
 
     def __post_init__(self) -> None:
         # Shared read-only by every client thread: make accidental writes fail loudly. (Not the
         # disparity: the pipeline's temporal filter keeps it as its state.)
-        for arr in (self.frame.depth, self.frame.valid, self.frame.left_vpc, self.frame.right_vpc):
+        for arr in (self.frame.depth, self.frame.valid, self.frame.left_rect, self.frame.right_rect):
             arr.setflags(write=False)
 
     @property
@@ -121,22 +121,22 @@ class PublishedResult:
             )
         return self.frame.confidence
 
-    def vpc_image(self, camera: str) -> NDArray[np.uint8]:
+    def rect_image(self, camera: str) -> NDArray[np.uint8]:
         """``camera``'s (``left``/``right``) VPC image as the camera sees it: colour for colour
-        cameras. The worker computes depth from luma only (``frame.left_vpc`` is gray); this
-        image is made from the raw frame by ``render_vpc`` when first asked for, once per
+        cameras. The worker computes depth from luma only (``frame.left_rect`` is gray); this
+        image is made from the raw frame by ``render_rectified`` when first asked for, once per
         result whoever asks, and read-only. Without a renderer, the frame's own VPC image."""
-        if self.render_vpc is None:
-            return self.frame.left_vpc if camera == "left" else self.frame.right_vpc
-        image = self._vpc_images.get(camera)
+        if self.render_rectified is None:
+            return self.frame.left_rect if camera == "left" else self.frame.right_rect
+        image = self._rect_images.get(camera)
         if image is not None:
             return image
-        with self._vpc_locks[camera]:
-            image = self._vpc_images.get(camera)
+        with self._rect_locks[camera]:
+            image = self._rect_images.get(camera)
             if image is None:
-                image = self.render_vpc(camera, self.raw_frame(camera))
+                image = self.render_rectified(camera, self.raw_frame(camera))
                 image.setflags(write=False)
-                self._vpc_images[camera] = image
+                self._rect_images[camera] = image
             return image
 
     def valid_fraction(self) -> float:

@@ -37,7 +37,7 @@ from rig.pipeline import DepthFrame, DepthPipeline
 from rig.staged import EndOfPairs, JustInTime, PairJob, StagedExecutor
 from service.store import PublishedResult, ResultStore
 
-__all__ = ["DepthWorker", "PairSource", "WorkerStats", "render_vpc"]
+__all__ = ["DepthWorker", "PairSource", "WorkerStats", "render_rectified"]
 
 log = logging.getLogger("service.worker")
 
@@ -69,9 +69,9 @@ class WorkerStats:
         return bool(self.counters["alive"])
 
 
-def render_vpc(pipeline: DepthPipeline, camera: str, frame: Frame) -> NDArray[Any]:
+def render_rectified(pipeline: DepthPipeline, camera: str, frame: Frame) -> NDArray[Any]:
     """The VPC image of ``camera`` (``left``/``right``) from its raw ``frame``'s full (colour)
-    image: what :meth:`PublishedResult.vpc_image` asks for."""
+    image: what :meth:`PublishedResult.rect_image` asks for."""
     name = pipeline.names[0 if camera == "left" else 1]
     return pipeline.rectify_camera(name, frame.image)[0]
 
@@ -183,7 +183,7 @@ class DepthWorker:
             published_ns=0,
             latency_ms=0.0,
             cache=self.store.new_cache(),
-            render_vpc=functools.partial(render_vpc, self.pipeline),
+            render_rectified=functools.partial(render_rectified, self.pipeline),
         )
         # Encode what clients polled on the previous frame *before* this one becomes visible: a
         # poll then always finds its bytes ready (no request waits on the encode, none takes a

@@ -38,8 +38,8 @@ from rig.evaluate.metrics import (
 )
 from rig.evaluate.renders import PlaneShot
 from rig.pipeline import DepthPipeline
+from rig.rectified import RectifiedPair, RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig, VpcPair
 
 __all__ = [
     "REFERENCE",
@@ -59,17 +59,17 @@ TRUE_LENS = "true_lens"
 THEORY = "theory"
 
 
-def reference_rig(pair: VpcPair) -> Rig:
+def reference_rig(pair: RectifiedPair) -> Rig:
     """Two ideal pinholes exactly at the VPC poses (the paper's Reference cameras): designing a
-    VPC pair on this rig gives the same pair with R_cam_vpc = I (identity lookup tables)."""
+    VPC pair on this rig gives the same pair with R_cam_rect = I (identity lookup tables)."""
     return Rig(
         {pair.left: pair.camera, pair.right: pair.camera.replace()},
-        {pair.left: pair.T_rig_vpc[pair.left].copy(), pair.right: pair.T_rig_vpc[pair.right].copy()},
+        {pair.left: pair.T_rig_rect[pair.left].copy(), pair.right: pair.T_rig_rect[pair.right].copy()},
     )
 
 
 def build_pipelines(
-    rigs: Mapping[str, Rig], vpc: VpcConfig, stereo: StereoParams, cache_dir: Path
+    rigs: Mapping[str, Rig], vpc: RectifiedPairConfig, stereo: StereoParams, cache_dir: Path
 ) -> tuple[dict[str, DepthPipeline], dict[str, str]]:
     """One pipeline per curve name; curves whose pipeline cannot be built (e.g. a model whose
     field ends before the VPC's) go into the second dict with the reason."""
@@ -96,7 +96,7 @@ class DepthSample:
 def measure_depth(
     pipelines: Mapping[str, DepthPipeline],
     shot: PlaneShot,
-    pair: VpcPair,
+    pair: RectifiedPair,
     *,
     seed: int,
     vicinity_frac: float,
@@ -105,10 +105,10 @@ def measure_depth(
     """Depth of ``shot`` through every pipeline (the Reference one takes the Reference pair)."""
     if not isinstance(pair.camera, PinholeModel):
         raise EvaluationError(
-            "the paper's depth evaluation is of the pinhole pair (VpcConfig projection pinhole)"
+            "the paper's depth evaluation is of the pinhole pair (RectifiedPairConfig projection pinhole)"
         )
     # The plane z = D of the rig frame, in the left VPC frame.
-    plane = plane_in_frame(pair.T_rig_vpc[pair.left], [0.0, 0.0, 1.0], shot.distance_m)
+    plane = plane_in_frame(pair.T_rig_rect[pair.left], [0.0, 0.0, 1.0], shot.distance_m)
     out = []
     for i, (name, pipe) in enumerate(pipelines.items()):
         left, right = (shot.ref_left, shot.ref_right) if name == REFERENCE else (shot.left, shot.right)
@@ -170,7 +170,7 @@ def average_curves(
     return curves, fits
 
 
-def theory_curve(reference: Sequence[CurvePoint], pair: VpcPair) -> tuple[list[CurvePoint], float]:
+def theory_curve(reference: Sequence[CurvePoint], pair: RectifiedPair) -> tuple[list[CurvePoint], float]:
     """The theoretical σZ at the Reference's distances, and the σd (px) it uses: the median of
     the Reference's disparity RMS over the distances (NaN curve when there is none)."""
     measured = [p.disparity_rms_px for p in reference if math.isfinite(p.disparity_rms_px)]

@@ -29,9 +29,9 @@ from calibration.rig import Rig
 from rig.errors import LutError
 from rig.evaluate.metrics import image_difference
 from rig.evaluate.renders import lut_box, render_in_box, union_box
-from rig.lut import Lut, build_vpc_lut
+from rig.lut import Lut, build_rectified_lut
+from rig.rectified import RectifiedPair
 from rig.sim import CheckerTexture, Scene, Texture, TexturedRect, make_texture, render, room_scene
-from rig.vpc import VpcPair
 
 __all__ = ["DifferenceResult", "DistortionStudy", "run_distortion_study"]
 
@@ -70,7 +70,7 @@ class DifferenceResult:
     mad_whole: float
     mad_central: float
     valid_frac: float
-    vpc_image: U8 | None
+    rect_image: U8 | None
     diff_image: U8 | None
     error: str | None = None
 
@@ -83,7 +83,7 @@ class DistortionStudy:
 
 def run_distortion_study(
     rig: Rig,
-    pair: VpcPair,
+    pair: RectifiedPair,
     left_models: dict[str, CameraModel],
     *,
     seed: int,
@@ -94,12 +94,12 @@ def run_distortion_study(
     rendered through ``rig.cameras[pair.left]``)."""
     name = pair.left
     lens = rig.cameras[name]
-    R = pair.R_cam_vpc[name]
+    R = pair.R_cam_rect[name]
     luts: dict[str, Lut] = {}
     errors: dict[str, str] = {}
     for label, model in left_models.items():
         try:
-            luts[label] = build_vpc_lut(model, R, pair.camera)
+            luts[label] = build_rectified_lut(model, R, pair.camera)
         except LutError as err:
             errors[label] = str(err)
     scene = comparison_scene(seed)
@@ -107,7 +107,7 @@ def run_distortion_study(
     box = union_box(lut_box(lut, lens) for lut in luts.values()) if luts else (0, 0, 0, 0)
     fisheye = render_in_box(scene, lens, T_world_cam, box, supersample=supersample)
     step("rendering the room")
-    reference = render(scene, pair.camera, ROOM_POSE @ pair.T_rig_vpc[name], supersample=supersample).image
+    reference = render(scene, pair.camera, ROOM_POSE @ pair.T_rig_rect[name], supersample=supersample).image
     step("rendering the room")
     results: dict[str, DifferenceResult] = {}
     for label in left_models:
@@ -115,7 +115,7 @@ def run_distortion_study(
             results[label] = DifferenceResult(label, math.nan, math.nan, 0.0, None, None, errors[label])
             continue
         lut = luts[label]
-        vpc_image = lut.remap(fisheye)
-        whole, central, diff = image_difference(vpc_image, reference, lut.valid)
-        results[label] = DifferenceResult(label, whole, central, lut.valid_fraction, vpc_image, diff)
+        rect_image = lut.remap(fisheye)
+        whole, central, diff = image_difference(rect_image, reference, lut.valid)
+        results[label] = DifferenceResult(label, whole, central, lut.valid_fraction, rect_image, diff)
     return DistortionStudy(reference, results)

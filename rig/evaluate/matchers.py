@@ -22,8 +22,8 @@ from calibration.rig import Rig
 from rig.evaluate.metrics import DisparityStats, disparity_stats, finite_mean
 from rig.evaluate.renders import PlaneShot
 from rig.pipeline import DepthPipeline
+from rig.rectified import RectifiedPair, RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig, VpcPair
 
 __all__ = [
     "MATCHER_LABELS",
@@ -55,7 +55,7 @@ def matcher_params(base: StereoParams) -> dict[str, StereoParams]:
 
 
 def build_matchers(
-    ref_rig: Rig, vpc: VpcConfig, base: StereoParams, cache_dir: Path
+    ref_rig: Rig, vpc: RectifiedPairConfig, base: StereoParams, cache_dir: Path
 ) -> dict[str, DepthPipeline]:
     # Validate through the model: model_copy(update=...) does not run the validators.
     params = {k: StereoParams.model_validate(p.model_dump()) for k, p in matcher_params(base).items()}
@@ -72,7 +72,7 @@ class MatcherSample:
 
 
 def measure_matchers(
-    pipelines: Mapping[str, DepthPipeline], shot: PlaneShot, pair: VpcPair
+    pipelines: Mapping[str, DepthPipeline], shot: PlaneShot, pair: RectifiedPair
 ) -> list[MatcherSample]:
     """Every matcher on the Reference pair of ``shot``."""
     with np.errstate(divide="ignore", invalid="ignore"):

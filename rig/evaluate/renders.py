@@ -23,8 +23,8 @@ from calibration.models import CameraModel
 from calibration.rig import Rig
 from rig.errors import EvaluationError
 from rig.lut import Lut
+from rig.rectified import RectifiedPair
 from rig.sim import Scene, chessboard_corners, chessboard_scene, plane_scene, render
-from rig.vpc import VpcPair
 
 __all__ = [
     "Box",
@@ -248,7 +248,7 @@ class PlaneShot:
     depth_true: F32
 
 
-def plane_distance(pair: VpcPair, k: float, phase_px: float) -> float:
+def plane_distance(pair: RectifiedPair, k: float, phase_px: float) -> float:
     """Distance (m) of the plane at ``k`` baselines moved so its disparity is ``fx/k + phase_px``.
 
     At whole-pixel disparities (fx/k is one for many k: fx = 320 and k = 2, 4, 5, 8, …) the
@@ -260,7 +260,7 @@ def plane_distance(pair: VpcPair, k: float, phase_px: float) -> float:
 
 def render_plane_shot(
     rig: Rig,
-    pair: VpcPair,
+    pair: RectifiedPair,
     k: float,
     texture: str,
     boxes: dict[str, Box],
@@ -286,7 +286,7 @@ def render_plane_shot(
         for i, name in enumerate((pair.left, pair.right))
     }  # fmt: skip
     refs = {
-        name: render(scene, pair.camera, pair.T_rig_vpc[name], supersample=supersample,
+        name: render(scene, pair.camera, pair.T_rig_rect[name], supersample=supersample,
                      noise_std=noise_std, seed=int(seeds[2 + i]))
         for i, name in enumerate((pair.left, pair.right))
     }  # fmt: skip

@@ -1,7 +1,7 @@
 """How far the rectified pair is from rectified: the vertical disparity of matched features
 (docs/rectification.md).
 
-Each match's two rays are rotated into their VPCs (``R_cam_vpc``) and projected by the pair's
+Each match's two rays are rotated into their VPCs (``R_cam_rect``) and projected by the pair's
 pinhole; the vertical disparity is the row difference ``v_left − v_right`` in VPC pixels, over
 the matches that land inside both VPC images. A perfect calibration leaves only the matcher's
 noise; a rotation error of a tenth of a degree gives about half a pixel at 640×480, 90°.
@@ -19,9 +19,9 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from rig.vpc import VpcPair
+from rig.rectified import RectifiedPair
 
-__all__ = ["MeasureState", "VerticalDisparity", "vertical_disparity", "vpc_rows"]
+__all__ = ["MeasureState", "VerticalDisparity", "rectified_rows", "vertical_disparity"]
 
 F64 = NDArray[np.float64]
 
@@ -49,20 +49,20 @@ class VerticalDisparity:
         return self.state == "ok"
 
 
-def vpc_rows(pair: VpcPair, name: str, rays: F64) -> tuple[F64, NDArray[np.bool_]]:
+def rectified_rows(pair: RectifiedPair, name: str, rays: F64) -> tuple[F64, NDArray[np.bool_]]:
     """Pixels (N, 2) of camera ``name``'s rays (N, 3, its frame) in its VPC, and which lie inside
     the VPC image."""
-    in_vpc = np.asarray(rays, dtype=np.float64).reshape(-1, 3) @ pair.R_cam_vpc[name]
-    return pair.camera.project(in_vpc)
+    in_rect = np.asarray(rays, dtype=np.float64).reshape(-1, 3) @ pair.R_cam_rect[name]
+    return pair.camera.project(in_rect)
 
 
 def vertical_disparity(
-    pair: VpcPair, rays_left: F64, rays_right: F64, *, min_matches: int = 50, min_spread: float = 0.4
+    pair: RectifiedPair, rays_left: F64, rays_right: F64, *, min_matches: int = 50, min_spread: float = 0.4
 ) -> VerticalDisparity:
     """The vertical disparity of matched rays (N, 3) of ``pair.left`` / ``pair.right`` (see the
     module doc)."""
-    pl, ok_l = vpc_rows(pair, pair.left, rays_left)
-    pr, ok_r = vpc_rows(pair, pair.right, rays_right)
+    pl, ok_l = rectified_rows(pair, pair.left, rays_left)
+    pr, ok_r = rectified_rows(pair, pair.right, rays_right)
     inside = ok_l & ok_r
     n = int(np.count_nonzero(inside))
     cam = pair.camera

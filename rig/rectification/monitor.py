@@ -56,7 +56,7 @@ from rig.rectification.status import (
     rectification_state,
 )
 from rig.rectification.views import EpipolarViews
-from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
+from rig.rectified import RectifiedPair, RectifiedPairConfig, design_rectified_pair
 
 __all__ = [
     "CheckResult",
@@ -109,7 +109,7 @@ class RectificationMonitor:
     def __init__(
         self,
         rig: Rig,
-        vpc: VpcConfig,
+        vpc: RectifiedPairConfig,
         source: PairSource,
         options: RectificationConfig | None = None,
         apply: Callable[[Rig], None] | None = None,
@@ -126,17 +126,17 @@ class RectificationMonitor:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.rig = rig
-        self._pair = design_vpc_pair(rig, vpc)  # checks the pair's cameras now
+        self._pair = design_rectified_pair(rig, vpc)  # checks the pair's cameras now
         self._views: EpipolarViews | None = None  # built by the first check (not at start-up)
 
     # ----- geometry ----------------------------------------------------------------------------
     def _set_rig(self, rig: Rig) -> None:
         views = EpipolarViews(rig, self.vpc.left, self.vpc.right, max_px_per_deg=self.options.view_px_per_deg)
-        pair = design_vpc_pair(rig, self.vpc)
+        pair = design_rectified_pair(rig, self.vpc)
         with self._lock:
             self.rig, self._views, self._pair = rig, views, pair
 
-    def _geometry(self) -> tuple[Rig, EpipolarViews, VpcPair]:
+    def _geometry(self) -> tuple[Rig, EpipolarViews, RectifiedPair]:
         with self._lock:
             rig, views, pair = self.rig, self._views, self._pair
         if views is None:
@@ -145,7 +145,7 @@ class RectificationMonitor:
         return rig, views, pair
 
     @property
-    def pair(self) -> VpcPair:
+    def pair(self) -> RectifiedPair:
         return self._pair
 
     # ----- lifecycle ---------------------------------------------------------------------------
@@ -223,7 +223,7 @@ class RectificationMonitor:
         return result
 
     def _fit(
-        self, rig: Rig, pair: VpcPair, views: EpipolarViews, matches: RayMatches, min_inliers: int
+        self, rig: Rig, pair: RectifiedPair, views: EpipolarViews, matches: RayMatches, min_inliers: int
     ) -> RelativePoseFit | None:
         """The rotation-only fit of ``matches`` against ``rig`` (None when they do not support one)."""
         if len(matches) < min_inliers:
@@ -238,14 +238,14 @@ class RectificationMonitor:
                 matches.left,
                 matches.right,
                 relative_pose(rig, pair.left, pair.right),
-                pair.R_cam_vpc[pair.left],
+                pair.R_cam_rect[pair.left],
                 pose,
             )
         except CalibrationFailed:
             return None
 
     # ----- online refinement -------------------------------------------------------------------
-    def _consider_refinement(self, rig: Rig, pair: VpcPair, views: EpipolarViews) -> None:
+    def _consider_refinement(self, rig: Rig, pair: RectifiedPair, views: EpipolarViews) -> None:
         opts = self.options
         if len(self._pool.estimates) < opts.stable_checks:
             self._set_refinement(
@@ -262,7 +262,9 @@ class RectificationMonitor:
         new_rig = rig_with_relative_pose(rig, pair.left, pair.right, fit.T_right_left)
         consistent = pooled.select(fit.inliers)
         before = vertical_disparity(pair, consistent.left, consistent.right)
-        after = vertical_disparity(design_vpc_pair(new_rig, self.vpc), consistent.left, consistent.right)
+        after = vertical_disparity(
+            design_rectified_pair(new_rig, self.vpc), consistent.left, consistent.right
+        )
         why_not = self._unjustified(fit, before, after)
         if why_not is not None:
             self._set_refinement(f"no correction: {why_not}")

@@ -1,7 +1,7 @@
 """Epipolar lat-lon views: both fisheye images resampled onto one grid of epipolar planes, where
 features are found and matched (docs/rectification.md).
 
-The view frame is the rectified pair's (:func:`rig.vpc.design_vpc_pair`: x along the baseline,
+The view frame is the rectified pair's (:func:`rig.rectified.design_rectified_pair`: x along the baseline,
 y down, z forward). A view pixel ``(u, v)`` is the ray of longitude ``ψ = (u − cu) / s`` (the
 angle within its epipolar plane, from the plane x = 0 towards the baseline) and latitude
 ``φ = (v − cv) / s`` (the epipolar plane's angle about the baseline)::
@@ -31,7 +31,7 @@ from calibration.models import CameraModel
 from calibration.rig import Rig
 from rig.errors import ConfigError, PipelineError
 from rig.lut import INVALID_COORD, Lut
-from rig.vpc import VpcConfig, design_vpc_pair
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 
 __all__ = ["EpipolarViews", "angular_resolution"]
 
@@ -81,9 +81,9 @@ class EpipolarViews:
             raise ConfigError(
                 f"epipolar views: lon_deg must be in (0, 90) and lat_deg in (0, 90], got {lon_deg}, {lat_deg}"
             )
-        pair = design_vpc_pair(rig, VpcConfig(left=left, right=right))
+        pair = design_rectified_pair(rig, RectifiedPairConfig(left=left, right=right))
         self.names = (left, right)
-        self.R_cam_view = {n: pair.R_cam_vpc[n] for n in self.names}
+        self.R_cam_view = {n: pair.R_cam_rect[n] for n in self.names}
         self.cameras = {n: rig.cameras[n] for n in self.names}
         self.px_per_rad = scale * min(angular_resolution(c) for c in self.cameras.values())
         if max_px_per_deg is not None:

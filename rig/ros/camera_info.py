@@ -42,8 +42,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calibration.models import CameraModel
+from rig.rectified import RectifiedPair
 from rig.ros.names import RosNames
-from rig.vpc import VpcPair
 
 __all__ = ["CameraInfo", "raw_camera_info", "rectified_camera_info", "rectified_projection", "stamp_json"]
 
@@ -111,7 +111,7 @@ def _intrinsics(model: CameraModel) -> tuple[str, tuple[float, ...], F64]:
     return name, tuple(float(x) for x in model.params), k
 
 
-def rectified_projection(pair: VpcPair, camera: str) -> F64:
+def rectified_projection(pair: RectifiedPair, camera: str) -> F64:
     """``P`` (3, 4) of ``camera``'s rectified view: the VPC pinhole (the lat-lon pair: its
     ``fx, fy, cx, cy``), ``Tx = −fx·B`` for the right camera of the pair (0 for the left)."""
     c = pair.camera
@@ -119,9 +119,9 @@ def rectified_projection(pair: VpcPair, camera: str) -> F64:
     return np.array([[c.fx, 0.0, c.cx, tx], [0.0, c.fy, c.cy, 0.0], [0.0, 0.0, 1.0, 0.0]])
 
 
-def raw_camera_info(model: CameraModel, pair: VpcPair, camera: str, names: RosNames) -> CameraInfo:
+def raw_camera_info(model: CameraModel, pair: RectifiedPair, camera: str, names: RosNames) -> CameraInfo:
     """The fisheye ``camera``'s CameraInfo: its own ``D``/``K``, the rectification into its VPC
-    (``R = R_vpc_cam``) and the rectified ``P``."""
+    (``R = R_rect_cam``) and the rectified ``P``."""
     distortion, d, k = _intrinsics(model)
     return CameraInfo(
         frame_id=names.camera_frame(camera),
@@ -130,12 +130,12 @@ def raw_camera_info(model: CameraModel, pair: VpcPair, camera: str, names: RosNa
         distortion_model=distortion,
         d=tuple(float(x) for x in d),
         k=k,
-        r=np.ascontiguousarray(pair.R_cam_vpc[camera].T),
+        r=np.ascontiguousarray(pair.R_cam_rect[camera].T),
         p=rectified_projection(pair, camera),
     )
 
 
-def rectified_camera_info(pair: VpcPair, camera: str, names: RosNames) -> CameraInfo:
+def rectified_camera_info(pair: RectifiedPair, camera: str, names: RosNames) -> CameraInfo:
     """``camera``'s rectified view: the VPC as plumb_bob with zero distortion (the lat-lon pair:
     ``latlon``, no ``D``; see the module doc), identity ``R``."""
     c = pair.camera

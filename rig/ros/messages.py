@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rig.depth import depth_to_png_mm, pack_xyzrgb
-from rig.pipeline import DepthFrame, DepthPipeline, VpcGeometry
+from rig.pipeline import DepthFrame, DepthPipeline, PairGeometry
 from rig.recording import StoredFrame
 from rig.ros.camera_info import CameraInfo, raw_camera_info, rectified_camera_info
 from rig.ros.images import RawPixels, raw_pixels
@@ -114,7 +114,7 @@ class MessageBuilder:
     rectified_images: bool = True
 
     def __post_init__(self) -> None:
-        self._built_for: VpcGeometry | None = None
+        self._built_for: PairGeometry | None = None
         self._refresh()
 
     def _refresh(self) -> None:
@@ -189,7 +189,7 @@ class MessageBuilder:
         rect_frame = self.names.rect_frame(left)
         out: list[Message] = []
         if self.rectified_images:
-            for cam, img in ((left, frame.left_vpc), (right, frame.right_vpc)):
+            for cam, img in ((left, frame.left_rect), (right, frame.right_rect)):
                 if want(topic := self.names.rect_image(cam)):
                     out.append(ImageMessage(topic, self.names.rect_frame(cam), stamp_ns, raw_pixels(img)))
         infos = [(self.names.rect_info(c), self.rect_infos[c]) for c in self.cameras]

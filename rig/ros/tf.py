@@ -2,7 +2,7 @@
 
 ``rig_link`` (REP 103 body frame: x forward, y left, z up) → ``rig_optical_frame`` (our rig frame:
 x right, y down, z forward) → each fisheye's optical frame (``T_rig_cam`` of the calibration) →
-its rectified view's optical frame (the VPC: same centre, rotated by ``R_cam_vpc``). A transform
+its rectified view's optical frame (the VPC: same centre, rotated by ``R_cam_rect``). A transform
 from ``parent`` to ``child`` holds the child's pose in the parent (``p_parent = T · p_child``),
 as ``geometry_msgs/msg/TransformStamped`` and Foxglove's ``FrameTransform`` do.
 """
@@ -17,8 +17,8 @@ from scipy.spatial.transform import Rotation
 
 from calibration.geometry import invert_transform, make_transform
 from calibration.rig import Rig
+from rig.rectified import RectifiedPair
 from rig.ros.names import RosNames
-from rig.vpc import VpcPair
 
 __all__ = ["R_BODY_OPTICAL", "StaticTransform", "static_transforms"]
 
@@ -54,7 +54,7 @@ class StaticTransform:
         return make_transform(Rotation.from_quat(self.rotation).as_matrix(), self.translation)
 
 
-def static_transforms(rig: Rig, pair: VpcPair, names: RosNames) -> list[StaticTransform]:
+def static_transforms(rig: Rig, pair: RectifiedPair, names: RosNames) -> list[StaticTransform]:
     """Every static transform of the rig, parents before children."""
     out = [
         StaticTransform.from_matrix(
@@ -64,6 +64,6 @@ def static_transforms(rig: Rig, pair: VpcPair, names: RosNames) -> list[StaticTr
     for cam in (pair.left, pair.right):
         T_rig_cam = rig.T_rig_cam[cam]
         out.append(StaticTransform.from_matrix(names.rig_frame, names.camera_frame(cam), T_rig_cam))
-        T_cam_vpc = invert_transform(T_rig_cam) @ pair.T_rig_vpc[cam]
-        out.append(StaticTransform.from_matrix(names.camera_frame(cam), names.rect_frame(cam), T_cam_vpc))
+        T_cam_rect = invert_transform(T_rig_cam) @ pair.T_rig_rect[cam]
+        out.append(StaticTransform.from_matrix(names.camera_frame(cam), names.rect_frame(cam), T_cam_rect))
     return out

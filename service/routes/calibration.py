@@ -6,7 +6,7 @@ from fastapi import APIRouter
 
 from service.deps import RuntimeDep
 from service.runtime import Runtime
-from service.schemas import CalibrationModel, CameraCalibrationModel, VpcModel
+from service.schemas import CalibrationModel, CameraCalibrationModel, RectifiedPairModel
 
 __all__ = ["calibration_model", "router"]
 
@@ -16,7 +16,7 @@ router = APIRouter(tags=["calibration"])
 def calibration_model(runtime: Runtime) -> CalibrationModel:
     pipeline = runtime.pipeline
     pair = pipeline.pair
-    vpc = pipeline.vpc_config
+    vpc = pipeline.pair_config
     cams: dict[str, CameraCalibrationModel] = {}
     for name in runtime.rig.names:
         model = runtime.rig.cameras[name]
@@ -34,13 +34,13 @@ def calibration_model(runtime: Runtime) -> CalibrationModel:
         )
     return CalibrationModel(
         cameras=cams,
-        vpc=VpcModel(
+        vpc=RectifiedPairModel(
             **pair.as_json(),
             hfov_deg=vpc.hfov_deg if pair.projection == "pinhole" else None,
             px_per_deg=vpc.resolution_px_per_deg if pair.projection == "latlon" else None,
             yaw_deg=vpc.yaw_deg,
             pitch_deg=vpc.pitch_deg,
-            T_rig_vpc={n: T.tolist() for n, T in pair.T_rig_vpc.items()},
+            T_rig_vpc={n: T.tolist() for n, T in pair.T_rig_rect.items()},
         ),
         baseline_m=pair.baseline_m,
         depth_scale_m=runtime.settings.server.depth_scale_m,

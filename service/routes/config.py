@@ -38,7 +38,7 @@ def config_model(runtime: Runtime) -> ConfigModel:
     server = s.server
     return ConfigModel(
         stereo=runtime.pipeline.stereo,
-        vpc=runtime.pipeline.vpc_config,
+        vpc=runtime.pipeline.pair_config,
         server=ServerPublicModel(
             host=server.host,
             port=server.port,

@@ -221,7 +221,7 @@ async def get_pointcloud(
     encode = ply_bytes if format == "ply" else pcd_bytes
 
     def produce() -> bytes:
-        points, colors = pipeline.point_cloud(result.frame, stride, image=result.vpc_image("left"))
+        points, colors = pipeline.point_cloud(result.frame, stride, image=result.rect_image("left"))
         return encode(points, colors)
 
     key = f"pointcloud:{stride}" if format == "ply" else f"pointcloud:{format}:{stride}"

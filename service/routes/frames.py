@@ -41,7 +41,7 @@ async def get_frame(
     if view == "vpc":
         # Colour VPC images are made on request (the worker works on luma only).
         body = await cached_body(
-            result, f"vpc:{camera}", lambda: encode_jpeg(result.vpc_image(camera), quality)
+            result, f"vpc:{camera}", lambda: encode_jpeg(result.rect_image(camera), quality)
         )
         return Response(body, media_type="image/jpeg", headers=headers)
     raw = result.raw_frame(camera)

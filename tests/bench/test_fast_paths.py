@@ -20,8 +20,8 @@ from calibration.models import ScaramuzzaModel, create
 from rig.capture.frame import Frame, FramePair
 from rig.lut_cache import LutCache
 from rig.pipeline import DepthFrame, DepthPipeline, tune_allocator
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
 from service.store import ResultStore
 from service.worker import DepthWorker
 from tests.calibration.model_cases import ModelCase, model_cases
@@ -135,13 +135,16 @@ def test_tune_allocator_is_idempotent() -> None:
 
 @pytest.fixture(scope="module")
 def shot() -> StereoShot:
-    return plane_shot(5.0, scale=0.5, vpc=VpcConfig(width=320, height=240))
+    return plane_shot(5.0, scale=0.5, vpc=RectifiedPairConfig(width=320, height=240))
 
 
 @pytest.fixture(scope="module")
 def pipe(shot: StereoShot, lut_cache: Path) -> DepthPipeline:
     return DepthPipeline(
-        shot.rig, VpcConfig(width=320, height=240), StereoParams(disparity_range=64), cache_dir=lut_cache
+        shot.rig,
+        RectifiedPairConfig(width=320, height=240),
+        StereoParams(disparity_range=64),
+        cache_dir=lut_cache,
     )
 
 
@@ -149,7 +152,7 @@ def test_pipeline_stages_are_process(pipe: DepthPipeline, shot: StereoShot) -> N
     whole = pipe.process(shot.left, shot.right, seq=3, ts_ns=9)
     rect = pipe.rectify(shot.left, shot.right)
     staged = pipe.finish(pipe.match(rect), 3, 9)
-    for name in ("depth", "disparity", "valid", "confidence", "left_vpc", "right_vpc"):
+    for name in ("depth", "disparity", "valid", "confidence", "left_rect", "right_rect"):
         assert np.array_equal(getattr(whole, name), getattr(staged, name), equal_nan=name != "valid"), name
     assert staged.timings_ms["total"] == pytest.approx(
         sum(v for k, v in staged.timings_ms.items() if k != "total")
@@ -170,7 +173,9 @@ def test_banded_finish_is_one_pass(
     def finish(pool: bool) -> list[DepthFrame]:
         if not pool:
             monkeypatch.setattr(finish_module, "refine_pool", lambda: None)
-        pipe = DepthPipeline(shot.rig, VpcConfig(width=320, height=240), params, cache_dir=lut_cache)
+        pipe = DepthPipeline(
+            shot.rig, RectifiedPairConfig(width=320, height=240), params, cache_dir=lut_cache
+        )
         rect = pipe.rectify(shot.left, shot.right)
         # Two frames: the second one through the temporal filter's history when it is on.
         return [pipe.finish(pipe.match(rect), i, 0) for i in range(2)]

@@ -10,7 +10,7 @@ import pytest
 
 from calibration import save_rig
 from rig.lut_cache import LutCache, lut_key
-from rig.vpc import VpcConfig, design_vpc_pair
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from tests.helpers.command import clean_env, run_rig
 from tests.helpers.shots import prototype_rig
 
@@ -31,9 +31,9 @@ def test_build_reports_path_key_valid_fraction_and_time_then_hits(calibration: P
     cache = tmp_path / "lut"
     res = run("lut", "build", "--calibration", calibration, "--cache-dir", cache, "--projection", "pinhole")
     assert res.returncode == 0, res.stderr
-    pair = design_vpc_pair(prototype_rig(1.0), VpcConfig(projection="pinhole"))
+    pair = design_rectified_pair(prototype_rig(1.0), RectifiedPairConfig(projection="pinhole"))
     for name in ("left", "right"):
-        key = lut_key(prototype_rig(1.0).cameras[name], pair.R_cam_vpc[name], pair.camera)
+        key = lut_key(prototype_rig(1.0).cameras[name], pair.R_cam_rect[name], pair.camera)
         assert (cache / f"{key}.lut").is_file()
         assert key[:16] in res.stdout
     assert res.stdout.count("100.0%") == 2 and res.stdout.count("built") == 2
@@ -93,8 +93,10 @@ def test_hostile_cache_entries_never_stop_the_command(calibration: Path, tmp_pat
     # Before: a non-finite image size in a header ended with "internal error", a FIFO hung it.
     cache = tmp_path / "lut"
     cache.mkdir()
-    pair = design_vpc_pair(prototype_rig(1.0), VpcConfig(width=320, height=240))
-    keys = [lut_key(prototype_rig(1.0).cameras[n], pair.R_cam_vpc[n], pair.camera) for n in ("left", "right")]
+    pair = design_rectified_pair(prototype_rig(1.0), RectifiedPairConfig(width=320, height=240))
+    keys = [
+        lut_key(prototype_rig(1.0).cameras[n], pair.R_cam_rect[n], pair.camera) for n in ("left", "right")
+    ]
     (cache / f"{keys[0]}.lut").write_bytes(
         b"ODFCLUT\n" + len(h := b'{"version": 2, "height": Infinity}').to_bytes(4, "little") + h
     )

@@ -11,7 +11,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from rig.vpc import DEFAULT_PROJECTION
+from rig.rectified import DEFAULT_PROJECTION
 from tests.helpers.command import (
     Served,
     assert_one_line_error,

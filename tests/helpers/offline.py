@@ -12,8 +12,8 @@ import numpy as np
 from calibration import save_rig
 from rig.pipeline import DepthPipeline
 from rig.recording import RecordingWriter
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
 from tests.helpers.shots import StereoShot, plane_shot
 
 __all__ = [
@@ -27,7 +27,7 @@ __all__ = [
     "shot",
 ]
 
-VPC = VpcConfig(width=320, height=240)
+VPC = RectifiedPairConfig(width=320, height=240)
 VPC_ARGS = ["--vpc-size", "320x240", "--vpc-hfov", "90"]
 # At 320 px wide, 64 disparities (128 would leave 40 % of the columns unmatched).
 STEREO = StereoParams(disparity_range=64)

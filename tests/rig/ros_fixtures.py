@@ -11,11 +11,11 @@ import numpy as np
 
 from rig.pipeline import DepthPipeline
 from rig.recording import RecordingWriter
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
 from tests.helpers.shots import StereoShot, plane_shot
 
-VPC = VpcConfig(width=160, height=120)
+VPC = RectifiedPairConfig(width=160, height=120)
 STEREO = StereoParams(disparity_range=32)
 PAIRS = 3
 T0_NS = 1_700_000_000_123_456_789  # an epoch-like stamp, to catch sec/nanosec splits

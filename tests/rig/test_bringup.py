@@ -14,7 +14,7 @@ import pytest
 from rig.bringup import CheckRow, run_bringup
 from rig.capture.config import CaptureConfig, V4L2CameraConfig
 from rig.capture.v4l2 import V4L2Camera
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 from tests.helpers.shots import prototype_rig
 from tests.rig.test_capture_v4l2 import FakeHardware, FakeVideoCapture
 from tests.rig.test_usb import machine
@@ -57,7 +57,7 @@ def test_exposure_read_back_and_the_usb_budget(
     report = run_bringup(
         config,
         prototype_rig(1.0),
-        vpc=VpcConfig(width=320, height=240),
+        vpc=RectifiedPairConfig(width=320, height=240),
         cache_dir=tmp_path,
         seconds=1.0,
         cameras=cameras(hw, config),

@@ -12,11 +12,11 @@ import pytest
 from calibration.rig import Rig
 from rig.calibration_check import check_calibration, check_frame_sizes, matched_disparities
 from rig.pipeline import DepthPipeline
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
 from tests.helpers.shots import StereoShot, prototype_rig, room_shot
 
-VPC = VpcConfig(width=320, height=240)
+VPC = RectifiedPairConfig(width=320, height=240)
 STEREO = StereoParams(disparity_range=64)
 
 

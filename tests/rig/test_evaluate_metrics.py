@@ -26,7 +26,7 @@ from rig.evaluate.metrics import (
     theory_sigma_z,
     vicinity_mask,
 )
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 
 
 def test_vicinity_mask_keeps_points_within_the_tolerance_of_the_plane() -> None:
@@ -261,12 +261,12 @@ def test_claims_follow_the_numbers() -> None:
 
 
 def test_disparity_range_reaches_the_nearest_plane() -> None:
-    vpc = VpcConfig(projection="pinhole")  # fx = 320
+    vpc = RectifiedPairConfig(projection="pinhole")  # fx = 320
     assert stereo_for(vpc, 2.0).disparity_range == 176  # 160 px * 1.1 -> 176
     assert stereo_for(vpc, 10.0).disparity_range == 48  # 32 * 1.1 = 35.2 -> 48
-    assert stereo_for(VpcConfig(width=320, height=240), 3.0).disparity_range == 64
+    assert stereo_for(RectifiedPairConfig(width=320, height=240), 3.0).disparity_range == 64
     with pytest.raises(ConfigError, match="too many"):
-        stereo_for(VpcConfig(width=128, height=96), 1.0)
+        stereo_for(RectifiedPairConfig(width=128, height=96), 1.0)
 
 
 @pytest.mark.parametrize(
@@ -293,7 +293,11 @@ def test_make_config_rejects_bad_values(kwargs: dict[str, object], match: str) -
 def test_make_config_defaults() -> None:
     full = make_config("paper-sim")
     assert full.distances == tuple(float(k) for k in range(2, 21)) and len(full.textures) == 3
-    assert full.calibration_views >= 20 and full.vpc == VpcConfig(projection="pinhole") and full.scale == 1.0
+    assert (
+        full.calibration_views >= 20
+        and full.vpc == RectifiedPairConfig(projection="pinhole")
+        and full.scale == 1.0
+    )
     quick = make_config("prototype", quick=True, distances=[10, 4, 4])
     assert quick.distances == (4.0, 10.0) and quick.scale == 0.5 and len(quick.textures) == 2
     assert len(full.models) == 6 and "kannala_brandt" in full.models

@@ -21,11 +21,11 @@ from rig.evaluate.renders import (
     render_in_box,
     render_plane_shot,
 )
-from rig.lut import build_vpc_lut
+from rig.lut import build_rectified_lut
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from rig.sim import chessboard_corners, get_preset, plane_scene, render
-from rig.vpc import VpcConfig, design_vpc_pair
 
-SMALL_VPC = VpcConfig(width=160, height=120)
+SMALL_VPC = RectifiedPairConfig(width=160, height=120)
 
 
 def test_render_in_box_equals_the_full_render_inside_the_box() -> None:
@@ -79,14 +79,14 @@ def test_rendered_rim_board_is_found_by_the_detector_where_the_lens_puts_it() ->
 
 def test_reference_rig_gives_the_same_vpc_pair_with_identity_tables() -> None:
     rig = get_preset("prototype").scaled(0.5).rig
-    pair = design_vpc_pair(rig, SMALL_VPC)
+    pair = design_rectified_pair(rig, SMALL_VPC)
     ref = reference_rig(pair)
-    again = design_vpc_pair(ref, SMALL_VPC)
+    again = design_rectified_pair(ref, SMALL_VPC)
     assert again.baseline_m == pytest.approx(pair.baseline_m, rel=1e-12)
     assert again.camera.to_dict() == pair.camera.to_dict()
     for name in ("left", "right"):
-        np.testing.assert_allclose(again.R_cam_vpc[name], np.eye(3), atol=1e-12)
-        lut = build_vpc_lut(ref.cameras[name], again.R_cam_vpc[name], again.camera)
+        np.testing.assert_allclose(again.R_cam_rect[name], np.eye(3), atol=1e-12)
+        lut = build_rectified_lut(ref.cameras[name], again.R_cam_rect[name], again.camera)
         img = np.random.default_rng(1).integers(0, 256, (120, 160), dtype=np.uint8)
         np.testing.assert_array_equal(lut.remap(img), img)  # an exact identity: no resampling
 
@@ -94,7 +94,7 @@ def test_reference_rig_gives_the_same_vpc_pair_with_identity_tables() -> None:
 def test_plane_shot_truth_and_the_reference_pipeline_measure_the_plane(tmp_path: Path) -> None:
     preset = get_preset("paper-sim").scaled(0.25)
     rig = preset.rig
-    pair = design_vpc_pair(rig, SMALL_VPC)
+    pair = design_rectified_pair(rig, SMALL_VPC)
     stereo = stereo_for(SMALL_VPC, 3.0)
     pipes, errors = build_pipelines(
         {REFERENCE: reference_rig(pair), TRUE_LENS: rig}, SMALL_VPC, stereo, tmp_path
@@ -121,7 +121,7 @@ def test_plane_shot_truth_and_the_reference_pipeline_measure_the_plane(tmp_path:
 
 def test_image_difference_ranks_a_wrong_focal_length_below_the_true_lens() -> None:
     rig = get_preset("paper-sim").scaled(0.25).rig
-    pair = design_vpc_pair(rig, SMALL_VPC)
+    pair = design_rectified_pair(rig, SMALL_VPC)
     lens = rig.cameras["left"]
     p = lens.param_dict
     poor = lens.replace(fx=p["fx"] * 1.01, fy=p["fy"] * 1.01)  # 1 % focal length error

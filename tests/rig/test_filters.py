@@ -20,12 +20,12 @@ from rig.filters import (
     visible_in_right,
 )
 from rig.pipeline import DepthFrame, DepthPipeline
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
 from tests.helpers.shots import StereoShot, add_noise, central_box, plane_shot, room_shot
 
 F32 = NDArray[np.float32]
-VPC = VpcConfig(width=320, height=240)
+VPC = RectifiedPairConfig(width=320, height=240)
 BASE: dict[str, Any] = {"disparity_range": 64}
 
 

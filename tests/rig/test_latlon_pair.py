@@ -16,10 +16,10 @@ from calibration.models import LatLonModel, create
 from calibration.rig import Rig
 from rig.errors import ConfigError
 from rig.field import overlap, pixel_solid_angles
-from rig.lut import build_vpc_lut
+from rig.lut import build_rectified_lut
 from rig.lut_cache import lut_key
+from rig.rectified import DEFAULT_PROJECTION, RectifiedPair, RectifiedPairConfig, design_rectified_pair
 from rig.sim import divergent_rig
-from rig.vpc import DEFAULT_PROJECTION, VpcConfig, VpcPair, design_vpc_pair
 from tests.calibration.model_cases import model_cases
 from tests.helpers.shots import prototype_rig
 
@@ -55,8 +55,8 @@ def _ray(az: F64, el: F64) -> F64:
 
 def test_overlap_of_two_half_spheres_is_a_quarter_lune() -> None:
     rig = _lens(180.0)
-    pair = design_vpc_pair(rig, VpcConfig(projection="latlon"))
-    view = overlap(rig, pair.R_rig_vpc, "left", "right", 0.25)
+    pair = design_rectified_pair(rig, RectifiedPairConfig(projection="latlon"))
+    view = overlap(rig, pair.R_rig_rect, "left", "right", 0.25)
     assert view.solid_angle_sr == pytest.approx(math.pi, rel=5e-3)  # a lune of 90°: 2·(π/2)
     az0, az1, el0, el1 = np.degrees(view.bounds())
     assert az0 == pytest.approx(-45.0, abs=0.6) and az1 == pytest.approx(45.0, abs=0.6)
@@ -65,8 +65,8 @@ def test_overlap_of_two_half_spheres_is_a_quarter_lune() -> None:
 
 def test_overlap_of_two_190_degree_lenses_is_the_cap_intersection() -> None:
     rig = _lens(190.0)
-    pair = design_vpc_pair(rig, VpcConfig(projection="latlon"))
-    got = overlap(rig, pair.R_rig_vpc, "left", "right", 0.2).solid_angle_sr
+    pair = design_rectified_pair(rig, RectifiedPairConfig(projection="latlon"))
+    got = overlap(rig, pair.R_rig_rect, "left", "right", 0.2).solid_angle_sr
     assert got == pytest.approx(_cap_intersection_sr(math.radians(95.0), math.radians(90.0)), rel=3e-3)
     assert got > math.pi  # wider than the lune: the 5° past 90° on each lens
 
@@ -81,11 +81,11 @@ def test_a_rig_that_shares_no_direction_is_one_error() -> None:
         },
     )
     with pytest.raises(ConfigError, match="no stereo overlap"):
-        design_vpc_pair(apart, VpcConfig(projection="latlon"))
+        design_rectified_pair(apart, RectifiedPairConfig(projection="latlon"))
 
 
-def _pair(rig: Rig, band: int = 64, **kw: float) -> VpcPair:
-    return design_vpc_pair(rig, VpcConfig(projection="latlon", **kw), blind_band_px=band)  # type: ignore[arg-type]
+def _pair(rig: Rig, band: int = 64, **kw: float) -> RectifiedPair:
+    return design_rectified_pair(rig, RectifiedPairConfig(projection="latlon", **kw), blind_band_px=band)  # type: ignore[arg-type]
 
 
 def test_default_field_holds_the_whole_overlap_right_of_the_blind_band() -> None:
@@ -96,7 +96,7 @@ def test_default_field_holds_the_whole_overlap_right_of_the_blind_band() -> None
     assert cam.fx == pytest.approx(math.degrees(3.0)) and cam.fy == cam.fx
     # Every direction both lenses see (a fine grid, independent of the design's own) lands in the
     # image, right of the 64 columns the matcher cannot match.
-    view = overlap(rig, pair.R_rig_vpc, "left", "right", 0.2)
+    view = overlap(rig, pair.R_rig_rect, "left", "right", 0.2)
     el, az = np.meshgrid(view.el, view.az, indexing="ij")
     pix, ok = cam.project(_ray(az[view.inside], el[view.inside]))
     assert ok.all()
@@ -112,9 +112,9 @@ def test_rows_are_epipolar_planes_on_a_non_ideal_mount() -> None:
     pair = _pair(rig, band=32, px_per_deg=4.0)
     rng = np.random.default_rng(0)
     dirs = _ray(rng.uniform(-0.8, 0.8, 500), rng.uniform(-1.5, 1.5, 500))
-    pts_rig = transform_points(pair.T_rig_vpc["left"], dirs * rng.uniform(0.3, 20.0, (500, 1)))
-    pl, okl = pair.camera.project(transform_points(invert_transform(pair.T_rig_vpc["left"]), pts_rig))
-    pr, okr = pair.camera.project(transform_points(invert_transform(pair.T_rig_vpc["right"]), pts_rig))
+    pts_rig = transform_points(pair.T_rig_rect["left"], dirs * rng.uniform(0.3, 20.0, (500, 1)))
+    pl, okl = pair.camera.project(transform_points(invert_transform(pair.T_rig_rect["left"]), pts_rig))
+    pr, okr = pair.camera.project(transform_points(invert_transform(pair.T_rig_rect["right"]), pts_rig))
     ok = okl & okr
     assert ok.sum() > 400
     assert np.abs(pl[ok, 1] - pr[ok, 1]).max() < 1e-9, "a point's row is the same in both views"
@@ -141,23 +141,23 @@ def test_an_explicit_field_wider_than_the_overlap_is_clipped_with_a_note() -> No
 
 def test_config_keeps_each_projection_to_its_own_settings() -> None:
     with pytest.raises(ValueError, match="width does not apply to the latlon"):
-        VpcConfig(projection="latlon", width=800)
+        RectifiedPairConfig(projection="latlon", width=800)
     with pytest.raises(ValueError, match="px_per_deg does not apply to the pinhole"):
-        VpcConfig(projection="pinhole", px_per_deg=4.0)
+        RectifiedPairConfig(projection="pinhole", px_per_deg=4.0)
     with pytest.raises(ValueError, match="px_per_deg does not apply to the pinhole"):
-        VpcConfig(width=800, px_per_deg=4.0)  # the pinhole's own field selects the pinhole
+        RectifiedPairConfig(width=800, px_per_deg=4.0)  # the pinhole's own field selects the pinhole
     # The default is the lat-lon pair; a configuration with the pinhole's fields keeps meaning it.
-    assert VpcConfig().projection == DEFAULT_PROJECTION == "latlon"
-    assert VpcConfig(width=320, height=240).projection == "pinhole"
-    assert VpcConfig(hfov_deg=100).projection == "pinhole"
+    assert RectifiedPairConfig().projection == DEFAULT_PROJECTION == "latlon"
+    assert RectifiedPairConfig(width=320, height=240).projection == "pinhole"
+    assert RectifiedPairConfig(hfov_deg=100).projection == "pinhole"
     with pytest.raises(ValueError, match="yaw_deg and pitch_deg centre an explicit lat-lon field"):
-        VpcConfig(yaw_deg=10.0)
-    assert VpcConfig(yaw_deg=10.0, az_span_deg=40.0).yaw_deg == 10.0
+        RectifiedPairConfig(yaw_deg=10.0)
+    assert RectifiedPairConfig(yaw_deg=10.0, az_span_deg=40.0).yaw_deg == 10.0
     with pytest.raises(ValueError, match="projection"):
-        VpcConfig(projection="fisheye")  # type: ignore[arg-type]
+        RectifiedPairConfig(projection="fisheye")  # type: ignore[arg-type]
     # A dumped config validates again (defaults of the other projection are not "set").
-    cfg = VpcConfig(projection="latlon", px_per_deg=4.0)
-    assert VpcConfig(**cfg.model_dump()) == cfg
+    cfg = RectifiedPairConfig(projection="latlon", px_per_deg=4.0)
+    assert RectifiedPairConfig(**cfg.model_dump()) == cfg
 
 
 @pytest.mark.parametrize("case", model_cases(), ids=lambda c: c.id)
@@ -170,7 +170,7 @@ def test_latlon_lut_of_every_model_equals_its_projection_of_each_ray(case) -> No
     R = rot_y(math.radians(yaw))  # rectified -> camera: the view crosses a wide lens's limit
     f = math.degrees(1.0) * 1.5
     cam = LatLonModel(150, 240, fx=f, fy=f, cx=74.5, cy=119.5)  # 100° x 160°
-    lut = build_vpc_lut(model, R, cam)
+    lut = build_rectified_lut(model, R, cam)
     el, az = np.meshgrid(cam.elevations(), cam.azimuths(), indexing="ij")
     pix, ok = model.project(_ray(az, el).reshape(-1, 3) @ R.T)
     assert np.array_equal(lut.valid.ravel(), ok)

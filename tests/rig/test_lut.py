@@ -11,7 +11,7 @@ import pytest
 from calibration.geometry import rot_x, rot_y
 from calibration.models import MODELS, KannalaBrandtModel, PinholeModel, create
 from rig.errors import LutError
-from rig.lut import INVALID_COORD, build_vpc_lut, percent_valid, vpc_rays
+from rig.lut import INVALID_COORD, build_rectified_lut, percent_valid, rect_rays
 from tests.calibration.model_cases import ModelCase, model_cases
 
 
@@ -26,12 +26,12 @@ def kb190() -> KannalaBrandtModel:
     return m
 
 
-def opencv_maps(model: KannalaBrandtModel, R_cam_vpc: np.ndarray, cam: PinholeModel) -> tuple:
+def opencv_maps(model: KannalaBrandtModel, R_cam_rect: np.ndarray, cam: PinholeModel) -> tuple:
     K = np.array([[model.fx, 0, model.cx], [0, model.fy, model.cy], [0, 0, 1]])
     D = np.array(model.k, dtype=np.float64)
-    # OpenCV maps output pixel p to the fisheye ray R⁻¹·P⁻¹·p: its R is our R_cam_vpc inverted.
+    # OpenCV maps output pixel p to the fisheye ray R⁻¹·P⁻¹·p: its R is our R_cam_rect inverted.
     return cv2.fisheye.initUndistortRectifyMap(
-        K, D, R_cam_vpc.T, cam.K, (cam.width, cam.height), cv2.CV_32FC1
+        K, D, R_cam_rect.T, cam.K, (cam.width, cam.height), cv2.CV_32FC1
     )
 
 
@@ -55,7 +55,7 @@ def ray_angles(cam: PinholeModel, R: np.ndarray) -> np.ndarray:
 def test_kb_lut_matches_opencv_where_opencv_is_valid(R: np.ndarray, hfov: float, cx_shift: float) -> None:
     model = kb190()
     cam = vpc(320, 240, hfov, cx_shift)
-    lut = build_vpc_lut(model, R, cam)
+    lut = build_rectified_lut(model, R, cam)
     mx, my = opencv_maps(model, R, cam)
     theta = ray_angles(cam, R)
     inside = (mx >= -0.5) & (mx <= model.width - 0.5) & (my >= -0.5) & (my <= model.height - 0.5)
@@ -71,7 +71,7 @@ def test_kb_lut_stays_valid_beyond_90_degrees_where_opencv_is_not() -> None:
     model = kb190()  # 190° lens: sees up to 95° off axis
     R = rot_y(math.radians(60))
     cam = vpc(320, 240, 120.0)
-    lut = build_vpc_lut(model, R, cam)
+    lut = build_rectified_lut(model, R, cam)
     mx, _ = opencv_maps(model, R, cam)
     theta = ray_angles(cam, R)
     beyond = (theta > math.radians(90.5)) & (theta < model.max_theta - 1e-3)
@@ -107,7 +107,7 @@ def test_lut_round_trips_through_the_models_own_unprojection(case: ModelCase) ->
     model = case.model
     R, hfov = _lut_direction(case)
     cam = vpc(200, 150, hfov)
-    lut = build_vpc_lut(model, R, cam)
+    lut = build_rectified_lut(model, R, cam)
     assert lut.map_x.dtype == np.float32 and lut.map_x.shape == (150, 200)
     assert lut.map1.dtype == np.int16 and lut.map1.shape == (150, 200, 2) and lut.map2.dtype == np.uint16
     assert lut.valid_fraction == pytest.approx(lut.valid.mean())
@@ -116,8 +116,8 @@ def test_lut_round_trips_through_the_models_own_unprojection(case: ModelCase) ->
     pix = np.stack([lut.map_x[v, u], lut.map_y[v, u]], 1).astype(np.float64)
     assert model.in_image(pix).all()
     # (a) The sample positions' rays, projected in float64, land on the table's entries.
-    rays_vpc = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones(u.size)], 1)
-    expected, ok = model.project(rays_vpc @ R.T)
+    rays_rect = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones(u.size)], 1)
+    expected, ok = model.project(rays_rect @ R.T)
     assert ok.all()
     assert np.abs(expected - pix).max() < 1e-3
     # (b) Independently, the model's own unprojection of the entries returns the VPC pixel. Near a
@@ -153,7 +153,7 @@ def test_lut_equals_the_models_project_on_every_pixel(case: ModelCase) -> None:
     same validity and positions as one ``model.project`` call on all VPC rays."""
     R, hfov = _lut_direction(case)
     cam = vpc(200, 150, hfov)
-    lut = build_vpc_lut(case.model, R, cam)
+    lut = build_rectified_lut(case.model, R, cam)
     v, u = np.mgrid[0:150, 0:200].astype(np.float64)
     rays = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones_like(u)], -1).reshape(-1, 3)
     pix, ok = case.model.project(rays @ R.T)
@@ -165,7 +165,7 @@ def test_lut_equals_the_models_project_on_every_pixel(case: ModelCase) -> None:
 def test_wide_lut_is_cut_by_the_lens_not_by_90_degrees(case: ModelCase) -> None:
     model = case.model
     R, hfov = _lut_direction(case)
-    lut = build_vpc_lut(model, R, vpc(200, 150, hfov))
+    lut = build_rectified_lut(model, R, vpc(200, 150, hfov))
     theta = ray_angles(vpc(200, 150, hfov), R)
     assert 0.0 < lut.valid_fraction < 1.0, "this VPC should cross the lens's field limit"
     if model.max_theta > math.radians(91):
@@ -179,24 +179,24 @@ def test_every_registered_model_has_a_lut_case() -> None:
 
 def test_vpc_that_sees_nothing_of_the_lens_is_an_error() -> None:
     with pytest.raises(LutError, match="sees nothing"):
-        build_vpc_lut(kb190(), rot_y(math.pi), vpc(64, 48, 60.0))
+        build_rectified_lut(kb190(), rot_y(math.pi), vpc(64, 48, 60.0))
 
 
 @pytest.mark.filterwarnings("error::RuntimeWarning")
 def test_bad_rotation_is_an_error() -> None:
     with pytest.raises(LutError, match="rotation"):
-        build_vpc_lut(kb190(), np.diag([1.0, 1.0, -1.0]), vpc(64, 48, 60.0))
+        build_rectified_lut(kb190(), np.diag([1.0, 1.0, -1.0]), vpc(64, 48, 60.0))
     with pytest.raises(LutError, match="rotation"):  # R·Rᵀ would overflow: refused before
-        build_vpc_lut(kb190(), np.full((3, 3), 1e200), vpc(64, 48, 60.0))
+        build_rectified_lut(kb190(), np.full((3, 3), 1e200), vpc(64, 48, 60.0))
     with pytest.raises(LutError, match="3x3"):
-        vpc_rays(vpc(64, 48, 60.0), np.eye(4))
+        rect_rays(vpc(64, 48, 60.0), np.eye(4))
 
 
 def test_distorted_vpc_uses_its_unprojection() -> None:
     model = kb190()
     plain = vpc(120, 90, 80.0)
     distorted = PinholeModel(120, 90, fx=plain.fx, fy=plain.fy, cx=plain.cx, cy=plain.cy, k1=-0.05)
-    a, b = build_vpc_lut(model, np.eye(3), plain), build_vpc_lut(model, np.eye(3), distorted)
+    a, b = build_rectified_lut(model, np.eye(3), plain), build_rectified_lut(model, np.eye(3), distorted)
     # Centre pixel unaffected by radial distortion; the corners move inwards (k1 < 0 barrel).
     assert abs(a.map_x[45, 60] - b.map_x[45, 60]) < 0.5
     assert np.hypot(b.map_x[0, 0] - model.cx, b.map_y[0, 0] - model.cy) > np.hypot(
@@ -207,7 +207,7 @@ def test_distorted_vpc_uses_its_unprojection() -> None:
 def test_fixed_point_remap_matches_float_remap_and_blacks_out_invalid() -> None:
     model = create("equidistant", 400, 400, fx=127.0, fy=127.0, cx=199.5, cy=199.5, fov_deg=180.0)
     R = rot_y(math.radians(70))
-    lut = build_vpc_lut(model, R, vpc(160, 120, 100.0))
+    lut = build_rectified_lut(model, R, vpc(160, 120, 100.0))
     assert 0.0 < lut.valid_fraction < 1.0
     yy, xx = np.mgrid[0:400, 0:400]
     img = (128 + 100 * np.sin(xx / 9.0) * np.cos(yy / 7.0)).astype(np.uint8)

@@ -42,7 +42,7 @@ def fisheye() -> CameraModel:
     )
 
 
-def vpc_cam(**kw: float) -> PinholeModel:
+def rect_cam(**kw: float) -> PinholeModel:
     args: dict[str, float] = {"fx": 80.0, "fy": 80.0, "cx": 79.5, "cy": 59.5} | kw
     return PinholeModel(160, 120, **args)
 
@@ -52,9 +52,9 @@ R0 = rot_y(math.radians(40)) @ rot_x(math.radians(3))
 
 def test_miss_then_hit_returns_the_same_table(tmp_path: Path) -> None:
     cache = LutCache(tmp_path)
-    first = cache.get(fisheye(), R0, vpc_cam())
+    first = cache.get(fisheye(), R0, rect_cam())
     assert not first.hit and first.path.is_file() and first.build_ms > 0
-    second = cache.get(fisheye(), R0, vpc_cam())
+    second = cache.get(fisheye(), R0, rect_cam())
     assert second.hit and second.key == first.key and second.path == first.path
     for name in ("map_x", "map_y", "map1", "map2", "valid"):
         a, b = getattr(first.lut, name), getattr(second.lut, name)
@@ -64,47 +64,47 @@ def test_miss_then_hit_returns_the_same_table(tmp_path: Path) -> None:
 
 
 def test_key_changes_with_every_input_and_not_with_round_off() -> None:
-    base = lut_key(fisheye(), R0, vpc_cam())
+    base = lut_key(fisheye(), R0, rect_cam())
     variants = {
-        "fx": lut_key(fisheye().replace(fx=72.0001), R0, vpc_cam()),
-        "k4": lut_key(fisheye().replace(k4=-0.0005001), R0, vpc_cam()),
-        "size": lut_key(fisheye().replace(width=322), R0, vpc_cam()),
-        "fov": lut_key(fisheye().replace(fov_deg=180.0), R0, vpc_cam()),
+        "fx": lut_key(fisheye().replace(fx=72.0001), R0, rect_cam()),
+        "k4": lut_key(fisheye().replace(k4=-0.0005001), R0, rect_cam()),
+        "size": lut_key(fisheye().replace(width=322), R0, rect_cam()),
+        "fov": lut_key(fisheye().replace(fov_deg=180.0), R0, rect_cam()),
         "model": lut_key(
             create("equidistant", 320, 240, fx=72.0, fy=71.8, cx=160.2, cy=119.6, fov_deg=190.0),
             R0,
-            vpc_cam(),
+            rect_cam(),
         ),
-        "vpc_fx": lut_key(fisheye(), R0, vpc_cam(fx=80.5, fy=80.5)),
-        "vpc_cx": lut_key(fisheye(), R0, vpc_cam(cx=70.0)),
+        "vpc_fx": lut_key(fisheye(), R0, rect_cam(fx=80.5, fy=80.5)),
+        "vpc_cx": lut_key(fisheye(), R0, rect_cam(cx=70.0)),
         "vpc_size": lut_key(fisheye(), R0, PinholeModel(162, 120, fx=80.0, fy=80.0, cx=79.5, cy=59.5)),
-        "vpc_k1": lut_key(fisheye(), R0, vpc_cam(k1=0.01)),
-        "R": lut_key(fisheye(), R0 @ rot_y(1e-6), vpc_cam()),
+        "vpc_k1": lut_key(fisheye(), R0, rect_cam(k1=0.01)),
+        "R": lut_key(fisheye(), R0 @ rot_y(1e-6), rect_cam()),
     }
     assert len(set(variants.values()) | {base}) == len(variants) + 1
     # The same rotation computed another way (round-off far below 1e-12) hits the same entry.
-    assert lut_key(fisheye(), R0 @ rot_y(1e-16) + 1e-15, vpc_cam()) == base
-    assert lut_key(fisheye(), R0.copy(), vpc_cam()) == base
+    assert lut_key(fisheye(), R0 @ rot_y(1e-16) + 1e-15, rect_cam()) == base
+    assert lut_key(fisheye(), R0.copy(), rect_cam()) == base
 
 
 def test_key_includes_the_format_version(monkeypatch: pytest.MonkeyPatch) -> None:
-    base = lut_key(fisheye(), R0, vpc_cam())
+    base = lut_key(fisheye(), R0, rect_cam())
     monkeypatch.setattr(lut_cache, "LUT_FORMAT_VERSION", lut_cache.LUT_FORMAT_VERSION + 1)
-    assert lut_key(fisheye(), R0, vpc_cam()) != base
+    assert lut_key(fisheye(), R0, rect_cam()) != base
 
 
 def _rebuilt_after(
     tmp_path: Path, damage: Callable[[Path], object], caplog: pytest.LogCaptureFixture
 ) -> None:
     cache = LutCache(tmp_path)
-    first = cache.get(fisheye(), R0, vpc_cam())
+    first = cache.get(fisheye(), R0, rect_cam())
     damage(first.path)
     with caplog.at_level(logging.WARNING, logger="rig.lut_cache"):
-        again = cache.get(fisheye(), R0, vpc_cam())
+        again = cache.get(fisheye(), R0, rect_cam())
     assert not again.hit, "a damaged file must not be trusted"
     assert any("rebuilding" in r.getMessage() and str(first.path) in r.getMessage() for r in caplog.records)
     assert np.array_equal(again.lut.map_x, first.lut.map_x)
-    third = cache.get(fisheye(), R0, vpc_cam())
+    third = cache.get(fisheye(), R0, rect_cam())
     assert third.hit, "the rebuilt table was stored again"
 
 
@@ -129,11 +129,11 @@ def test_header_damage_and_garbage_are_detected(tmp_path: Path, caplog: pytest.L
 
 def test_stale_file_under_the_wrong_key_is_rebuilt(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     cache = LutCache(tmp_path)
-    other = cache.get(fisheye(), R0 @ rot_y(0.05), vpc_cam())
-    key = lut_key(fisheye(), R0, vpc_cam())
+    other = cache.get(fisheye(), R0 @ rot_y(0.05), rect_cam())
+    key = lut_key(fisheye(), R0, rect_cam())
     cache.path(key).write_bytes(other.path.read_bytes())  # a valid file, but of another table
     with caplog.at_level(logging.WARNING, logger="rig.lut_cache"):
-        got = cache.get(fisheye(), R0, vpc_cam())
+        got = cache.get(fisheye(), R0, rect_cam())
     assert not got.hit
     assert not np.array_equal(got.lut.map_x, other.lut.map_x)
     assert any("stale" in r.getMessage() for r in caplog.records)
@@ -141,7 +141,7 @@ def test_stale_file_under_the_wrong_key_is_rebuilt(tmp_path: Path, caplog: pytes
 
 def test_older_format_version_is_rebuilt(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     cache = LutCache(tmp_path)
-    first = cache.get(fisheye(), R0, vpc_cam())
+    first = cache.get(fisheye(), R0, rect_cam())
     # Pretend this build reads a newer format: the same key's file is now of an old version.
     monkeypatch.setattr(lut_cache, "LUT_FORMAT_VERSION", lut_cache.LUT_FORMAT_VERSION + 1)
     assert cache.load(first.key) is None
@@ -150,7 +150,7 @@ def test_older_format_version_is_rebuilt(tmp_path: Path, monkeypatch: pytest.Mon
 
 def test_write_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     cache = LutCache(tmp_path)
-    good = cache.get(fisheye(), R0, vpc_cam())
+    good = cache.get(fisheye(), R0, rect_cam())
     before = good.path.read_bytes()
 
     def crash(fd: int) -> None:
@@ -164,7 +164,7 @@ def test_write_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Non
     assert sorted(p.name for p in tmp_path.iterdir()) == [good.path.name]
     # Through get(), an unwritable cache costs a rebuild but never the table.
     good.path.unlink()
-    got = cache.get(fisheye(), R0, vpc_cam())
+    got = cache.get(fisheye(), R0, rect_cam())
     assert not got.hit and np.array_equal(got.lut.map_x, good.lut.map_x)
     assert list(tmp_path.iterdir()) == []
 
@@ -181,8 +181,8 @@ def test_directory_from_argument_env_and_default(tmp_path: Path, monkeypatch: py
 def test_entries_and_clear(tmp_path: Path) -> None:
     cache = LutCache(tmp_path / "c")
     assert cache.entries() == [] and cache.clear() == 0
-    a = cache.get(fisheye(), R0, vpc_cam())
-    b = cache.get(fisheye(), R0 @ rot_y(0.1), vpc_cam())
+    a = cache.get(fisheye(), R0, rect_cam())
+    b = cache.get(fisheye(), R0 @ rot_y(0.1), rect_cam())
     (tmp_path / "c" / ("0" * 64 + ".lut")).write_bytes(b"junk")
     entries = {e.path.name: e for e in cache.entries()}
     assert set(entries) == {a.path.name, b.path.name, "0" * 64 + ".lut"}
@@ -253,7 +253,7 @@ def test_a_header_length_beyond_the_limit_is_refused_unread(
 def test_a_huge_file_is_refused_without_reading_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     # Before: the whole file was read into memory (3 GiB here, sparse) before any check.
     cache = LutCache(tmp_path)
-    first = cache.get(fisheye(), R0, vpc_cam())
+    first = cache.get(fisheye(), R0, rect_cam())
     with open(first.path, "r+b") as f:
         f.truncate(3 * 2**30)
     reads: list[int] = []
@@ -264,7 +264,7 @@ def test_a_huge_file_is_refused_without_reading_it(tmp_path: Path, monkeypatch: 
         return real_empty(shape, *args, **kw)
 
     monkeypatch.setattr(lut_cache.np, "empty", counting_empty)
-    again = LutCache(tmp_path).get(fisheye(), R0, vpc_cam())
+    again = LutCache(tmp_path).get(fisheye(), R0, rect_cam())
     assert not again.hit and np.array_equal(again.lut.map_x, first.lut.map_x)
     assert max(reads) < 2**20, "no buffer for the file's claimed size was allocated"
     assert first.path.stat().st_size < 2**20, "and stored again at its own size"
@@ -273,7 +273,7 @@ def test_a_huge_file_is_refused_without_reading_it(tmp_path: Path, monkeypatch: 
 def _get_within(cache: LutCache, seconds: float) -> lut_cache.CachedLut:
     """``cache.get`` in a thread; fails the test (instead of hanging it) if it blocks."""
     out: list[lut_cache.CachedLut] = []
-    t = threading.Thread(target=lambda: out.append(cache.get(fisheye(), R0, vpc_cam())), daemon=True)
+    t = threading.Thread(target=lambda: out.append(cache.get(fisheye(), R0, rect_cam())), daemon=True)
     t.start()
     t.join(seconds)
     assert not t.is_alive(), f"the cache lookup blocked for more than {seconds} s"
@@ -293,7 +293,7 @@ NOT_FILES: dict[str, Callable[[Path], object]] = {
 def test_an_entry_that_is_not_a_file_is_ignored_and_never_blocks(
     tmp_path: Path, caplog: pytest.LogCaptureFixture, make: Callable[[Path], object]
 ) -> None:
-    good = LutCache(tmp_path / "good").get(fisheye(), R0, vpc_cam())
+    good = LutCache(tmp_path / "good").get(fisheye(), R0, rect_cam())
     cache = LutCache(tmp_path / "c")
     cache.directory.mkdir()
     entry = cache.path(good.key)
@@ -358,15 +358,15 @@ def test_a_corrupt_file_in_a_read_only_cache_is_rebuilt_in_memory_with_one_warni
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     directory = tmp_path / "ro"
-    good = LutCache(directory).get(fisheye(), R0, vpc_cam())
+    good = LutCache(directory).get(fisheye(), R0, rect_cam())
     data = bytearray(good.path.read_bytes())
     data[len(data) // 2] ^= 0x40
     good.path.write_bytes(bytes(data))
     with _read_only(directory) as how:
         cache = LutCache(directory)
         with caplog.at_level(logging.WARNING, logger="rig.lut_cache"):
-            got = cache.get(fisheye(), R0, vpc_cam())
-            again = cache.get(fisheye(), R0, vpc_cam())
+            got = cache.get(fisheye(), R0, rect_cam())
+            again = cache.get(fisheye(), R0, rect_cam())
         print(f"read-only cache directory by {how}")
         assert not got.hit and not again.hit
         assert np.array_equal(got.lut.map1, good.lut.map1) and np.array_equal(again.lut.map2, good.lut.map2)
@@ -378,7 +378,7 @@ def test_a_corrupt_file_in_a_read_only_cache_is_rebuilt_in_memory_with_one_warni
 
 def test_clear_leaves_what_is_not_a_cache_file(tmp_path: Path) -> None:
     cache = LutCache(tmp_path)
-    a = cache.get(fisheye(), R0, vpc_cam())
+    a = cache.get(fisheye(), R0, rect_cam())
     (tmp_path / ("1" * 64 + ".lut")).mkdir()
     os.mkfifo(tmp_path / ("2" * 64 + ".lut"))
     assert cache.clear() == 1 and not a.path.exists()

@@ -15,8 +15,8 @@ import pytest
 
 from rig.evaluate.phantoms import PHANTOM_VPC, PhantomShot, PhantomStats, phantom_stats, render_phantom_shot
 from rig.pipeline import DepthPipeline
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
 
 pytestmark = pytest.mark.slow
 
@@ -57,9 +57,14 @@ def latlon_measured(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Phant
     """Stats per scene with the stereo defaults on the default lat-lon pair (its field takes in
     the matcher's unmatched columns, as the pipeline's does)."""
     params = StereoParams()
-    shots = {n: render_phantom_shot(n, vpc=VpcConfig(), blind_band_px=params.blind_band_px) for n in SCENES}
+    shots = {
+        n: render_phantom_shot(n, vpc=RectifiedPairConfig(), blind_band_px=params.blind_band_px)
+        for n in SCENES
+    }
     first = shots[SCENES[0]]
-    pipe = DepthPipeline(first.rig, VpcConfig(), params, cache_dir=tmp_path_factory.mktemp("lut-latlon"))
+    pipe = DepthPipeline(
+        first.rig, RectifiedPairConfig(), params, cache_dir=tmp_path_factory.mktemp("lut-latlon")
+    )
     assert pipe.pair.projection == "latlon" and pipe.pair.camera.width == first.pair.camera.width
     out = {}
     for name, shot in shots.items():

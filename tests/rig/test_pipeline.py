@@ -19,12 +19,12 @@ from calibration.rig import Rig
 from rig.errors import ConfigError, LutError, PipelineError
 from rig.filters import TemporalFilter, median_filter
 from rig.pipeline import DepthPipeline
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams, create_opencv_matcher
 from rig.subpixel import refine_disparity
-from rig.vpc import VpcConfig
 from tests.helpers.shots import PINHOLE, StereoShot, central_box, plane_shot, prototype_rig
 
-VPC = VpcConfig(width=320, height=240)
+VPC = RectifiedPairConfig(width=320, height=240)
 SMALL_STEREO = StereoParams(disparity_range=64)
 
 
@@ -72,7 +72,7 @@ def test_depth_frame_contract(pipe: DepthPipeline, shot: StereoShot) -> None:
     for arr, dtype in ((frame.depth, np.float32), (frame.disparity, np.float32), (frame.valid, np.bool_)):
         assert arr.shape == (240, 320) and arr.dtype == dtype
     assert frame.confidence is not None and frame.confidence.dtype == np.float32
-    assert frame.left_vpc.shape == (240, 320) and frame.left_vpc.dtype == np.uint8
+    assert frame.left_rect.shape == (240, 320) and frame.left_rect.dtype == np.uint8
     assert set(frame.timings_ms) == {"remap", "match", "refine", "filters", "depth", "total"}
     assert all(v >= 0 for v in frame.timings_ms.values())
     assert frame.timings_ms["total"] >= frame.timings_ms["match"]
@@ -175,7 +175,7 @@ def test_colour_frames_give_colour_vpc_images_and_rgb_point_colours(
     left = (shot.left[..., None] * tint).astype(np.uint8)
     right = (shot.right[..., None] * tint).astype(np.uint8)
     frame = pipe.process(left, right)
-    assert frame.left_vpc.shape == (240, 320, 3) and frame.right_vpc.shape == (240, 320, 3)
+    assert frame.left_rect.shape == (240, 320, 3) and frame.right_rect.shape == (240, 320, 3)
     gray = pipe.process(shot.left, shot.right)
     both = frame.valid & gray.valid
     assert both.mean() > 0.6
@@ -225,11 +225,11 @@ def test_lut_comes_from_the_cache_the_second_time(shot: StereoShot, tmp_path: Pa
 
 @pytest.mark.parametrize(
     "config",
-    [VpcConfig(hfov_deg=150.0), VpcConfig(projection="pinhole", yaw_deg=60.0)],
+    [RectifiedPairConfig(hfov_deg=150.0), RectifiedPairConfig(projection="pinhole", yaw_deg=60.0)],
     ids=["hfov150", "yaw60"],
 )
 def test_vpc_leaving_the_lens_reports_its_valid_fraction(
-    config: VpcConfig, lut_cache: Path, caplog: pytest.LogCaptureFixture
+    config: RectifiedPairConfig, lut_cache: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     rig = prototype_rig(1.0)
     with caplog.at_level(logging.WARNING, logger="rig.pipeline"):
@@ -246,7 +246,7 @@ def test_vpc_leaving_the_lens_reports_its_valid_fraction(
     frame = pipe.process(left, right)
     assert frame.depth.shape == (480, 640)
     lmask = pipe.luts["left"].valid
-    assert (frame.left_vpc[~lmask] == 0).all()
+    assert (frame.left_rect[~lmask] == 0).all()
     assert not (frame.valid & ~lmask).any()
 
 
@@ -260,7 +260,9 @@ def test_vpc_that_sees_nothing_is_an_error(tmp_path: Path) -> None:
         },
     )
     with pytest.raises(LutError, match="sees nothing"):
-        DepthPipeline(rig, VpcConfig(pitch_deg=80.0, hfov_deg=20.0, width=64, height=48), cache_dir=tmp_path)
+        DepthPipeline(
+            rig, RectifiedPairConfig(pitch_deg=80.0, hfov_deg=20.0, width=64, height=48), cache_dir=tmp_path
+        )
 
 
 def test_bad_inputs_are_clear_errors(pipe: DepthPipeline, shot: StereoShot) -> None:

@@ -14,8 +14,8 @@ import pytest
 from calibration.rig import Rig
 from rig.errors import ConfigError
 from rig.pipeline import DepthPipeline
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from rig.ros.messages import MessageBuilder
-from rig.vpc import VpcConfig, design_vpc_pair
 from tests.rig.rectification_renders import perturbed
 from tests.rig.ros_fixtures import STEREO, VPC, shot
 
@@ -45,7 +45,7 @@ def test_a_swapped_pipeline_equals_one_built_on_the_corrected_rig(tmp_path: Path
     old = pipe.geometry
     new = pipe.replace_rig(corrected)
     assert pipe.geometry is new and pipe.rig is corrected and new is not old
-    assert not np.allclose(new.pair.R_cam_vpc["right"], old.pair.R_cam_vpc["right"])
+    assert not np.allclose(new.pair.R_cam_rect["right"], old.pair.R_cam_rect["right"])
     # The pair rectified before the swap keeps its geometry to the end.
     assert before.geometry is old
     finished = pipe.finish(pipe.match(before))
@@ -54,9 +54,11 @@ def test_a_swapped_pipeline_equals_one_built_on_the_corrected_rig(tmp_path: Path
     # Pairs after the swap: exactly what a pipeline built on the corrected rig makes.
     after = pipe.process(s.left, s.right)
     reference_new = DepthPipeline(corrected, VPC, STEREO, cache_dir=tmp_path).process(s.left, s.right)
-    assert _same(after.left_vpc, reference_new.left_vpc) and _same(after.right_vpc, reference_new.right_vpc)
+    assert _same(after.left_rect, reference_new.left_rect) and _same(
+        after.right_rect, reference_new.right_rect
+    )
     assert _same(after.depth, reference_new.depth)
-    assert not _same(after.right_vpc, reference_old.right_vpc)
+    assert not _same(after.right_rect, reference_old.right_rect)
 
 
 def test_only_the_same_lenses_and_baseline_are_taken(tmp_path: Path) -> None:
@@ -88,17 +90,17 @@ def test_a_lat_lon_pair_keeps_its_image_grid_across_a_swap(tmp_path: Path) -> No
     the swap keeps the running pair's image grid (frames in flight, the finish stage and the
     temporal filter share it) and takes the corrected rotation."""
     s = shot()
-    vpc = VpcConfig(projection="latlon", px_per_deg=1.5)
+    vpc = RectifiedPairConfig(projection="latlon", px_per_deg=1.5)
     pipe = DepthPipeline(s.rig, vpc, STEREO, cache_dir=tmp_path)
     old = pipe.geometry
     before = pipe.process(s.left, s.right)
     corrected = perturbed(s.rig, (0.5, -0.5, 0.3))
     new = pipe.replace_rig(corrected)
     assert new.pair.camera == old.pair.camera
-    redesigned = design_vpc_pair(corrected, vpc, blind_band_px=STEREO.blind_band_px)
+    redesigned = design_rectified_pair(corrected, vpc, blind_band_px=STEREO.blind_band_px)
     for name in ("left", "right"):
-        assert np.allclose(new.pair.R_cam_vpc[name], redesigned.R_cam_vpc[name], atol=1e-12)
-    assert not np.allclose(new.pair.R_cam_vpc["right"], old.pair.R_cam_vpc["right"])
+        assert np.allclose(new.pair.R_cam_rect[name], redesigned.R_cam_rect[name], atol=1e-12)
+    assert not np.allclose(new.pair.R_cam_rect["right"], old.pair.R_cam_rect["right"])
     after = pipe.process(s.left, s.right)
     assert after.range.shape == before.range.shape == (old.pair.camera.height, old.pair.camera.width)
     valid_before, valid_after = np.isfinite(before.range).mean(), np.isfinite(after.range).mean()

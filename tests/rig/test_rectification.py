@@ -23,7 +23,7 @@ from rig.recording import Recording, RecordingWriter
 from rig.rectification import EpipolarViews, RefineOptions, match_pair, refine_recording, vertical_disparity
 from rig.rectification.monitor import RectificationConfig, RectificationMonitor
 from rig.rectification.refine import backup_path, save_refined
-from rig.vpc import design_vpc_pair
+from rig.rectified import design_rectified_pair
 from tests.rig.rectification_renders import (
     VPC,
     perturbed,
@@ -61,7 +61,7 @@ def test_measured_vertical_disparity_follows_the_geometry(room: tuple[Path, Rig]
     for calib in (truth, perturbed(truth, (0.3, 0.0, 0.0))):
         views = EpipolarViews(calib)
         m = match_pair(views, left, right)
-        measured = vertical_disparity(design_vpc_pair(calib, VPC), m.left, m.right)
+        measured = vertical_disparity(design_rectified_pair(calib, VPC), m.left, m.right)
         true_dv = true_vertical_disparity(root, truth, calib)
         print(f"\nmatches {len(m)}, in the VPC {measured.count}: measured p50 {measured.p50_px:.3f} px, "
               f"true p50 {np.median(true_dv):.3f} px")  # fmt: skip

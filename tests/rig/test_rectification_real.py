@@ -18,7 +18,7 @@ import pytest
 from calibration import board_object_points, calibrate_stereo, detect_chessboard_files
 from calibration.rig import Rig
 from rig.rectification import EpipolarViews, RayMatches, match_pair, refine_rig
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 from tests.conftest import shared_file
 from tests.rig.rectification_renders import perturbed, relative_rotation_error_deg
 
@@ -58,7 +58,7 @@ def _calibrated_and_matches() -> tuple[Rig, RayMatches]:
 
 def test_real_pairs_scene_refinement_lowers_the_vertical_disparity() -> None:
     rig, matches = _calibrated_and_matches()
-    vpc = VpcConfig()
+    vpc = RectifiedPairConfig()
     result = refine_rig(rig, matches, vpc)
     fit = result.fit
     print(

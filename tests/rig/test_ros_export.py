@@ -94,7 +94,7 @@ def test_depth_range_and_confidence_equal_the_pipeline(
     rng = np.frombuffer(rng_msg.data, "<f4").reshape(rng_msg.height, rng_msg.width)
     cloud = msgs[N.points][0][1]
     pts = decode_cloud(cloud)
-    centre = pipe.pair.T_rig_vpc["left"][:3, 3]
+    centre = pipe.pair.T_rig_rect["left"][:3, 3]
     valid = np.isfinite(rng)
     dist = np.linalg.norm(np.stack([pts["x"], pts["y"], pts["z"]], 1).astype(np.float64) - centre, axis=1)
     np.testing.assert_allclose(rng[valid], dist, rtol=1e-5)
@@ -149,7 +149,7 @@ def test_transforms_rebuild_the_calibration(exported: tuple[TinyRecording, Path,
         T_rig_cam = T[(N.rig_frame, N.camera_frame(cam))]
         np.testing.assert_allclose(T_rig_cam, pipe.rig.T_rig_cam[cam], atol=1e-12)
         T_rig_rect = T_rig_cam @ T[(N.camera_frame(cam), N.rect_frame(cam))]
-        np.testing.assert_allclose(T_rig_rect, pipe.pair.T_rig_vpc[cam], atol=1e-12)
+        np.testing.assert_allclose(T_rig_rect, pipe.pair.T_rig_rect[cam], atol=1e-12)
 
 
 def test_rectified_camera_infos_reproduce_our_projection(
@@ -160,7 +160,7 @@ def test_rectified_camera_infos_reproduce_our_projection(
     pair = pipe.pair
     rng = np.random.default_rng(1)
     pts_left = rng.uniform([-3, -2, 2], [3, 2, 9], size=(200, 3))  # in the left rectified frame
-    T_right_left = invert_transform(pair.T_rig_vpc["right"]) @ pair.T_rig_vpc["left"]
+    T_right_left = invert_transform(pair.T_rig_rect["right"]) @ pair.T_rig_rect["left"]
     pts_right = pts_left @ T_right_left[:3, :3].T + T_right_left[:3, 3]
     for cam, pts in (("left", pts_left), ("right", pts_right)):
         info = msgs[N.rect_info(cam)][0][1]
@@ -195,7 +195,7 @@ def test_raw_camera_info_rebuilds_our_rectification_in_opencv(
         c = pipe.pair.camera
         rays = (
             np.stack([(u - c.cx) / c.fx, (v - c.cy) / c.fy, np.ones(u.shape)], -1)
-            @ pipe.pair.R_cam_vpc[cam].T
+            @ pipe.pair.R_cam_rect[cam].T
         )
         off_axis = np.degrees(np.arctan2(np.hypot(rays[..., 0], rays[..., 1]), rays[..., 2]))
         use = lut.valid & (off_axis < 85.0)

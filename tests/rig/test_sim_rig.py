@@ -12,8 +12,8 @@ import pytest
 from calibration.geometry import rot_y
 from calibration.models import CameraModel, create
 from rig.errors import ConfigError
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from rig.sim import PRESETS, divergent_rig, get_preset, plane_scene, render, room_scene, scale_camera
-from rig.vpc import VpcConfig, design_vpc_pair
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -60,7 +60,7 @@ def test_divergent_rig_non_ideal_mount() -> None:
         rig.T_rig_cam["left"], divergent_rig(_lens(), _lens(), 0.072, 87.0).T_rig_cam["left"]
     )
     # The VPC design (docs/design.md) still rectifies it: the VPC x axis is the baseline.
-    pair = design_vpc_pair(rig)
+    pair = design_rectified_pair(rig)
     assert pair.baseline_m == pytest.approx(0.072)
 
 
@@ -133,13 +133,13 @@ def test_scale_camera_keeps_pixel_geometry() -> None:
         scale_camera(cam, 0.0)
 
 
-def _remap_to_vpc(
-    fisheye: np.ndarray, cam: CameraModel, vpc: CameraModel, R_cam_vpc: np.ndarray
+def _remap_to_rect(
+    fisheye: np.ndarray, cam: CameraModel, vpc: CameraModel, R_cam_rect: np.ndarray
 ) -> np.ndarray:
-    """The paper's eq. (10), written out here: p_fisheye = π_f(R · π_pinhole⁻¹(p_vpc))."""
+    """The paper's eq. (10), written out here: p_fisheye = π_f(R · π_pinhole⁻¹(p_rect))."""
     u, v = np.meshgrid(np.arange(vpc.width, dtype=float), np.arange(vpc.height, dtype=float))
     rays, _ = vpc.unproject(np.stack([u.ravel(), v.ravel()], axis=1))
-    px, ok = cam.project(rays @ R_cam_vpc.T)
+    px, ok = cam.project(rays @ R_cam_rect.T)
     mx = np.where(ok, px[:, 0], -10).reshape(vpc.height, vpc.width).astype(np.float32)
     my = np.where(ok, px[:, 1], -10).reshape(vpc.height, vpc.width).astype(np.float32)
     return cv2.remap(fisheye, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
@@ -149,21 +149,21 @@ def _remap_to_vpc(
 def test_fisheye_remapped_to_vpc_reproduces_the_reference(preset: str, texture: str) -> None:
     """Fig. 6: fisheye render → LUT remap vs the Reference pinhole at the VPC pose."""
     p = get_preset(preset).scaled(0.5)
-    pair = design_vpc_pair(p.rig, VpcConfig(width=320, height=240))
+    pair = design_rectified_pair(p.rig, RectifiedPairConfig(width=320, height=240))
     # A texture both cameras resolve, so differences measure geometry, not lost resolution.
     scene = plane_scene(5 * p.rig.baseline(), texture, seed=1, texture_px=256)
     inner = (slice(24, 216), slice(32, 288))
     for name in ("left", "right"):
         cam = p.rig.cameras[name]
         fisheye = render(scene, cam, p.rig.T_rig_cam[name]).image
-        reference = render(scene, pair.camera, pair.T_rig_vpc[name]).image.astype(np.float64)
-        remapped = _remap_to_vpc(fisheye, cam, pair.camera, pair.R_cam_vpc[name]).astype(np.float64)
+        reference = render(scene, pair.camera, pair.T_rig_rect[name]).image.astype(np.float64)
+        remapped = _remap_to_rect(fisheye, cam, pair.camera, pair.R_cam_rect[name]).astype(np.float64)
         mad = np.abs(remapped - reference)[inner].mean()
         shift, _ = cv2.phaseCorrelate(remapped[inner], reference[inner])
         assert mad < 3.0, (name, mad)
         assert np.hypot(*shift) < 0.1, (name, shift)
         # The check has teeth: a 0.3° error in R moves the image ~1 px and the difference triples.
-        wrong = _remap_to_vpc(fisheye, cam, pair.camera, rot_y(math.radians(0.3)) @ pair.R_cam_vpc[name])
+        wrong = _remap_to_rect(fisheye, cam, pair.camera, rot_y(math.radians(0.3)) @ pair.R_cam_rect[name])
         assert np.abs(wrong.astype(np.float64) - reference)[inner].mean() > 2 * mad + 3
 
 

@@ -76,7 +76,7 @@ def test_staged_frames_equal_process_bit_for_bit(
     assert [f.seq for f in staged] == list(range(N_PAIRS))
     for got, want in zip(staged, expected, strict=True):
         assert got.ts_ns == want.ts_ns
-        for name in ("depth", "disparity", "confidence", "valid", "left_vpc", "right_vpc"):
+        for name in ("depth", "disparity", "confidence", "valid", "left_rect", "right_rect"):
             assert np.array_equal(getattr(got, name), getattr(want, name), equal_nan=True), (got.seq, name)
     if stereo.temporal_alpha:
         # The history matters on these frames: the last pair alone (no history) differs.

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from rig.pipeline import DepthPipeline
+from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
 from tests.helpers.shots import central_box, plane_shot, prototype_rig
 
-VPC = VpcConfig(width=320, height=240)
+VPC = RectifiedPairConfig(width=320, height=240)
 TRUE_DISPARITIES = (12.1, 16.25, 20.4, 24.5, 28.6, 33.75)  # fx·B/Z with fx = 160 px
 #: Measured disparity RMS (px) at those disparities (docs/stereo.md's table).
 PLAIN_RMS = (0.069, 0.156, 0.226, 0.236, 0.264, 0.213)

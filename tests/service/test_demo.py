@@ -9,11 +9,11 @@ import pytest
 
 from calibration import load_rig
 from rig.recording import Recording
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 from service.demo import DemoSpec, demo_key, demo_overrides, ensure_demo_recording
 from service.settings import load_settings
 
-TINY = DemoSpec(scale=0.125, frames=2, supersample=1, vpc=VpcConfig(width=48, height=32))
+TINY = DemoSpec(scale=0.125, frames=2, supersample=1, vpc=RectifiedPairConfig(width=48, height=32))
 
 
 def test_key_changes_with_every_field() -> None:
@@ -21,12 +21,14 @@ def test_key_changes_with_every_field() -> None:
         demo_key(TINY),
         demo_key(DemoSpec(scale=0.125, frames=3, supersample=1, vpc=TINY.vpc)),
         demo_key(DemoSpec(scale=0.125, frames=2, supersample=1, seed=1, vpc=TINY.vpc)),
-        demo_key(DemoSpec(scale=0.125, frames=2, supersample=1, vpc=VpcConfig(width=48, height=30))),
+        demo_key(
+            DemoSpec(scale=0.125, frames=2, supersample=1, vpc=RectifiedPairConfig(width=48, height=30))
+        ),
         demo_key(DemoSpec()),
     }
     assert len(keys) == 5
     assert demo_key(TINY) == demo_key(
-        DemoSpec(scale=0.125, frames=2, supersample=1, vpc=VpcConfig(width=48, height=32))
+        DemoSpec(scale=0.125, frames=2, supersample=1, vpc=RectifiedPairConfig(width=48, height=32))
     )
 
 

@@ -12,15 +12,15 @@ from numpy.typing import NDArray
 
 from calibration.geometry import invert_transform, rotation_angle, transform_points
 from rig.errors import ConfigError
-from rig.lut import build_vpc_lut
+from rig.lut import build_rectified_lut
+from rig.rectified import RectifiedPair, RectifiedPairConfig, design_rectified_pair
 from rig.sim import divergent_rig
-from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
 from tests.helpers.shots import StereoShot, plane_shot, prototype_rig, room_shot
 
 
-def project(pair: VpcPair, name: str, pts_rig: NDArray[np.float64]) -> NDArray[np.float64]:
+def project(pair: RectifiedPair, name: str, pts_rig: NDArray[np.float64]) -> NDArray[np.float64]:
     """Pinhole projection of rig-frame points into VPC ``name`` (independent of the LUT)."""
-    p = transform_points(invert_transform(pair.T_rig_vpc[name]), pts_rig)
+    p = transform_points(invert_transform(pair.T_rig_rect[name]), pts_rig)
     c = pair.camera
     return np.stack([c.fx * p[:, 0] / p[:, 2] + c.cx, c.fy * p[:, 1] / p[:, 2] + c.cy, p[:, 2]], axis=1)
 
@@ -28,35 +28,35 @@ def project(pair: VpcPair, name: str, pts_rig: NDArray[np.float64]) -> NDArray[n
 @pytest.mark.parametrize(
     ("angle", "pitch", "roll", "config"),
     [
-        (90.0, 0.0, 0.0, VpcConfig(projection="pinhole")),
-        (87.0, 2.0, 0.0, VpcConfig(projection="pinhole")),
-        (93.0, -3.0, 1.5, VpcConfig(hfov_deg=100, yaw_deg=12.0, pitch_deg=-8.0)),
-        (60.0, 1.0, -1.0, VpcConfig(width=320, height=320, hfov_deg=70)),
+        (90.0, 0.0, 0.0, RectifiedPairConfig(projection="pinhole")),
+        (87.0, 2.0, 0.0, RectifiedPairConfig(projection="pinhole")),
+        (93.0, -3.0, 1.5, RectifiedPairConfig(hfov_deg=100, yaw_deg=12.0, pitch_deg=-8.0)),
+        (60.0, 1.0, -1.0, RectifiedPairConfig(width=320, height=320, hfov_deg=70)),
     ],
 )
 def test_rows_align_exactly_on_non_ideal_mounts(
-    angle: float, pitch: float, roll: float, config: VpcConfig
+    angle: float, pitch: float, roll: float, config: RectifiedPairConfig
 ) -> None:
     base = prototype_rig(1.0)
     rig = divergent_rig(base.cameras["left"], base.cameras["right"], 0.072, angle, pitch, roll)
-    pair = design_vpc_pair(rig, config)
+    pair = design_rectified_pair(rig, config)
     assert pair.baseline_m == pytest.approx(rig.baseline())
     # Both VPCs share orientation; their x axis is the baseline; each sits at its camera centre.
-    R_l, R_r = pair.T_rig_vpc["left"][:3, :3], pair.T_rig_vpc["right"][:3, :3]
+    R_l, R_r = pair.T_rig_rect["left"][:3, :3], pair.T_rig_rect["right"][:3, :3]
     assert np.allclose(R_l, R_r) and np.allclose(R_l @ R_l.T, np.eye(3))
     base_dir = (rig.center("right") - rig.center("left")) / rig.baseline()
     assert np.allclose(R_l[:, 0], base_dir)
     for n in ("left", "right"):
-        assert np.allclose(pair.T_rig_vpc[n][:3, 3], rig.center(n))
-        assert np.allclose(rig.T_rig_cam[n][:3, :3] @ pair.R_cam_vpc[n], R_l)
+        assert np.allclose(pair.T_rig_rect[n][:3, 3], rig.center(n))
+        assert np.allclose(rig.T_rig_cam[n][:3, :3] @ pair.R_cam_rect[n], R_l)
     rng = np.random.default_rng(1)
     # Points spread over the VPC's view, 0.2 .. 5 m deep.
     z = rng.uniform(0.2, 5.0, 500)
     u = rng.uniform(0, config.width - 1, 500)
     v = rng.uniform(0, config.height - 1, 500)
     c = pair.camera
-    p_vpc = np.stack([(u - c.cx) / c.fx * z, (v - c.cy) / c.fy * z, z], axis=1)
-    pts = transform_points(pair.T_rig_vpc["left"], p_vpc)
+    p_rect = np.stack([(u - c.cx) / c.fx * z, (v - c.cy) / c.fy * z, z], axis=1)
+    pts = transform_points(pair.T_rig_rect["left"], p_rect)
     pl, pr = project(pair, "left", pts), project(pair, "right", pts)
     assert np.abs(pl[:, 1] - pr[:, 1]).max() < 1e-9, "rows must align"
     assert np.allclose(pl[:, 0] - pr[:, 0], c.fx * pair.baseline_m / z, rtol=1e-9)
@@ -65,34 +65,34 @@ def test_rows_align_exactly_on_non_ideal_mounts(
 
 def test_yaw_is_a_principal_point_shift_and_pitch_a_rotation_about_the_baseline() -> None:
     rig = prototype_rig(1.0)
-    straight = design_vpc_pair(rig, VpcConfig(projection="pinhole"))
+    straight = design_rectified_pair(rig, RectifiedPairConfig(projection="pinhole"))
     assert straight.camera.cx == pytest.approx(319.5) and straight.camera.fx == pytest.approx(320.0)
-    yawed = design_vpc_pair(rig, VpcConfig(projection="pinhole", yaw_deg=20.0))
-    assert np.allclose(yawed.T_rig_vpc["left"], straight.T_rig_vpc["left"])
+    yawed = design_rectified_pair(rig, RectifiedPairConfig(projection="pinhole", yaw_deg=20.0))
+    assert np.allclose(yawed.T_rig_rect["left"], straight.T_rig_rect["left"])
     # The centre column now looks 20° to the right of the pair's z axis.
     c = yawed.camera
     assert math.degrees(math.atan2(319.5 - c.cx, c.fx)) == pytest.approx(20.0)
-    pitched = design_vpc_pair(rig, VpcConfig(projection="pinhole", pitch_deg=10.0))
-    R = straight.T_rig_vpc["left"][:3, :3].T @ pitched.T_rig_vpc["left"][:3, :3]
+    pitched = design_rectified_pair(rig, RectifiedPairConfig(projection="pinhole", pitch_deg=10.0))
+    R = straight.T_rig_rect["left"][:3, :3].T @ pitched.T_rig_rect["left"][:3, :3]
     assert math.degrees(rotation_angle(R)) == pytest.approx(10.0)
     assert np.allclose(R[:, 0], [1.0, 0.0, 0.0]), "a rotation about the baseline (VPC x)"
     # Pitch up: the optical axis tilts towards -y (y points down, docs/design.md).
-    z_straight, z_up = straight.T_rig_vpc["left"][:3, 2], pitched.T_rig_vpc["left"][:3, 2]
-    y_straight = straight.T_rig_vpc["left"][:3, 1]
+    z_straight, z_up = straight.T_rig_rect["left"][:3, 2], pitched.T_rig_rect["left"][:3, 2]
+    y_straight = straight.T_rig_rect["left"][:3, 1]
     assert z_up @ y_straight == pytest.approx(-math.sin(math.radians(10.0)))
     assert z_up @ z_straight == pytest.approx(math.cos(math.radians(10.0)))
     # A point above the straight pair's centre row lands on the pitched pair's centre row.
-    p_rig = straight.T_rig_vpc["left"][:3, 3] + 2.0 * z_up
+    p_rig = straight.T_rig_rect["left"][:3, 3] + 2.0 * z_up
     assert project(straight, "left", p_rig[None])[0, 1] < straight.camera.cy - 50
     assert project(pitched, "left", p_rig[None])[0, 1] == pytest.approx(pitched.camera.cy)
-    assert np.allclose(pitched.T_rig_vpc["left"][:3, 0], straight.T_rig_vpc["left"][:3, 0])
+    assert np.allclose(pitched.T_rig_rect["left"][:3, 0], straight.T_rig_rect["left"][:3, 0])
 
 
 def test_vpc_json_has_exactly_the_contract_keys() -> None:
-    pair = design_vpc_pair(prototype_rig(1.0), VpcConfig(width=800, height=600, hfov_deg=100))
+    pair = design_rectified_pair(prototype_rig(1.0), RectifiedPairConfig(width=800, height=600, hfov_deg=100))
     doc = pair.as_json()
     assert list(doc) == ["projection", "width", "height", "fx", "fy", "cx", "cy", "baseline_m", "R_rig_vpc"]
-    assert doc["projection"] == "pinhole" and np.allclose(doc["R_rig_vpc"], pair.T_rig_vpc["left"][:3, :3])
+    assert doc["projection"] == "pinhole" and np.allclose(doc["R_rig_vpc"], pair.T_rig_rect["left"][:3, :3])
     assert doc["width"] == 800 and doc["height"] == 600
     assert doc["fx"] == pytest.approx(400 / math.tan(math.radians(50)))
     assert doc["baseline_m"] == pytest.approx(0.072)
@@ -101,19 +101,21 @@ def test_vpc_json_has_exactly_the_contract_keys() -> None:
 def test_vpc_config_errors() -> None:
     rig = prototype_rig(1.0)
     with pytest.raises(ConfigError, match="no camera 'middle'"):
-        design_vpc_pair(rig, VpcConfig(projection="pinhole", left="middle"))
+        design_rectified_pair(rig, RectifiedPairConfig(projection="pinhole", left="middle"))
     with pytest.raises(ValueError, match="hfov_deg"):
-        VpcConfig(hfov_deg=185)
+        RectifiedPairConfig(hfov_deg=185)
     with pytest.raises(ValueError, match="extra"):
-        VpcConfig(fov=90)  # type: ignore[call-arg]
+        RectifiedPairConfig(fov=90)  # type: ignore[call-arg]
 
 
-def _vertical_disparity(shot: StereoShot, pair: VpcPair) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def _vertical_disparity(
+    shot: StereoShot, pair: RectifiedPair
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Matched features on the VPC pair built with ``pair``: (dy, dx) of forward-backward
     consistent KLT tracks from corners of the left VPC image."""
     rig = shot.rig
-    left = build_vpc_lut(rig.cameras["left"], pair.R_cam_vpc["left"], pair.camera).remap(shot.left)
-    right = build_vpc_lut(rig.cameras["right"], pair.R_cam_vpc["right"], pair.camera).remap(shot.right)
+    left = build_rectified_lut(rig.cameras["left"], pair.R_cam_rect["left"], pair.camera).remap(shot.left)
+    right = build_rectified_lut(rig.cameras["right"], pair.R_cam_rect["right"], pair.camera).remap(shot.right)
     pts: Any = cv2.goodFeaturesToTrack(left, 800, 0.01, 5)
     klt: Any = cv2.calcOpticalFlowPyrLK  # its stubs reject None for the output points
     crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 100, 1e-4)
@@ -125,7 +127,7 @@ def _vertical_disparity(shot: StereoShot, pair: VpcPair) -> tuple[NDArray[np.flo
     return d[:, 1], d[:, 0]
 
 
-SMALL = VpcConfig(width=320, height=240)
+SMALL = RectifiedPairConfig(width=320, height=240)
 #: Measured |dy| median and 95th percentile (px) on the 87°/2° mount (3 B: docs/stereo.md's figure).
 PLANE_DY = {3.0: (0.017, 0.053), 6.0: (0.018, 0.059)}
 
@@ -156,7 +158,7 @@ def test_rendered_non_ideal_mount_room_rows_align_and_nominal_design_does_not() 
     print(f"\nroom on an 87°/2° mount: |dy| median {med:.3f} px, p95 {p95:.3f} px")
     assert med <= 0.1 and p95 <= 0.3
     assert (med, p95) == pytest.approx((0.050, 0.169), rel=0.25)  # measured
-    nominal = design_vpc_pair(prototype_rig(0.5), SMALL)
+    nominal = design_rectified_pair(prototype_rig(0.5), SMALL)
     dy_nominal, _ = _vertical_disparity(shot, nominal)
     nominal_med = float(np.median(np.abs(dy_nominal)))
     print(f"room, pair designed for the nominal 90° mount: |dy| median {nominal_med:.2f} px")

@@ -1,7 +1,7 @@
 """Rectified-pair options shared by ``rig process``, ``rig lut build`` and ``rig sim``: the
 projection, the pinhole's size and field of view, the lat-lon resolution and field, the look
 direction; calibration loading and the LUT cache directory. Options not given are left to
-:class:`rig.vpc.VpcConfig`'s defaults (see docs/wide-pair.md)."""
+:class:`rig.rectified.RectifiedPairConfig`'s defaults (see docs/wide-pair.md)."""
 
 from __future__ import annotations
 
@@ -14,20 +14,20 @@ from rig.errors import ConfigError
 
 if TYPE_CHECKING:  # the libraries load when an option is used, not for --help
     from calibration.rig import Rig
-    from rig.vpc import VpcConfig
+    from rig.rectified import RectifiedPairConfig
 
 __all__ = [
     "CacheDirOption",
     "CalibrationOption",
     "FieldOption",
+    "PinholeHfovOption",
+    "PinholeSizeOption",
     "PitchOption",
     "ProjectionOption",
     "PxPerDegOption",
-    "VpcHfovOption",
-    "VpcSizeOption",
     "YawOption",
     "load_calibration",
-    "make_vpc_config",
+    "make_pair_config",
     "parse_size",
 ]
 
@@ -49,11 +49,11 @@ ProjectionOption = Annotated[
         show_default="latlon; pinhole with --vpc-size or --vpc-hfov",
     ),
 ]
-VpcHfovOption = Annotated[
+PinholeHfovOption = Annotated[
     float | None,
     typer.Option("--vpc-hfov", metavar="DEG", help="Pinhole: horizontal field of view.", show_default="90"),
 ]
-VpcSizeOption = Annotated[
+PinholeSizeOption = Annotated[
     str | None, typer.Option("--vpc-size", metavar="WxH", help="Pinhole: image size.", show_default="640x480")
 ]
 PxPerDegOption = Annotated[
@@ -126,7 +126,7 @@ _OPTION_OF = {
 }
 
 
-def make_vpc_config(
+def make_pair_config(
     size: str | None = None,
     hfov_deg: float | None = None,
     yaw_deg: float | None = None,
@@ -135,13 +135,13 @@ def make_vpc_config(
     projection: str | None = None,
     px_per_deg: float | None = None,
     field: str | None = None,
-) -> VpcConfig:
-    """A validated :class:`VpcConfig` of the options given (None: not given); ConfigError
+) -> RectifiedPairConfig:
+    """A validated :class:`RectifiedPairConfig` of the options given (None: not given); ConfigError
     naming the offending option."""
     from pydantic import ValidationError
 
+    from rig.rectified import PROJECTIONS, RectifiedPairConfig
     from rig.settings_model import field_errors
-    from rig.vpc import PROJECTIONS, VpcConfig
 
     values: dict[str, Any] = {}
     if projection is not None:
@@ -156,7 +156,7 @@ def make_vpc_config(
     values |= {k: v for k, v in given.items() if v is not None}
     _check_projection_options(values)
     try:
-        return VpcConfig(**values)
+        return RectifiedPairConfig(**values)
     except ValidationError as err:
         problems = [
             f"{_OPTION_OF.get(f, f or 'vpc')}: {msg}" + (f" (got {values[f]!r})" if f in values else "")
@@ -169,7 +169,7 @@ def _check_projection_options(values: dict[str, Any]) -> None:
     """Options of the other projection than the one chosen, a look direction without a lat-lon
     field: one line naming the options. Sets ``values["projection"]``: as given, else the one
     whose own options are given, else the default."""
-    from rig.vpc import DEFAULT_PROJECTION
+    from rig.rectified import DEFAULT_PROJECTION
 
     pinhole = [o for k, o in (("width", "--vpc-size"), ("hfov_deg", "--vpc-hfov")) if k in values]
     latlon = [o for k, o in (("px_per_deg", "--px-per-deg"), ("az_span_deg", "--field")) if k in values]

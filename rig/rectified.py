@@ -5,7 +5,7 @@ The pair is derived from the calibrated extrinsics, not from the mount's nominal
 rectified frame is the baseline direction, so rows align exactly even on a mount that is 87°
 instead of 90° or pitched; z is the mean optical axis made orthogonal to x, y = z × x.
 
-Two projections (``VpcConfig.projection``), both with rows that are epipolar planes:
+Two projections (``RectifiedPairConfig.projection``), both with rows that are epipolar planes:
 
 * ``pinhole`` (the paper's virtual pinhole cameras): ``u = cx + fx·x/z``, ``v = cy + fy·y/z``.
   Its image planes must contain the baseline, so a *yaw* of the look direction cannot rotate the
@@ -41,9 +41,9 @@ __all__ = [
     "PROJECTIONS",
     "Projection",
     "RectifiedCamera",
-    "VpcConfig",
-    "VpcPair",
-    "design_vpc_pair",
+    "RectifiedPair",
+    "RectifiedPairConfig",
+    "design_rectified_pair",
 ]
 
 F64 = NDArray[np.float64]
@@ -62,7 +62,7 @@ _PINHOLE_ONLY = ("width", "height", "hfov_deg")
 _LATLON_ONLY = ("px_per_deg", "az_span_deg", "el_span_deg")
 
 
-class VpcConfig(SettingsModel):
+class RectifiedPairConfig(SettingsModel):
     """Projection, size, field of view and look direction of the rectified pair (degrees in
     config, docs/design.md). ``width``, ``height`` and ``hfov_deg`` are the pinhole's; ``px_per_deg``
     and the spans the lat-lon's (setting one for the other projection is an error). Without a
@@ -103,7 +103,7 @@ class VpcConfig(SettingsModel):
         return data
 
     @model_validator(mode="after")
-    def _one_projection(self) -> VpcConfig:
+    def _one_projection(self) -> RectifiedPairConfig:
         other = _PINHOLE_ONLY if self.projection == "latlon" else _LATLON_ONLY
         for name in other:
             if getattr(self, name) != type(self).model_fields[name].default:
@@ -123,20 +123,20 @@ class VpcConfig(SettingsModel):
 
 
 @dataclass(frozen=True)
-class VpcPair:
+class RectifiedPair:
     """A rectified pair: one projection model shared by both views, and their poses in the rig.
 
     ``camera`` is a :class:`PinholeModel` or a :class:`LatLonModel` (``projection`` says which).
-    ``T_rig_vpc[name]`` (4, 4) places each view at its fisheye camera's optical centre, both with
-    the orientation ``R_rig_vpc`` (the rectified frame); ``R_cam_vpc[name]`` (3, 3) rotates
+    ``T_rig_rect[name]`` (4, 4) places each view at its fisheye camera's optical centre, both with
+    the orientation ``R_rig_rect`` (the rectified frame); ``R_cam_rect[name]`` (3, 3) rotates
     rectified rays into that fisheye camera's frame, the ``R`` of
     ``p_fisheye = π_f(R · π_rect⁻¹(p_rect))``. ``field_note``: what the design changed in the
     requested field (a lat-lon field clipped to the overlap), or None.
     """
 
     camera: RectifiedCamera
-    T_rig_vpc: dict[str, F64]
-    R_cam_vpc: dict[str, F64]
+    T_rig_rect: dict[str, F64]
+    R_cam_rect: dict[str, F64]
     baseline_m: float
     left: str
     right: str
@@ -151,9 +151,9 @@ class VpcPair:
         return "latlon" if isinstance(self.camera, LatLonModel) else "pinhole"
 
     @property
-    def R_rig_vpc(self) -> F64:
+    def R_rig_rect(self) -> F64:
         """The rectified frame's axes in the rig frame (3, 3), columns x, y, z."""
-        return self.T_rig_vpc[self.left][:3, :3]
+        return self.T_rig_rect[self.left][:3, :3]
 
     def as_json(self) -> dict[str, object]:
         """``vpc.json`` of ``rig process`` (docs/design.md): the projection, its intrinsics, the
@@ -168,11 +168,11 @@ class VpcPair:
             "cx": c.cx,
             "cy": c.cy,
             "baseline_m": self.baseline_m,
-            "R_rig_vpc": self.R_rig_vpc.tolist(),
+            "R_rig_vpc": self.R_rig_rect.tolist(),
         }
 
 
-def vpc_intrinsics(config: VpcConfig) -> PinholeModel:
+def pinhole_intrinsics(config: RectifiedPairConfig) -> PinholeModel:
     """Square-pixel pinhole for the config; yaw shifts the principal point (see module doc)."""
     f = (config.width / 2.0) / math.tan(math.radians(config.hfov_deg) / 2.0)
     cx = (config.width - 1) / 2.0 - f * math.tan(math.radians(config.yaw_deg))
@@ -203,9 +203,9 @@ def rectified_frame(rig: Rig, left: str, right: str) -> tuple[F64, float]:
 
 
 def latlon_intrinsics(
-    rig: Rig, R_rig_vpc: F64, config: VpcConfig, blind_band_px: int = 0
+    rig: Rig, R_rig_rect: F64, config: RectifiedPairConfig, blind_band_px: int = 0
 ) -> tuple[LatLonModel, str | None]:
-    """The lat-lon view of ``config`` in the rectified frame ``R_rig_vpc``, and a note when the
+    """The lat-lon view of ``config`` in the rectified frame ``R_rig_rect``, and a note when the
     requested field had to be clipped to the overlap.
 
     Default field: the overlap's bounds (:func:`rig.field.overlap`) widened on the left by
@@ -216,7 +216,7 @@ def latlon_intrinsics(
     the lowest elevation.
     """
     f = math.degrees(config.resolution_px_per_deg)  # px per radian
-    view = overlap(rig, R_rig_vpc, config.left, config.right)
+    view = overlap(rig, R_rig_rect, config.left, config.right)
     az_lo, az_hi, el_lo, el_hi = view.bounds()
     az_lo -= blind_band_px / f
     bounds = (az_lo, az_hi, el_lo, el_hi)
@@ -236,7 +236,7 @@ def latlon_intrinsics(
 
 
 def _clip_field(
-    config: VpcConfig,
+    config: RectifiedPairConfig,
     bounds: tuple[float, float, float, float],
     fraction_inside: Callable[[float, float, float, float], float],
 ) -> tuple[tuple[float, float, float, float], str | None]:
@@ -271,23 +271,25 @@ def _describe(b: tuple[float, float, float, float]) -> str:
     return f"azimuth {az0:.1f}°..{az1:.1f}° × elevation {el0:.1f}°..{el1:.1f}°"
 
 
-def design_vpc_pair(rig: Rig, config: VpcConfig | None = None, *, blind_band_px: int = 0) -> VpcPair:
+def design_rectified_pair(
+    rig: Rig, config: RectifiedPairConfig | None = None, *, blind_band_px: int = 0
+) -> RectifiedPair:
     """Rectified pair for ``rig`` (docs/design.md, "The VPC pair"): the frame of
     :func:`rectified_frame`, pitched about x for the pinhole; the lat-lon field of
     :func:`latlon_intrinsics` (``blind_band_px``: the matcher's unmatched columns, added to the
     default field)."""
-    config = config or VpcConfig()
+    config = config or RectifiedPairConfig()
     R_rect, baseline = rectified_frame(rig, config.left, config.right)
     note = None
     camera: RectifiedCamera
     if config.projection == "latlon":
-        R_rig_vpc = R_rect
-        camera, note = latlon_intrinsics(rig, R_rig_vpc, config, blind_band_px)
+        R_rig_rect = R_rect
+        camera, note = latlon_intrinsics(rig, R_rig_rect, config, blind_band_px)
     else:
         # Pitch up (+) turns z towards -y (y points down): rot_x(+pitch) maps z to (0, -sin, cos).
-        R_rig_vpc = R_rect @ rot_x(math.radians(config.pitch_deg))
-        camera = vpc_intrinsics(config)
+        R_rig_rect = R_rect @ rot_x(math.radians(config.pitch_deg))
+        camera = pinhole_intrinsics(config)
     names = (config.left, config.right)
-    T_rig_vpc = {n: make_transform(R_rig_vpc, rig.center(n)) for n in names}
-    R_cam_vpc = {n: rig.T_rig_cam[n][:3, :3].T @ R_rig_vpc for n in names}
-    return VpcPair(camera, T_rig_vpc, R_cam_vpc, baseline, config.left, config.right, note)
+    T_rig_rect = {n: make_transform(R_rig_rect, rig.center(n)) for n in names}
+    R_cam_rect = {n: rig.T_rig_cam[n][:3, :3].T @ R_rig_rect for n in names}
+    return RectifiedPair(camera, T_rig_rect, R_cam_rect, baseline, config.left, config.right, note)
