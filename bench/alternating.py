@@ -81,7 +81,7 @@ class WorkerSession:
             result = self.runtime.store.wait_newer(index, 0.2)
             if result is not None:
                 index = result.index
-                self._published.append((result.published_ns, result.latency_ms))
+                self._published.append((result.published_ns, result.age_ms))
 
     def __enter__(self) -> WorkerSession:
         self.runtime.start()

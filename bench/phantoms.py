@@ -179,14 +179,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         summary.add_column(col, justify="right")
     rows = []
     for cand in candidates:
-        pipe.update_stereo(cand.params)
+        pipe.apply(stereo=cand.params)
         stats = {s.name: _stats(pipe, cand, s) for s in shots}
         total = sum(stats.values(), PhantomStats(0, 0, 0, 0))
         worst = max(st.phantom_rate for st in stats.values())
         cpu = _cpu_ms(pipe, shots, repeat)
         cpu_big = None
         if big is not None:
-            big.update_stereo(cand.params)
+            big.apply(stereo=cand.params)
             cpu_big = _cpu_ms(big, shots[:2], repeat)
         near = stats.get(NEAR_SCENE)
         rows.append(

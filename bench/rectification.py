@@ -33,6 +33,7 @@ from bench.alternating import WorkerSession
 from bench.common import add_common_arguments, console, finish, machine_info, median, print_machine
 from bench.recordings import MjpegSpec, ensure_mjpeg_recording, load_jpeg_pairs
 from bench.worker import bench_settings
+from rig.pipeline import DepthPipeline
 from rig.rectification.monitor import RectificationConfig, RectificationMonitor
 from rig.rectified import RectifiedPairConfig
 from rig.sim import get_preset
@@ -108,7 +109,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rig = get_preset("prototype").scaled(scale).rig
     options = RectificationConfig()
     vpc = RectifiedPairConfig(width=320, height=240) if args.quick else RectifiedPairConfig()
-    monitor = RectificationMonitor(rig, vpc, lambda: None, options)
+    pipeline = DepthPipeline(rig, vpc)
+    monitor = RectificationMonitor(lambda: pipeline.in_effect, lambda: None, options)
     sift = cv2.SIFT.create(nfeatures=options.max_features)
 
     def bare(left: U8, right: U8) -> int:

@@ -70,7 +70,7 @@ def register(app: typer.Typer) -> None:
             report = run_bringup(
                 settings.cameras,
                 rig,
-                vpc=settings.vpc,
+                vpc=settings.rectified,
                 stereo=settings.stereo,
                 cache_dir=settings.cache_dir,
                 seconds=seconds,

@@ -136,12 +136,12 @@ def make_pair_config(
     px_per_deg: float | None = None,
     field: str | None = None,
 ) -> RectifiedPairConfig:
-    """A validated :class:`RectifiedPairConfig` of the options given (None: not given); ConfigError
-    naming the offending option."""
+    """A validated :class:`RectifiedPairConfig` of the options given (None: not given); its rules
+    (which options go with which projection) are the model's, said here in the options' names:
+    ConfigError naming the offending option."""
     from pydantic import ValidationError
 
     from rig.rectified import PROJECTIONS, RectifiedPairConfig
-    from rig.settings_model import field_errors
 
     values: dict[str, Any] = {}
     if projection is not None:
@@ -154,39 +154,34 @@ def make_pair_config(
         values["az_span_deg"], values["el_span_deg"] = _parse_field(field)
     given = {"hfov_deg": hfov_deg, "yaw_deg": yaw_deg, "pitch_deg": pitch_deg, "px_per_deg": px_per_deg}
     values |= {k: v for k, v in given.items() if v is not None}
-    _check_projection_options(values)
     try:
         return RectifiedPairConfig(**values)
     except ValidationError as err:
-        problems = [
-            f"{_OPTION_OF.get(f, f or 'vpc')}: {msg}" + (f" (got {values[f]!r})" if f in values else "")
-            for f, msg in field_errors(err)
-        ]
-        raise ConfigError("; ".join(problems)) from None
+        raise ConfigError("; ".join(_in_options(e, values) for e in err.errors(include_url=False))) from None
 
 
-def _check_projection_options(values: dict[str, Any]) -> None:
-    """Options of the other projection than the one chosen, a look direction without a lat-lon
-    field: one line naming the options. Sets ``values["projection"]``: as given, else the one
-    whose own options are given, else the default."""
-    from rig.rectified import DEFAULT_PROJECTION
-
-    pinhole = [o for k, o in (("width", "--vpc-size"), ("hfov_deg", "--vpc-hfov")) if k in values]
-    latlon = [o for k, o in (("px_per_deg", "--px-per-deg"), ("az_span_deg", "--field")) if k in values]
-    chosen = values.get("projection") or (
-        "pinhole" if pinhole else "latlon" if latlon else DEFAULT_PROJECTION
+def _options(fields: str, joiner: str = " and ") -> str:
+    """``"width, hfov_deg"`` -> ``"--vpc-size and --vpc-hfov"``."""
+    names = dict.fromkeys(
+        _OPTION_OF.get(f.strip(), f.strip()) for f in fields.replace(" and ", ",").split(",")
     )
-    values["projection"] = chosen
-    if chosen == "latlon" and pinhole:
-        raise ConfigError(f"{' and '.join(pinhole)} apply to --projection pinhole, not latlon")
-    if chosen == "pinhole" and latlon:
-        raise ConfigError(f"{' and '.join(latlon)} apply to --projection latlon, not pinhole")
-    look = [o for k, o in (("yaw_deg", "--yaw"), ("pitch_deg", "--pitch")) if values.get(k)]
-    if chosen == "latlon" and look and "az_span_deg" not in values:
-        raise ConfigError(
-            f"{' and '.join(look)} centre an explicit lat-lon --field; without one the field is the "
+    return joiner.join(names)
+
+
+def _in_options(error: Any, values: dict[str, Any]) -> str:
+    """One of the model's errors in the options' names."""
+    kind, ctx = error["type"], error.get("ctx") or {}
+    if kind == "other_projection":
+        other = "pinhole" if ctx["projection"] == "latlon" else "latlon"
+        return f"{_options(ctx['fields'])} apply to --projection {other}, not {ctx['projection']}"
+    if kind == "look_without_field":
+        return (
+            f"{_options(ctx['fields'])} centre an explicit lat-lon --field; without one the field is the "
             "whole overlap of the two lenses"
         )
+    field = str(error["loc"][0]) if error["loc"] else ""
+    got = f" (got {values[field]!r})" if field in values else ""
+    return f"{_OPTION_OF.get(field, field or 'rectified')}: {error['msg'].removeprefix('Value error, ')}{got}"
 
 
 def load_calibration(path: Path | None, fallback: Path | None = None) -> tuple[Rig, Path]:

@@ -211,7 +211,7 @@ def register(app: typer.Typer) -> None:
             capture.stop()
             recorder.close()
         assert result is not None
-        recorder.finish()
+        recorder.complete()
         console.print(
             _summary(out, result.pairs_written, result.stopped_by, capture.health()),
             highlight=False,

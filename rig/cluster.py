@@ -375,7 +375,7 @@ def process_on_cluster(
     summaries = []
     for job in jobs:
         assert job.layout is not None
-        job.layout.finish()  # no task writes there any more: remove what a killed one left
+        job.layout.close()  # no task writes there any more: remove what a killed one left
         tally = tallies.get(id(job), _Tally())
         failures = sorted(tally.failures, key=lambda f: f.seq)
         total = len(job.recording.pairs)

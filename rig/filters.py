@@ -63,7 +63,7 @@ def copy_where(dst: F32, src: F32, where: Mask) -> None:
 
     OpenCV's masked copy: on a 640×480 frame in cache it costs ~0.03 ms where numpy's boolean
     assignment, ``np.copyto`` or ``np.where`` cost 0.1-0.2 ms (they branch per pixel), and the
-    finish stage does this on every frame."""
+    post-processing stage does this on every frame."""
     if cv2.copyTo(src, where.view(np.uint8), dst) is not dst:  # OpenCV made a new array instead
         raise ValueError(f"copy_where: cannot write {src.dtype} {src.shape} into {dst.dtype} {dst.shape}")
 

@@ -1,9 +1,9 @@
 """How much memory the depth pipeline will need, estimated from its settings before anything is
 built, and whether the machine has it.
 
-A VPC or camera size that cannot fit must be refused at start-up with the reason, not discovered
+A rectified pair or camera size that cannot fit must be refused at start-up with the reason, not discovered
 as gigabytes of RSS while health says ok. :func:`pipeline_parts` adds up, per part, the arrays the
-pipeline keeps or makes per frame (bytes per VPC pixel ``P``, per camera pixel ``C``, times the
+pipeline keeps or makes per frame (bytes per rectified pixel ``P``, per camera pixel ``C``, times the
 frames alive at once); the service adds its own parts (:mod:`service.memory`). The figures are
 upper bounds of what each part holds at its peak, so that the sum is a budget the process's
 resident size stays under (docs/reliability.md, "Memory budget", compares them with measured RSS).
@@ -11,7 +11,7 @@ resident size stays under (docs/reliability.md, "Memory budget", compares them w
 The parts, per frame alive (:data:`FRAMES_ALIVE`: one in each of the worker's three stages, the
 published result, the previous one the worker prefetches from, one a client still sends):
 
-- VPC arrays: gray pair 2, colour pair 6, disparity, depth and confidence float32 12, valid 1,
+- rectified arrays: gray pair 2, colour pair 6, disparity, depth and confidence float32 12, valid 1,
   the matcher's int16 output 2, encoded bodies (PNG, npy, JPEG of depth, disparity, confidence)
   up to 17 bytes per ``P``;
 - the raw camera frames behind them: stored bytes, gray and colour decodes, 5 bytes per ``C`` and
@@ -31,7 +31,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
 
 __all__ = [
@@ -42,7 +41,7 @@ __all__ = [
 ]
 
 FRAMES_ALIVE = 6
-_VPC_BYTES_PER_FRAME = 2 + 6 + 12 + 1 + 2 + 17
+_RECT_BYTES_PER_FRAME = 2 + 6 + 12 + 1 + 2 + 17
 _CAMERA_BYTES_PER_FRAME = 5
 _LUT_BYTES = 8 + 6 + 1
 _FINISH_TEMPORARIES = 60
@@ -71,26 +70,29 @@ class MemoryEstimate:
 
 
 def pipeline_parts(
-    vpc: RectifiedPairConfig,
+    rectified_size: tuple[int, int],
     stereo: StereoParams,
     camera_sizes: Sequence[tuple[int, int]],
     *,
     queued_frames_per_camera: int = 12,
     threads: int | None = None,
 ) -> MemoryEstimate:
-    """The pipeline's parts for ``vpc``, ``stereo`` and cameras of ``camera_sizes`` (w, h)."""
-    p = vpc.width * vpc.height
+    """The pipeline's parts for a rectified pair of ``rectified_size`` (w, h) (the designed
+    pair's, :attr:`rig.in_effect.PairInEffect.camera`, or :func:`rig.rectified.design_rectified_pair`'s
+    before a pipeline is built), ``stereo`` and cameras of ``camera_sizes`` (w, h)."""
+    width, height = rectified_size
+    p = width * height
     c = sum(w * h for w, h in camera_sizes)
     d = stereo.disparity_range
     threads = threads or os.cpu_count() or 1
     if stereo.stereo_algorithm == 1 and stereo.effective_mode == "hh":
         matcher = 4 * p * d  # the whole cost volume, 16-bit, twice
     else:
-        matcher = _SGBM_THREAD_BYTES_PER_WD * vpc.width * d * threads
+        matcher = _SGBM_THREAD_BYTES_PER_WD * width * d * threads
     return MemoryEstimate(
         {
             "lookup_tables": 2 * _LUT_BYTES * p,
-            "rect_frames": FRAMES_ALIVE * _VPC_BYTES_PER_FRAME * p,
+            "rectified_frames": FRAMES_ALIVE * _RECT_BYTES_PER_FRAME * p,
             "camera_frames": FRAMES_ALIVE * _CAMERA_BYTES_PER_FRAME * c,
             "matcher": matcher + _FINISH_TEMPORARIES * p,
             "capture_buffers": queued_frames_per_camera * _QUEUED_FRAME_BYTES * c,

@@ -222,7 +222,7 @@ class OutputLayout:
         for product in self.products:
             fsync_directory(self.root / product.name)
 
-    def finish(self) -> None:
+    def close(self) -> None:
         """After the last writer is done: remove any temporary a crashed writer left, sync."""
         for product in self.products:
             sweep_temporaries(self.root / product.name)

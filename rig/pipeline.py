@@ -1,21 +1,23 @@
-"""The depth pipeline: fisheye pair → VPC pair (cached LUT remap) → disparity → depth.
+"""The depth pipeline of one stereo pair: fisheye pair → rectified pair (cached LUT remap) →
+disparity → range and depth.
 
-``DepthPipeline(rig)`` builds (or loads from the cache) one LUT per camera for the VPC pair of
-:func:`rig.rectified.design_rectified_pair`; ``process(left, right)`` runs the stages configured by
-:class:`rig.stereo.StereoParams` and returns a :class:`DepthFrame` with per-stage timings.
+``DepthPipeline(rig, config, stereo)`` designs the rectified pair of two of ``rig``'s cameras
+(:func:`rig.rectified.design_rectified_pair`), builds (or loads from the cache) one lookup table
+per camera, and holds them with the stereo matcher as the pair in effect
+(:class:`rig.in_effect.PairInEffect`); ``process(left, right)`` returns a :class:`DepthFrame`
+with per-stage timings.
 
-``process`` is three stages that a pipelined caller (the service's worker) may run on three
+``process`` is three stages that a pipelined caller (:mod:`rig.staged`) may run on three
 threads, frame N+1's stage 1 while frame N is in stage 2 or 3: :meth:`rectify` (LUT remap + gray;
-thread-safe), :meth:`match` (the OpenCV matcher's parallel part; serialised) and :meth:`finish`
-(its speckle removal, refinement, filters, confidence, depth; serialised, in frame order for the
-temporal filter).
+thread-safe), :meth:`match` (the OpenCV matcher's parallel part; serialised) and
+:meth:`postprocess` (speckle removal, refinement, filters, confidence, depth; serialised, in
+frame order for the temporal filter).
 
-Thread safety: ``process`` may be called from several threads (a lock serialises them);
-``update_stereo`` may be called from any thread: it builds a new matcher and swaps it in
-atomically, and the next frame to reach :meth:`match` uses it. ``replace_rig`` likewise builds
-the lookup tables of a corrected calibration (the online rectification refinement) on the
-calling thread and swaps them in as one :class:`PairGeometry`: a pair is rectified and finished
-with one geometry, whichever it started with, so no frame mixes two or is dropped.
+Thread safety: ``process`` may be called from several threads (a lock serialises them).
+:meth:`apply` may be called from any thread: it is the one way the pair in effect changes (new
+stereo parameters; the tables of a corrected calibration), swapped in as one object. The next
+pair to reach :meth:`match` uses the new matcher; a pair is rectified and post-processed with one
+geometry, whichever it started with, so no frame mixes two or is dropped.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import logging
 import threading
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -37,18 +39,20 @@ from rig.depth import range_points
 from rig.errors import ConfigError, PipelineError
 from rig.field import image_border, region_outline
 from rig.filters import fill_where, visible_in_right
-from rig.finish import FinishStage
 from rig.heap import tune_allocator
+from rig.in_effect import PairGeometry, PairInEffect
 from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
-from rig.rectified import RectifiedCamera, RectifiedPair, RectifiedPairConfig, design_rectified_pair
-from rig.stereo import MatchedDisparity, SeenColumns, StereoMatcher, StereoParams, UnfilteredDisparity
+from rig.postprocess import PostprocessStage
+from rig.rectified import RectifiedPair, RectifiedPairConfig
+from rig.stereo import MatchedDisparity, StereoMatcher, StereoParams, UnfilteredDisparity
 
 __all__ = [
     "DepthFrame",
     "DepthPipeline",
     "MatchedImages",
     "PairGeometry",
+    "PairInEffect",
     "RectifiedImages",
     "tune_allocator",
 ]
@@ -83,73 +87,6 @@ class DepthFrame:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
-@dataclass(frozen=True)
-class PairGeometry:
-    """What the calibration fixes for the depth pipeline: the rig, its VPC pair, one lookup table
-    per camera (and where it came from), the masks the finish stage applies (None where a
-    table sees its whole VPC) and the columns each lens sees, which bound the matching (None:
-    all of them)."""
-
-    rig: Rig
-    pair: RectifiedPair
-    lut_info: dict[str, CachedLut]
-    left_mask: NDArray[np.bool_] | None
-    right_mask: NDArray[np.bool_] | None
-    seen: SeenColumns | None = None
-
-    @property
-    def luts(self) -> dict[str, Lut]:
-        return {n: info.lut for n, info in self.lut_info.items()}
-
-    @classmethod
-    def build(
-        cls,
-        rig: Rig,
-        config: RectifiedPairConfig,
-        cache: LutCache,
-        blind_band_px: int = 0,
-        camera: RectifiedCamera | None = None,
-        luts: Mapping[str, CachedLut] | None = None,
-    ) -> PairGeometry:
-        """The pair of ``rig`` for ``config`` (a lat-lon field's default widened by the matcher's
-        ``blind_band_px`` unmatched columns), tables from (or built into) ``cache``. ``camera``
-        keeps a given rectified image grid (a corrected calibration moves the lenses' overlap,
-        and with it a lat-lon field's size, which frames in flight and the finish stage share).
-        ``luts``: the tables handed in instead (built once elsewhere for this calibration, e.g.
-        shipped to a cluster's workers)."""
-        pair = design_rectified_pair(rig, config, blind_band_px=blind_band_px)
-        if camera is not None:
-            pair = replace(pair, camera=camera)
-        info = {
-            n: _shipped(n, luts, pair)
-            if luts is not None
-            else cache.get(rig.cameras[n], pair.R_cam_rect[n], pair.camera)
-            for n in (pair.left, pair.right)
-        }
-        left, right = info[pair.left].lut, info[pair.right].lut
-        whole = left.valid_fraction == 1.0 and right.valid_fraction == 1.0
-        return cls(
-            rig,
-            pair,
-            info,
-            None if left.valid_fraction == 1.0 else left.valid,
-            None if right.valid_fraction == 1.0 else right.valid,
-            None if whole else SeenColumns.of(left.valid, right.valid),
-        )
-
-
-def _shipped(name: str, luts: Mapping[str, CachedLut], pair: RectifiedPair) -> CachedLut:
-    """Camera ``name``'s table as handed in, checked against the pair's image size."""
-    info = luts.get(name)
-    expected = (pair.camera.height, pair.camera.width)
-    if info is None or info.lut.shape != expected:
-        got = "none" if info is None else "x".join(map(str, info.lut.shape[::-1]))
-        raise ConfigError(
-            f"lookup table of camera {name!r}: {got} handed in for a {expected[1]}x{expected[0]} VPC"
-        )
-    return info
-
-
 @dataclass
 class RectifiedImages:
     """Output of :meth:`DepthPipeline.rectify`: the VPC images (H, W[, 3]) uint8, their gray
@@ -167,13 +104,21 @@ class RectifiedImages:
 @dataclass
 class MatchedImages:
     """Output of :meth:`DepthPipeline.match`: the matcher's output before its speckle removal
-    and the matcher that made it (its parameters drive :meth:`DepthPipeline.finish`, which
-    removes the speckles in place: a second ``finish`` of the same pair finds none left)."""
+    and the matcher that made it (its parameters drive :meth:`DepthPipeline.postprocess`, which
+    removes the speckles in place: a second ``postprocess`` of the same pair finds none left)."""
 
     rectified: RectifiedImages
     matcher: StereoMatcher
     unfiltered: UnfilteredDisparity
     match_ms: float
+
+
+def _check_params(params: StereoParams, width: int) -> None:
+    if params.disparity_range + max(params.min_disparity, 0) >= width:
+        raise ConfigError(
+            f"stereo: disparity_range {params.disparity_range} + min_disparity {params.min_disparity} "
+            f"must be below the rectified view's width {width}"
+        )
 
 
 def _gray(img: U8) -> U8:
@@ -183,13 +128,16 @@ def _gray(img: U8) -> U8:
 
 
 class DepthPipeline:
-    """Depth from a fisheye pair of ``rig`` (see module doc). ``tune_malloc`` calls
-    :func:`tune_allocator` (process-wide; the pipeline is what the process is for)."""
+    """Depth from a fisheye pair of ``rig`` (see module doc): the pair ``config`` of ``rig``'s
+    cameras (default: ``left`` and ``right``, the lat-lon pair), matched with ``stereo``.
+    ``tune_malloc`` calls :func:`tune_allocator` (process-wide; the pipeline is what the
+    process is for); ``luts``: the tables handed in instead of the cache's (a cluster's
+    workers)."""
 
     def __init__(
         self,
         rig: Rig,
-        vpc: RectifiedPairConfig | None = None,
+        config: RectifiedPairConfig | None = None,
         stereo: StereoParams | None = None,
         cache_dir: str | Path | None = None,
         *,
@@ -198,63 +146,72 @@ class DepthPipeline:
     ) -> None:
         if tune_malloc:
             tune_allocator()
-        self.pair_config = vpc or RectifiedPairConfig()
+        config = config or RectifiedPairConfig()
         params = stereo or StereoParams()
-        # A lat-lon field's default leaves room for the matcher's unmatched columns.
-        self._blind_band_px = params.blind_band_px
         self.cache = LutCache(cache_dir)
-        self._geometry = PairGeometry.build(rig, self.pair_config, self.cache, self._blind_band_px, luts=luts)
-        self.names = (self.pair.left, self.pair.right)
-        self._report_field(self._geometry)
-        self._swap_lock = threading.Lock()
+        # A lat-lon field's default leaves room for the matcher's unmatched columns.
+        reserve = params.blind_band_px
+        geometry = PairGeometry.build(rig, config, self.cache, reserve, luts=luts)
+        _check_params(params, geometry.pair.camera.width)
+        self._in_effect = PairInEffect(config, geometry, StereoMatcher(params), reserve)
+        self.names = self._in_effect.names
+        self._report_field(self._in_effect)
+        self._apply_lock = threading.Lock()
         self._process_lock = threading.Lock()
         self._match_lock = threading.Lock()
-        self._finish_lock = threading.Lock()
-        self._check_params(params)
-        self._matcher = StereoMatcher(params)
-        self._finish = FinishStage(self.pair.camera, self.baseline_m, self._matcher)
+        self._postprocess_lock = threading.Lock()
+        self._postprocess = PostprocessStage(self.pair.camera, self.baseline_m, self._in_effect.matcher)
 
-    # ----- configuration -----------------------------------------------------------------------
+    # ----- the pair in effect ------------------------------------------------------------------
+    @property
+    def in_effect(self) -> PairInEffect:
+        """The rectified pair and stereo settings in effect (take it once per use: :meth:`apply`
+        replaces it)."""
+        return self._in_effect
+
     @property
     def geometry(self) -> PairGeometry:
-        """The current geometry (take it once per pair: :meth:`replace_rig` may swap it)."""
-        return self._geometry
+        return self._in_effect.geometry
+
+    @property
+    def pair_config(self) -> RectifiedPairConfig:
+        return self._in_effect.config
 
     @property
     def rig(self) -> Rig:
-        return self._geometry.rig
+        return self._in_effect.geometry.rig
 
     @property
     def pair(self) -> RectifiedPair:
-        return self._geometry.pair
+        return self._in_effect.pair
 
     @property
     def baseline_m(self) -> float:
-        return self._geometry.pair.baseline_m
+        return self._in_effect.pair.baseline_m
 
     @property
     def lut_info(self) -> dict[str, CachedLut]:
-        return self._geometry.lut_info
+        return self._in_effect.geometry.lut_info
 
     @property
     def luts(self) -> dict[str, Lut]:
-        return self._geometry.luts
+        return self._in_effect.geometry.luts
+
+    @property
+    def stereo(self) -> StereoParams:
+        return self._in_effect.stereo
 
     @property
     def valid_fraction(self) -> dict[str, float]:
         return {n: lut.valid_fraction for n, lut in self.luts.items()}
 
-    @property
-    def _latlon(self) -> bool:
-        return isinstance(self.pair.camera, LatLonModel)
-
-    def _report_field(self, geometry: PairGeometry) -> None:
+    def _report_field(self, in_effect: PairInEffect) -> None:
         """Log what the rectified view leaves out: for the pinhole pair the share of its pixels a
-        lens does not see (an unusual VPC); the lat-lon field is the lenses' overlap by design,
+        lens does not see (an unusual view); the lat-lon field is the lenses' overlap by design,
         an explicit field wider than it is clipped (:attr:`RectifiedPair.field_note`)."""
-        pair = geometry.pair
+        pair = in_effect.pair
         c = pair.camera
-        fractions = {n: info.lut.valid_fraction for n, info in geometry.lut_info.items()}
+        fractions = {n: info.lut.valid_fraction for n, info in in_effect.geometry.lut_info.items()}
         if pair.field_note:
             log.warning("%s", pair.field_note)
         if isinstance(c, LatLonModel):
@@ -264,79 +221,81 @@ class DepthPipeline:
                 c.width,
                 c.height,
                 np.radians(c.fx),
-                self._blind_band_px,
+                in_effect.field_reserve_px,
                 *(percent_valid(fractions[n]) for n in (pair.left, pair.right)),
             )
             return
-        v = self.pair_config
+        v = in_effect.config
         for name, frac in fractions.items():
             if frac < 1.0:
                 log.warning(
-                    "VPC (%dx%d, hfov %.1f°, yaw %.1f°, pitch %.1f°) leaves camera '%s''s field: "
+                    "pinhole pair (%dx%d, hfov %.1f°, yaw %.1f°, pitch %.1f°) leaves camera '%s''s field: "
                     "only %s of its pixels are valid",
-                    v.width, v.height, v.hfov_deg, v.yaw_deg, v.pitch_deg, name, percent_valid(frac),
+                    c.width, c.height, v.hfov_deg, v.yaw_deg, v.pitch_deg, name, percent_valid(frac),
                 )  # fmt: skip
 
-    def replace_rig(self, rig: Rig) -> PairGeometry:
-        """Swap in a corrected calibration of the same cameras and baseline length (the online
-        rectification refinement): its tables are built (or read from the cache) here, then
-        swapped in at once; pairs already rectified finish with the geometry they began with.
-        ConfigError when the lenses or the baseline's length differ (depth would change scale)."""
-        old = self._geometry
+    def apply(self, *, stereo: StereoParams | None = None, rig: Rig | None = None) -> PairInEffect:
+        """The one way the pair in effect changes: new stereo parameters (the next pair to reach
+        :meth:`match` uses them) and/or a corrected calibration of the same lenses and baseline
+        length (the online rectification refinement: its tables are built, or read from the
+        cache, on the calling thread, then swapped in at once; pairs already rectified are
+        post-processed with the geometry they began with). Readers are never blocked; concurrent changes are
+        applied one after the other. ConfigError for parameters the rectified view cannot take, or
+        a calibration of other lenses or another baseline length (depth would change scale)."""
+        with self._apply_lock:
+            old = self._in_effect
+            geometry = None if rig is None else self._corrected_geometry(old, rig)
+            matcher = None
+            if stereo is not None:
+                _check_params(stereo, old.camera.width)
+                matcher = StereoMatcher(stereo)
+                self._warn_blind_band(old, stereo)
+            new = old.changed(geometry=geometry, matcher=matcher)
+            if geometry is not None:
+                self._report_field(new)
+            self._in_effect = new  # one reference swap: readers see the old or the new whole
+            return new
+
+    def _corrected_geometry(self, old: PairInEffect, rig: Rig) -> PairGeometry:
         for name in self.names:
-            if name not in rig.cameras or rig.cameras[name].to_dict() != old.rig.cameras[name].to_dict():
+            if (
+                name not in rig.cameras
+                or rig.cameras[name].to_dict() != old.geometry.rig.cameras[name].to_dict()
+            ):
                 raise ConfigError(
-                    f"replace_rig: camera {name!r} is not the same lens; restart with the new calibration"
+                    f"apply: camera {name!r} is not the same lens; restart with the new calibration"
                 )
-        geometry = PairGeometry.build(rig, self.pair_config, self.cache, self._blind_band_px, old.pair.camera)
+        # The rectified image grid stays: frames in flight and the post-processing share it.
+        geometry = PairGeometry.build(rig, old.config, self.cache, old.field_reserve_px, old.camera)
         if abs(geometry.pair.baseline_m - old.pair.baseline_m) > 1e-9 * old.pair.baseline_m:
             raise ConfigError(
-                f"replace_rig: the baseline changes from {old.pair.baseline_m:.6f} m to "
+                f"apply: the baseline changes from {old.pair.baseline_m:.6f} m to "
                 f"{geometry.pair.baseline_m:.6f} m; restart with the new calibration"
             )
-        self._report_field(geometry)
-        with self._swap_lock:
-            self._geometry = geometry
         return geometry
 
-    @property
-    def stereo(self) -> StereoParams:
-        return self._matcher.params
-
-    def _check_params(self, params: StereoParams) -> None:
-        width = self.pair.camera.width
-        if params.disparity_range + max(params.min_disparity, 0) >= width:
-            raise ConfigError(
-                f"stereo: disparity_range {params.disparity_range} + min_disparity {params.min_disparity} "
-                f"must be below the VPC width {width}"
-            )
-
-    def update_stereo(self, params: StereoParams) -> None:
-        """Swap in new stereo parameters (thread-safe; takes effect at the next frame)."""
-        self._check_params(params)
-        matcher = StereoMatcher(params)
-        if self._latlon and params.blind_band_px > self._blind_band_px:
+    @staticmethod
+    def _warn_blind_band(old: PairInEffect, params: StereoParams) -> None:
+        if isinstance(old.camera, LatLonModel) and params.blind_band_px > old.field_reserve_px:
             log.warning(
                 "stereo: the lat-lon field leaves room for %d unmatched columns, the new settings "
                 "leave %d: the overlap's leftmost %d columns get no range until the service restarts",
-                self._blind_band_px,
+                old.field_reserve_px,
                 params.blind_band_px,
-                params.blind_band_px - self._blind_band_px,
+                params.blind_band_px - old.field_reserve_px,
             )
-        with self._swap_lock:
-            self._matcher = matcher
 
     def temporal_state(self) -> F32 | None:
         """The temporal filter's history after the last finished frame (None: empty), to carry
         into another pipeline of the same settings (the next chunk of a recording)."""
-        with self._finish_lock:
-            return self._finish.temporal_state
+        with self._postprocess_lock:
+            return self._postprocess.temporal_state
 
     def restore_temporal_state(self, state: F32 | None) -> None:
         """Continue from ``state`` (:meth:`temporal_state` of another pipeline; None: start a
         new history, as at the start of a recording)."""
-        with self._finish_lock:
-            self._finish.temporal_state = state
+        with self._postprocess_lock:
+            self._postprocess.temporal_state = state
 
     # ----- stages ------------------------------------------------------------------------------
     def _check_input(self, name: str, img: NDArray[np.generic]) -> None:
@@ -358,12 +317,12 @@ class DepthPipeline:
         the same array for gray input, through ``geometry``'s table (default: the current one).
         Thread-safe: reads only the camera's LUT."""
         self._check_input(name, image)
-        vpc = (geometry or self._geometry).lut_info[name].lut.remap(image)
-        return vpc, _gray(vpc)
+        rect = (geometry or self._in_effect.geometry).lut_info[name].lut.remap(image)
+        return rect, _gray(rect)
 
     def remap(self, left: U8, right: U8) -> tuple[U8, U8]:
         """The VPC pair from a fisheye pair (fixed-point bilinear remap, black outside the lens)."""
-        geometry = self._geometry
+        geometry = self._in_effect.geometry
         pair = geometry.pair
         self._check_input(pair.left, left)
         self._check_input(pair.right, right)
@@ -372,7 +331,7 @@ class DepthPipeline:
     def rectify(self, left: U8, right: U8) -> RectifiedImages:
         """Stage 1 of :meth:`process`: the VPC pair and its gray images (thread-safe)."""
         t0 = time.perf_counter()
-        geometry = self._geometry
+        geometry = self._in_effect.geometry
         left_rect, left_gray = self.rectify_camera(geometry.pair.left, left, geometry)
         right_rect, right_gray = self.rectify_camera(geometry.pair.right, right, geometry)
         ms = (time.perf_counter() - t0) * 1e3
@@ -380,21 +339,20 @@ class DepthPipeline:
 
     def match(self, rect: RectifiedImages) -> MatchedImages:
         """Stage 2 of :meth:`process`: the current matcher's OpenCV call (its parallel part; the
-        speckle removal after it is :meth:`finish`'s, so that it overlaps the next pair's call).
+        speckle removal after it is :meth:`postprocess`'s, so that it overlaps the next pair's call).
         Callers are serialised (an OpenCV matcher keeps scratch buffers)."""
         with self._match_lock:
-            with self._swap_lock:
-                matcher = self._matcher
-            seen = (rect.geometry or self._geometry).seen
+            matcher = self._in_effect.matcher
+            seen = (rect.geometry or self._in_effect.geometry).seen
             t0 = time.perf_counter()
             unfiltered = matcher.compute(rect.left_gray, rect.right_gray, seen)
             return MatchedImages(rect, matcher, unfiltered, (time.perf_counter() - t0) * 1e3)
 
     def _disparity(self, matched: MatchedImages) -> MatchedDisparity:
         """The matcher's disparity of ``matched`` (speckles removed), LUT masks applied."""
-        raw = matched.matcher.finish(matched.unfiltered)
+        raw = matched.matcher.disparity_of(matched.unfiltered)
         disparity, valid = raw.disparity, raw.valid
-        geometry = matched.rectified.geometry or self._geometry
+        geometry = matched.rectified.geometry or self._in_effect.geometry
         left_mask, right_mask = geometry.left_mask, geometry.right_mask
         if left_mask is not None:
             valid &= left_mask
@@ -404,14 +362,14 @@ class DepthPipeline:
             fill_where(disparity, np.nan, ~valid)
         return MatchedDisparity(disparity, valid)
 
-    def finish(self, matched: MatchedImages, seq: int = 0, ts_ns: int = 0) -> DepthFrame:
+    def postprocess(self, matched: MatchedImages, seq: int = 0, ts_ns: int = 0) -> DepthFrame:
         """Stage 3 of :meth:`process`: the matcher's speckle removal, then refinement, filters,
         confidence and depth with the parameters of the matcher that made ``matched``
-        (:class:`rig.finish.FinishStage`, in row bands across the cores). Call in frame order
+        (:class:`rig.postprocess.PostprocessStage`, in row bands across the cores). Call in frame order
         (the temporal filter's history); callers are serialised."""
         rect = matched.rectified
-        with self._finish_lock:
-            out, speckle_ms, stage = self._finish(
+        with self._postprocess_lock:
+            out, speckle_ms, stage = self._postprocess(
                 matched.matcher, rect.left_gray, rect.right_gray, lambda: self._disparity(matched)
             )
         timings = {"remap": rect.remap_ms, "match": matched.match_ms + speckle_ms, **stage}
@@ -432,9 +390,9 @@ class DepthPipeline:
 
     def process(self, left: U8, right: U8, seq: int = 0, ts_ns: int = 0) -> DepthFrame:
         """Depth for one fisheye pair (see :class:`DepthFrame`): :meth:`rectify`, :meth:`match`
-        and :meth:`finish` in one go; concurrent callers are served one after the other."""
+        and :meth:`postprocess` in one go; concurrent callers are served one after the other."""
         with self._process_lock:
-            return self.finish(self.match(self.rectify(left, right)), seq, ts_ns)
+            return self.postprocess(self.match(self.rectify(left, right)), seq, ts_ns)
 
     # ----- outputs -----------------------------------------------------------------------------
     def point_cloud(
@@ -463,7 +421,7 @@ class DepthPipeline:
         image border (top, right, bottom, left edges, ``samples`` points each); the lat-lon
         pair's, whose image corners no lens sees, the border of the overlap (where both lenses
         see, ``4·samples`` points). For the dashboard overlay."""
-        geometry = self._geometry
+        geometry = self._in_effect.geometry
         if camera not in geometry.lut_info:
             raise ConfigError(f"footprint: no camera {camera!r} in the VPC pair ({', '.join(self.names)})")
         if samples < 2:

@@ -314,7 +314,7 @@ def _process_here(
             readahead=options.readahead,
             on_pair=on_pair,
         )
-        job.layout.finish()
+        job.layout.close()
         summaries.append(_summary(job, result.written, result.failures))
     return summaries
 

@@ -27,6 +27,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import ConfigDict, Field, model_validator
+from pydantic_core import PydanticCustomError
 
 from calibration.geometry import make_transform, rot_x
 from calibration.models import LatLonModel, PinholeModel
@@ -38,6 +39,7 @@ from rig.settings_model import SettingsModel
 __all__ = [
     "DEFAULT_PROJECTION",
     "DEFAULT_PX_PER_DEG",
+    "PINHOLE_DEFAULTS",
     "PROJECTIONS",
     "Projection",
     "RectifiedCamera",
@@ -58,23 +60,30 @@ RectifiedCamera = PinholeModel | LatLonModel
 #: Lat-lon resolution when ``px_per_deg`` is not set: the default pinhole's at its centre
 #: (640 px over 90°: fx = 320 px/rad).
 DEFAULT_PX_PER_DEG = 320.0 * math.pi / 180.0
-_PINHOLE_ONLY = ("width", "height", "hfov_deg")
+#: The pinhole's size and field of view when a pinhole configuration leaves them out.
+PINHOLE_DEFAULTS: dict[str, int | float] = {"width": 640, "height": 480, "hfov_deg": 90.0}
+_PINHOLE_ONLY = tuple(PINHOLE_DEFAULTS)
 _LATLON_ONLY = ("px_per_deg", "az_span_deg", "el_span_deg")
 
 
 class RectifiedPairConfig(SettingsModel):
     """Projection, size, field of view and look direction of the rectified pair (degrees in
-    config, docs/design.md). ``width``, ``height`` and ``hfov_deg`` are the pinhole's; ``px_per_deg``
-    and the spans the lat-lon's (setting one for the other projection is an error). Without a
-    ``projection``, one of the pinhole's fields selects the pinhole (so a configuration written
-    before the lat-lon pair keeps its meaning), else :data:`DEFAULT_PROJECTION`."""
+    config, docs/design.md). ``width``, ``height`` and ``hfov_deg`` are the pinhole's (defaults
+    :data:`PINHOLE_DEFAULTS`, None for the lat-lon pair, whose size follows from its resolution
+    and field); ``px_per_deg`` and the spans the lat-lon's. Setting one for the other projection
+    is an error. Without a ``projection``, one of the pinhole's fields selects the pinhole (so a
+    configuration written before the lat-lon pair keeps its meaning), else
+    :data:`DEFAULT_PROJECTION`. The config file's section is ``rectified:`` (``vpc:``, its first
+    name, is read too)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     projection: Projection = Field(DEFAULT_PROJECTION, description="rectified projection: pinhole or latlon")
-    width: int = Field(640, ge=16, le=8192, description="VPC image width (px)")
-    height: int = Field(480, ge=16, le=8192, description="VPC image height (px)")
-    hfov_deg: float = Field(90.0, gt=1.0, lt=179.0, description="horizontal field of view")
+    width: int | None = Field(None, ge=16, le=8192, description="pinhole: image width (px), default 640")
+    height: int | None = Field(None, ge=16, le=8192, description="pinhole: image height (px), default 480")
+    hfov_deg: float | None = Field(
+        None, gt=1.0, lt=179.0, description="pinhole: horizontal field of view, default 90"
+    )
     yaw_deg: float = Field(0.0, ge=-80.0, le=80.0, description="look right (+) or left (-)")
     pitch_deg: float = Field(0.0, ge=-80.0, le=80.0, description="look up (+) or down (-)")
     px_per_deg: float | None = Field(
@@ -98,23 +107,48 @@ class RectifiedPairConfig(SettingsModel):
     @model_validator(mode="before")
     @classmethod
     def _pinhole_settings_mean_the_pinhole(cls, data: Any) -> Any:
-        if isinstance(data, dict) and "projection" not in data and any(k in data for k in _PINHOLE_ONLY):
-            return {**data, "projection": "pinhole"}
-        return data
+        if not isinstance(data, dict):
+            return data
+        given = {k: v for k, v in data.items() if v is not None}
+        if "projection" not in given and any(k in given for k in _PINHOLE_ONLY):
+            given["projection"] = "pinhole"
+        if given.get("projection") == "pinhole":
+            given = {**PINHOLE_DEFAULTS, **given}
+        return given
 
     @model_validator(mode="after")
     def _one_projection(self) -> RectifiedPairConfig:
+        # Structured errors (their context names the fields) so that the command line can say
+        # them in its options' names without coding these rules again.
         other = _PINHOLE_ONLY if self.projection == "latlon" else _LATLON_ONLY
-        for name in other:
-            if getattr(self, name) != type(self).model_fields[name].default:
-                raise ValueError(f"{name} does not apply to the {self.projection} projection")
+        wrong = [name for name in other if getattr(self, name) is not None]
+        if wrong:
+            raise PydanticCustomError(
+                "other_projection",
+                "{fields} {verb} not apply to the {projection} projection",
+                {
+                    "fields": ", ".join(wrong),
+                    "verb": "does" if len(wrong) == 1 else "do",
+                    "projection": self.projection,
+                },
+            )
         spans = self.az_span_deg is not None or self.el_span_deg is not None
-        if self.projection == "latlon" and not spans and (self.yaw_deg or self.pitch_deg):
-            raise ValueError(
-                "yaw_deg and pitch_deg centre an explicit lat-lon field (az_span_deg, el_span_deg); "
-                "the default field is the whole overlap"
+        look = [name for name in ("yaw_deg", "pitch_deg") if getattr(self, name)]
+        if self.projection == "latlon" and not spans and look:
+            raise PydanticCustomError(
+                "look_without_field",
+                "{fields} centre an explicit lat-lon field (az_span_deg, el_span_deg); "
+                "the default field is the whole overlap",
+                {"fields": " and ".join(look)},
             )
         return self
+
+    @property
+    def pinhole_size(self) -> tuple[int, int, float]:
+        """The pinhole's (width, height, hfov_deg); ConfigError for a lat-lon configuration."""
+        if self.width is None or self.height is None or self.hfov_deg is None:
+            raise ConfigError(f"rectified: a {self.projection} pair has no pinhole size")
+        return self.width, self.height, self.hfov_deg
 
     @property
     def resolution_px_per_deg(self) -> float:
@@ -174,10 +208,11 @@ class RectifiedPair:
 
 def pinhole_intrinsics(config: RectifiedPairConfig) -> PinholeModel:
     """Square-pixel pinhole for the config; yaw shifts the principal point (see module doc)."""
-    f = (config.width / 2.0) / math.tan(math.radians(config.hfov_deg) / 2.0)
-    cx = (config.width - 1) / 2.0 - f * math.tan(math.radians(config.yaw_deg))
-    cy = (config.height - 1) / 2.0
-    return PinholeModel(config.width, config.height, fx=f, fy=f, cx=cx, cy=cy)
+    width, height, hfov_deg = config.pinhole_size
+    f = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
+    cx = (width - 1) / 2.0 - f * math.tan(math.radians(config.yaw_deg))
+    cy = (height - 1) / 2.0
+    return PinholeModel(width, height, fx=f, fy=f, cx=cx, cy=cy)
 
 
 def rectified_frame(rig: Rig, left: str, right: str) -> tuple[F64, float]:

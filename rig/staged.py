@@ -2,16 +2,16 @@
 a multi-core CPU (OpenCV and numpy release the GIL). The service's worker and ``rig process`` both
 run depth through :class:`StagedExecutor`::
 
-    take → prepare → [slot] → match → [slot] → finish (→ [slot] → deliver)
+    take → prepare → [slot] → match → [slot] → postprocess (→ [slot] → deliver)
 
 1. ``<prefix>-prepare``: take a pair (:data:`Take`), load both images (decode) and remap them to
    the VPC pair, one camera per thread (:meth:`DepthPipeline.rectify_camera`);
 2. ``<prefix>-match``: the stereo matcher (:meth:`DepthPipeline.match`);
-3. ``<prefix>-worker``: speckles, refinement, filters, depth (:meth:`DepthPipeline.finish`), in the
+3. ``<prefix>-worker``: speckles, refinement, filters, depth (:meth:`DepthPipeline.postprocess`), in the
    order the pairs were taken (the temporal filter's history), then ``deliver`` on this thread
    (the service publishes: a reference swap), or
 4. ``<prefix>-write`` with ``deliver_thread=True``: ``deliver`` on a fourth thread (``rig process``
-   encodes and writes files while the next pair is finished).
+   encodes and writes files while the next pair is post-processed).
 
 Stages hand over through one-item slots: at most one pair waits between two stages, and pairs
 leave in the order they were taken. How pairs are taken is the caller's:
@@ -241,7 +241,7 @@ class StagedExecutor:
         self._threads: list[threading.Thread] = []
         self._decoder: ThreadPoolExecutor | None = None
         self._to_match: Slot[_Item] = Slot(self._stop, poll_s)
-        self._to_finish: Slot[_Item] = Slot(self._stop, poll_s)
+        self._to_postprocess: Slot[_Item] = Slot(self._stop, poll_s)
         self._to_deliver: Slot[_Item] | None = Slot(self._stop, poll_s) if deliver_thread else None
 
     # ----- lifecycle ---------------------------------------------------------------------------
@@ -254,7 +254,7 @@ class StagedExecutor:
         stages: list[tuple[str, Callable[[], bool]]] = [
             ("prepare", self._prepare_step),
             ("match", self._match_step),
-            ("worker", self._finish_step),
+            ("worker", self._postprocess_step),
         ]
         if self._to_deliver is not None:
             stages.append(("write", self._deliver_step))
@@ -276,7 +276,7 @@ class StagedExecutor:
 
     def stop(self, timeout_s: float = 10.0) -> None:
         self._stop.set()
-        for slot in (self._to_match, self._to_finish, self._to_deliver):
+        for slot in (self._to_match, self._to_postprocess, self._to_deliver):
             if slot is not None:
                 slot.notify()
         deadline = time.monotonic() + timeout_s
@@ -331,7 +331,7 @@ class StagedExecutor:
         single-threaded, and two remaps at once beat one parallelised after another."""
         left_name, right_name = self.pipeline.names
         # One geometry for both frames: a corrected calibration swapped in meanwhile
-        # (DepthPipeline.replace_rig) starts with the next pair.
+        # (DepthPipeline.apply) starts with the next pair.
         geometry = self.pipeline.geometry
         decoder = self._decoder
         if decoder is None:
@@ -374,7 +374,7 @@ class StagedExecutor:
         if item is None:
             return True
         if item is END:
-            self._to_finish.put(END)
+            self._to_postprocess.put(END)
             return False
         try:
             matched = self.pipeline.match(item.rect)
@@ -383,17 +383,17 @@ class StagedExecutor:
             matched = None
         try:
             if matched is not None:
-                self._to_finish.put(_Matched(item.job, matched, item.decode_ms))
+                self._to_postprocess.put(_Matched(item.job, matched, item.decode_ms))
         finally:
             if pacing is not None:
-                # The cycle includes any wait for the finish stage: that is when it is free again.
+                # The cycle includes any wait for the post-processing stage: that is when it is free again.
                 done = time.monotonic_ns()
                 pacing.match_cycle.add(done - t0)
                 self._to_match.update(lambda: pacing.match_done(done))
         return True
 
-    def _finish_step(self) -> bool:
-        item = self._to_finish.take()
+    def _postprocess_step(self) -> bool:
+        item = self._to_postprocess.take()
         if item is None:
             return True
         if item is END:
@@ -404,7 +404,7 @@ class StagedExecutor:
             return False
         job = item.job
         try:
-            frame = self.pipeline.finish(item.matched, job.seq, job.ts_ns)
+            frame = self.pipeline.postprocess(item.matched, job.seq, job.ts_ns)
         except Exception as err:
             self._on_error(job.key, err)
             return True

@@ -167,7 +167,7 @@ class UnfilteredDisparity:
     the left view's (H, W) and, with ``lr_check``, the mirrored pair's (H, W), still mirrored;
     ``right_unsearched_from``: the right image's columns from this one on have no right-view
     disparity (the mirrored run's unmatched band). Made by :meth:`StereoMatcher.compute`,
-    turned into a :class:`MatchedDisparity` by :meth:`StereoMatcher.finish`."""
+    turned into a :class:`MatchedDisparity` by :meth:`StereoMatcher.disparity_of`."""
 
     left: NDArray[np.int16]
     mirrored: NDArray[np.int16] | None = None
@@ -207,19 +207,19 @@ def create_opencv_matcher(p: StereoParams) -> Any:
 class StereoMatcher:
     """OpenCV matcher built from :class:`StereoParams`; ``match`` runs it (and the LR check).
 
-    ``match`` is :meth:`compute` (the OpenCV matcher's parallel part) then :meth:`finish` (SGBM's
+    ``match`` is :meth:`compute` (the OpenCV matcher's parallel part) then :meth:`disparity_of` (SGBM's
     speckle removal, single-threaded, and the float conversion), so that a pipelined caller can
     run the next pair's ``compute`` while this one is finished. ``StereoSGBM.compute`` ends with
     that same ``filterSpeckles`` call on one core (~10 ms of a 1280×960 frame); the result is the
     bare matcher's bit for bit (tested for every mode).
 
     ``compute`` is not safe for concurrent calls (OpenCV matchers keep scratch buffers); the
-    pipeline swaps whole instances instead of mutating one. ``finish`` is.
+    pipeline swaps whole instances instead of mutating one. ``disparity_of`` is.
     """
 
     def __init__(self, params: StereoParams | None = None) -> None:
         self.params = params or StereoParams()
-        # SGBM's speckles are removed in finish(), so OpenCV's own pass is off. StereoBM's pass
+        # SGBM's speckles are removed in disparity_of(), so OpenCV's own pass is off. StereoBM's pass
         # differs from a later filterSpeckles call (it is cheap there anyway): BM keeps its own.
         self._deferred_speckles = self.params.stereo_algorithm == 1 and self.params.speckle_size > 0
         deferred = {"speckle_size": 0} if self._deferred_speckles else {}
@@ -303,7 +303,7 @@ class StereoMatcher:
         self.remove_speckles(out)
         return out
 
-    def finish(self, unfiltered: UnfilteredDisparity) -> MatchedDisparity:
+    def disparity_of(self, unfiltered: UnfilteredDisparity) -> MatchedDisparity:
         """Disparity of the left image (H, W) float32 px, NaN where the matcher gave none;
         with ``lr_check`` also NaN where the right image's disparity disagrees. Consumes
         ``unfiltered`` (its arrays are filtered in place)."""
@@ -322,8 +322,8 @@ class StereoMatcher:
         return MatchedDisparity(disp, valid)
 
     def match(self, left: U8, right: U8) -> MatchedDisparity:
-        """:meth:`compute` then :meth:`finish`."""
-        return self.finish(self.compute(left, right))
+        """:meth:`compute` then :meth:`disparity_of`."""
+        return self.disparity_of(self.compute(left, right))
 
     def _in_pixels(self, fixed: NDArray[np.int16]) -> tuple[F32, NDArray[np.bool_]]:
         """A fixed-point disparity (H, W) as float32 px (invalid pixels not yet NaN) and its

@@ -14,7 +14,7 @@ from contextlib import asynccontextmanager
 from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 from starlette.concurrency import run_in_threadpool
-from starlette.types import Message, Receive, Scope, Send
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.error_handlers import install_error_handlers
 from service.fast_path import answer_hot_request
@@ -39,7 +39,7 @@ from service.schemas import HealthModel
 from service.security import BodySizeLimit
 from service.settings import Settings, load_settings
 
-__all__ = ["API_VERSION", "DepthServiceApp", "create_app"]
+__all__ = ["API_VERSION", "DepthServiceApp", "FastPath", "create_app"]
 
 log = logging.getLogger("service.app")
 
@@ -48,10 +48,10 @@ API_VERSION = "1"
 
 class DepthServiceApp(FastAPI):
     """FastAPI, except that a HEAD is answered as its GET without the body (wherever GET works),
-    and that the hot requests (polls of ``/depth`` and ``/disparity`` whose body
-    the worker already encoded, of ``/health`` while its shared document is fresh) are answered
-    before its middleware stack (:mod:`service.fast_path`). ``fast_path_on`` False sends every
-    request through the stack."""
+    and that the hot requests (polls of ``/depth`` and ``/disparity`` whose body the worker
+    already encoded, of ``/health`` while its shared document is fresh) are answered ahead of
+    FastAPI's routing by :class:`FastPath`. ``fast_path_on`` False sends every request to the
+    routes."""
 
     fast_path_on = True
 
@@ -59,9 +59,22 @@ class DepthServiceApp(FastAPI):
         if scope["type"] == "http" and scope["method"] == "HEAD":
             await self.__call__({**scope, "method": "GET"}, receive, _headers_only(send))
             return
-        if self.fast_path_on and await answer_hot_request(self.state, scope, send):
-            return
         await super().__call__(scope, receive, send)
+
+
+class FastPath:
+    """The hot requests answered without FastAPI's routing, dependencies and response objects
+    (:mod:`service.fast_path`), as the app's innermost middleware: every middleware the app has,
+    or is given later, wraps it, so the answers it gives pass through them as the routes' do."""
+
+    def __init__(self, app: ASGIApp, owner: DepthServiceApp) -> None:
+        self.app = app
+        self.owner = owner
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if self.owner.fast_path_on and await answer_hot_request(self.owner.state, scope, send):
+            return
+        await self.app(scope, receive, send)
 
 
 def _headers_only(send: Send) -> Send:
@@ -142,15 +155,17 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
 
     install_error_handlers(app)
 
+    # Added first = innermost: every middleware added after it (here or by an embedding
+    # application) also applies to the requests it answers.
+    app.add_middleware(FastPath, owner=app)
     # Added last = outermost: oversized bodies are refused before anything else reads them.
     if settings.server.cors_origins:
-        app.fast_path_on = False  # the CORS middleware adds headers to every response
         app.add_middleware(
             CORSMiddleware,
             allow_origins=settings.server.cors_origins,
             allow_methods=["GET", "POST", "PATCH"],
             allow_headers=["Authorization", "Content-Type"],
-            expose_headers=["X-Frame-Seq", "X-Timestamp-Ns", "X-Depth-Scale", "X-Latency-Ms"],
+            expose_headers=["X-Frame-Seq", "X-Timestamp-Ns", "X-Depth-Scale", "X-Age-Ms", "X-Latency-Ms"],
         )
     app.add_middleware(BodySizeLimit, max_bytes=settings.server.max_body_bytes)
     return app

@@ -8,7 +8,7 @@ with RigClient("http://127.0.0.1:8000") as rig:
     d = rig.depth()                  # float32 metres, NaN = invalid
     print(d.seq, d.depth.shape, float(np.nanmedian(d.depth)))
     r = rig.range()                  # metres along each pixel's ray (either projection)
-    left = rig.frames("left", "vpc") # the rectified left image
+    left = rig.frames("left", "rectified")  # the rectified left image
 ```
 
 Every failed request raises :class:`service.errors.ApiError` with the HTTP status and the
@@ -225,7 +225,7 @@ class RigClient:
             np.minimum(conf, np.float32(1.0), out=conf)  # 255 = 1 (the header's 1/255 is rounded)
         return ConfidenceMap(conf, seq, ts)
 
-    def frames(self, camera: str, view: Literal["raw", "vpc"] = "vpc") -> FrameImage:
+    def frames(self, camera: str, view: Literal["raw", "rectified", "vpc"] = "rectified") -> FrameImage:
         r = self._request("GET", f"/frames/{camera}", params={"view": view})
         seq, ts = _frame_meta(r)
         return FrameImage(_decode_image(r.content, f"/frames/{camera}"), seq, ts, camera, view)

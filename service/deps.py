@@ -92,7 +92,8 @@ def frame_headers(result: PublishedResult, **extra: str) -> dict[str, str]:
     return {
         "X-Frame-Seq": str(result.seq),
         "X-Timestamp-Ns": str(result.ts_ns),
-        "X-Latency-Ms": f"{result.latency_ms:.2f}",
+        "X-Age-Ms": f"{result.age_ms:.2f}",
+        "X-Latency-Ms": f"{result.age_ms:.2f}",  # X-Age-Ms under its first name
         "Cache-Control": "no-store",
         **extra,
     }

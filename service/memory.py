@@ -2,26 +2,29 @@
 own, from the settings and the calibrated camera sizes, known before anything is built.
 
 :func:`check_memory` refuses at start-up a configuration whose budget exceeds the memory the
-machine has left (one line naming the VPC size and the largest parts) and warns above
+machine has left (one line naming the rectified pair's size and the largest parts) and warns above
 :data:`WARN_SHARE` of it. The running service exports the budget (``rig_memory_budget_bytes`` in
 ``/metrics``); its resident size stays under it (docs/reliability.md, "Memory budget").
 
 The service's parts: frames waiting for the recording writer (``server.recording_queue`` pairs,
 raw and gray: 2 bytes per camera pixel), HTTP connections (a request body and uvicorn's 64 KiB
-read and write buffers each), streams (a part of at most one byte per VPC pixel and the socket's
+read and write buffers each), streams (a part of at most one byte per rectified pixel and the socket's
 send buffer each), and the interpreter with its libraries loaded (:data:`BASE_BYTES`).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 
 from calibration.rig import Rig
 from rig.memory_budget import MIB, MemoryEstimate, available_memory, pipeline_parts
+from rig.rectified import RectifiedPair
+from rig.stereo import StereoParams
 from service.errors import SettingsError
 from service.settings import Settings
 
-__all__ = ["BASE_BYTES", "WARN_SHARE", "check_memory", "service_estimate"]
+__all__ = ["BASE_BYTES", "WARN_SHARE", "check_memory", "describe_pair", "service_estimate"]
 
 log = logging.getLogger("service.memory")
 
@@ -35,37 +38,63 @@ _STREAM_SOCKET = 64 * 1024
 _QUEUED_FRAME_BYTES = 2
 
 
-def service_estimate(settings: Settings, rig: Rig) -> MemoryEstimate:
-    """The budget of a service with ``settings`` for the cameras of ``rig`` (see module doc)."""
-    names = (settings.vpc.left, settings.vpc.right)
-    sizes = [(rig.cameras[n].width, rig.cameras[n].height) for n in names if n in rig.cameras]
+def service_estimate(
+    settings: Settings, rig: Rig, pair: RectifiedPair, stereo: StereoParams
+) -> MemoryEstimate:
+    """The budget of a service with ``settings`` for the cameras of ``rig``, the rectified pair
+    ``pair`` (as designed: its real size) and the stereo parameters ``stereo`` (see module doc)."""
+    sizes = [(rig.cameras[n].width, rig.cameras[n].height) for n in (pair.left, pair.right)]
     server = settings.server
     pairing = settings.cameras.pairing if settings.cameras is not None else None
     queued = (pairing.buffer_size + pairing.pair_buffer) if pairing is not None else 12
-    parts = pipeline_parts(settings.vpc, settings.stereo, sizes, queued_frames_per_camera=queued)
+    width, height = pair.camera.width, pair.camera.height
+    parts = pipeline_parts((width, height), stereo, sizes, queued_frames_per_camera=queued)
     camera_px = sum(w * h for w, h in sizes)
-    rect_px = settings.vpc.width * settings.vpc.height
     return parts.plus(
         recording_queue=server.recording_queue * _QUEUED_FRAME_BYTES * camera_px,
         connections=server.max_connections * (server.max_body_bytes + _CONNECTION_BUFFERS),
-        streams=server.max_streams * (rect_px + _STREAM_SOCKET),
+        streams=server.max_streams * (width * height + _STREAM_SOCKET),
         interpreter=BASE_BYTES,
     )
 
 
-def check_memory(settings: Settings, estimate: MemoryEstimate, available: int | None = None) -> None:
+def describe_pair(pair: RectifiedPair, stereo: StereoParams) -> str:
+    """``a 661x1064 lat-lon pair (5.585 px/deg) with 96 disparities``: what a budget is for."""
+    c = pair.camera
+    kind = (
+        f"lat-lon pair ({math.radians(c.fx):.3f} px/deg)" if pair.projection == "latlon" else "pinhole pair"
+    )
+    return f"a {c.width}x{c.height} {kind} with {stereo.disparity_range} disparities"
+
+
+def _smaller(pair: RectifiedPair) -> str:
+    if pair.projection == "latlon":
+        return "a lower rectified.px_per_deg or a narrower field (rectified.az_span_deg, el_span_deg)"
+    return "a smaller rectified.width/rectified.height"
+
+
+def check_memory(
+    estimate: MemoryEstimate,
+    pair: RectifiedPair,
+    stereo: StereoParams,
+    available: int | None = None,
+    *,
+    already_held: int = 0,
+) -> None:
     """SettingsError if ``estimate`` exceeds the memory left (``available``, default: what
-    :func:`rig.memory_budget.available_memory` finds); a warning above :data:`WARN_SHARE` of it."""
+    :func:`rig.memory_budget.available_memory` finds, plus ``already_held``: what the running
+    service's current budget holds and would give back, for a change); a warning above
+    :data:`WARN_SHARE` of it."""
     room = available if available is not None else available_memory()
     if room is None:
         return
-    vpc, stereo = settings.vpc, settings.stereo
-    what = f"a {vpc.width}x{vpc.height} VPC with {stereo.disparity_range} disparities"
+    room += already_held
+    what = describe_pair(pair, stereo)
     need = f"about {estimate.total / MIB:.0f} MiB ({estimate.largest()})"
     if estimate.total > room:
         raise SettingsError(
-            f"settings: field 'vpc': {what} needs {need}, more than the {room / MIB:.0f} MiB this "
-            "machine has left: choose a smaller vpc.width/vpc.height (or stereo.disparity_range, "
+            f"settings: field 'rectified': {what} needs {need}, more than the {room / MIB:.0f} MiB this "
+            f"machine has left: choose {_smaller(pair)} (or stereo.disparity_range, "
             "server.recording_queue)"
         )
     if estimate.total > WARN_SHARE * room:

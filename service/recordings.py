@@ -240,16 +240,16 @@ class RecordingManager:
                 running = f"; running: {active.name!r}" if active is not None else "; none is running"
                 raise RecordingNotFound(f"recording {name!r} is not running{running}")
             self._active = None
-        return self._finish(active)
+        return self._close(active)
 
     def close(self) -> None:
         """Stop the running recording, if any (service shutdown)."""
         with self._lock:
             active, self._active = self._active, None
         if active is not None:
-            self._finish(active)
+            self._close(active)
 
-    def _finish(self, active: _Active) -> RecordingStatus:
+    def _close(self, active: _Active) -> RecordingStatus:
         active.queue.put(_STOP)  # blocks only while the writer drains a full queue
         active.thread.join()
         try:

@@ -12,10 +12,10 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -30,12 +30,16 @@ from rig.capture.health import CaptureHealth
 from rig.capture.recorded import open_recording
 from rig.errors import CorruptFrameError
 from rig.heap import heap_stats
-from rig.memory_budget import MIB
+from rig.in_effect import PairInEffect
+from rig.memory_budget import MIB, MemoryEstimate
 from rig.pipeline import DepthPipeline
 from rig.rectification.monitor import RectificationMonitor, RectificationStatus
+from rig.rectified import design_rectified_pair
+from rig.stereo import StereoParams
 from service.encoders import confidence_png, depth_png, disparity_png, npy_bytes
-from service.errors import SettingsError
+from service.errors import ConfigChanged, SettingsError, StereoParamsRefused, TooManyStreams
 from service.host import HostInfo, host_info
+from service.memo import DocumentMemo
 from service.memory import check_memory, service_estimate
 from service.metrics import MetricsSnapshot, ServiceMetrics
 from service.recordings import RecordingManager, RecordingStatus
@@ -43,7 +47,7 @@ from service.settings import Settings
 from service.store import PublishedResult, ResultStore
 from service.worker import DepthWorker, WorkerStats
 
-__all__ = ["HealthReport", "HealthSnapshot", "Runtime", "resolve_calibration"]
+__all__ = ["HealthReport", "HealthSnapshot", "Runtime", "etag", "resolve_calibration"]
 
 log = logging.getLogger("service.runtime")
 
@@ -66,6 +70,11 @@ def resolve_calibration(settings: Settings) -> Path:
         "settings: field 'calibration.path': not set, and the cameras replay no recording with a "
         "calibration.yaml"
     )
+
+
+def etag(revision: int) -> str:
+    """The ETag of the configuration at ``revision`` (``/config``)."""
+    return f'"{revision}"'
 
 
 def _check_sizes(settings_cams: CaptureConfig, capture: StereoCapture, rig: Rig) -> None:
@@ -119,7 +128,6 @@ class Runtime:
         self.recordings = RecordingManager(
             settings.server.recordings_dir, queue_size=settings.server.recording_queue, rig=rig
         )
-        self.memory_budget = service_estimate(settings, rig)
         self.metrics = ServiceMetrics(self.metrics_snapshot)
         scale, level = settings.server.depth_scale_m, settings.server.png_compression
         # The /depth, /range, /disparity and /confidence bodies by cache key: the routes encode them on
@@ -146,15 +154,15 @@ class Runtime:
         self.rectification: RectificationMonitor | None = None
         if settings.rectification.enabled:
             self.rectification = RectificationMonitor(
-                rig,
-                settings.vpc,
+                lambda: self.pipeline.in_effect,
                 self._latest_gray_pair,
                 settings.rectification,
                 apply=self._apply_corrected_rig,
                 calibration_path=calibration_path,
+                cache_dir=settings.cache_dir,
             )
         self.started_ns = time.monotonic_ns()
-        self.calibration_doc: Any = None  # /calibration's response, made on first request
+        self.documents = DocumentMemo()  # /calibration's response, made once per calibration
         # The calibration checked against the first processed pair (rig.calibration_check).
         self.calibration_check: CalibrationCheck | None = None
         self._check_started = False
@@ -162,11 +170,11 @@ class Runtime:
         self._running = False
         self._health_lock = threading.Lock()
         self._health_memo: tuple[float, object, HealthSnapshot] | None = None
-        # Configuration changes are serialised (read, validate, apply, answer as one step) and
-        # counted: the revision is /config's ETag.
-        self.config_lock = threading.Lock()
-        self.config_revision = 1
-        self.streams_open = 0  # /stream.mjpg responses running (read and changed on the event loop)
+        # Configuration changes are serialised (check the revision, validate, apply as one step);
+        # readers take the pair in effect without waiting.
+        self._config_lock = threading.Lock()
+        self._streams_lock = threading.Lock()
+        self._streams_open = 0  # /stream.mjpg responses running
 
     @classmethod
     def build(cls, settings: Settings) -> Runtime:
@@ -183,8 +191,10 @@ class Runtime:
                     f"{calibration}: the rig has no camera {name!r} (has {', '.join(rig.names)})"
                 )
         # Before any table is built: a size that cannot fit is refused with the reason.
-        check_memory(settings, service_estimate(settings, rig))
-        pipeline = DepthPipeline(rig, vpc=settings.vpc, stereo=settings.stereo, cache_dir=settings.cache_dir)
+        stereo = settings.stereo
+        planned = design_rectified_pair(rig, settings.rectified, blind_band_px=stereo.blind_band_px)
+        check_memory(service_estimate(settings, rig, planned, stereo), planned, stereo)
+        pipeline = DepthPipeline(rig, settings.rectified, stereo, cache_dir=settings.cache_dir)
         for name in CAMERA_NAMES:
             cam = settings.cameras.camera(name)
             if isinstance(cam, FileCameraConfig):
@@ -212,12 +222,13 @@ class Runtime:
         priority.prioritise_native_threads()  # OpenCV's pool, if the main thread started it
         if self.rectification is not None:
             self.rectification.start()
+        budget = self.memory_budget
         log.info(
-            "depth service running: VPC %s, baseline %.4f m; memory budget %.0f MiB (%s)",
+            "depth service running: rectified pair %s, baseline %.4f m; memory budget %.0f MiB (%s)",
             self.pipeline.pair.as_json(),
             self.pipeline.baseline_m,
-            self.memory_budget.total / MIB,
-            self.memory_budget.largest(),
+            budget.total / MIB,
+            budget.largest(),
         )
 
     def stop(self) -> None:
@@ -268,10 +279,57 @@ class Runtime:
     def _apply_corrected_rig(self, rig: Rig) -> None:
         """An online correction: new lookup tables swapped into the running pipeline (built on
         the monitor's thread, the worker keeps going), and the rig everything else reports."""
-        self.pipeline.replace_rig(rig)
+        self.pipeline.apply(rig=rig)
         self.rig = rig
         self.recordings.rig = rig
-        self.calibration_doc = None
+
+    # ----- configuration changes ---------------------------------------------------------------
+    def change_stereo(
+        self, merge: Callable[[StereoParams], StereoParams], if_match: Collection[str] | None = None
+    ) -> PairInEffect:
+        """Apply ``merge(parameters in effect)`` to the pipeline, serialised with every other
+        change: only when the pair in effect's revision is one of the ETags ``if_match``
+        (``'"3"'``; ConfigChanged otherwise), and only when the budget of the new parameters
+        fits the memory the machine has left once the current budget is given back
+        (StereoParamsRefused otherwise). Returns the new pair in effect: every pair matched after
+        this returns uses it."""
+        with self._config_lock:
+            now = self.pipeline.in_effect
+            current = etag(now.revision)
+            if if_match is not None and current not in if_match:
+                raise ConfigChanged(
+                    f"the configuration is at revision {current}, not {', '.join(if_match)}: "
+                    "GET /config and apply the change to what it shows"
+                )
+            params = merge(now.stereo)
+            estimate = service_estimate(self.settings, self.rig, now.pair, params)
+            try:
+                check_memory(estimate, now.pair, params, already_held=self.memory_budget.total)
+            except SettingsError as err:
+                raise StereoParamsRefused(str(err).removeprefix("settings: field 'rectified': ")) from err
+            return self.pipeline.apply(stereo=params)
+
+    def open_stream(self) -> None:
+        """Count a ``/stream.mjpg`` response in; TooManyStreams at ``server.max_streams``."""
+        limit = self.settings.server.max_streams
+        with self._streams_lock:
+            if self._streams_open >= limit:
+                raise TooManyStreams(f"{limit} clients are streaming already (server.max_streams); try later")
+            self._streams_open += 1
+
+    def close_stream(self) -> None:
+        with self._streams_lock:
+            self._streams_open -= 1
+
+    @property
+    def streams_open(self) -> int:
+        return self._streams_open
+
+    @property
+    def memory_budget(self) -> MemoryEstimate:
+        """The budget of the pair and stereo parameters in effect (a change re-estimates it)."""
+        now = self.pipeline.in_effect
+        return service_estimate(self.settings, self.rig, now.pair, now.stereo)
 
     # ----- state -------------------------------------------------------------------------------
     def metrics_snapshot(self) -> MetricsSnapshot:

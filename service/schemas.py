@@ -262,6 +262,8 @@ class RectifiedPairModel(BaseModel):
     cx: float
     cy: float
     baseline_m: float
+    left: str = Field(description="the rig camera of the left image")
+    right: str = Field(description="the rig camera of the right image")
     hfov_deg: float | None = Field(description="the pinhole pair's horizontal field of view (None: lat-lon)")
     px_per_deg: float | None = Field(description="the lat-lon pair's resolution (None: pinhole)")
     yaw_deg: float
@@ -277,13 +279,17 @@ class CameraCalibrationModel(BaseModel):
     params: dict[str, float]
     fov_deg: float | None = None
     T_rig_cam: list[list[float]]
-    footprint: list[tuple[float, float]] = Field(description="VPC border traced in this fisheye image (px)")
-    valid_fraction: float | None = Field(description="share of VPC pixels this lens sees")
+    footprint: list[tuple[float, float]] = Field(
+        description="the rectified view's border traced in this fisheye image (px)"
+    )
+    valid_fraction: float | None = Field(description="share of the rectified view's pixels this lens sees")
 
 
 class CalibrationModel(BaseModel):
     cameras: dict[str, CameraCalibrationModel]
-    vpc: RectifiedPairModel
+    vpc: RectifiedPairModel = Field(
+        description="the rectified pair in effect (named vpc since its first version)"
+    )
     baseline_m: float
     depth_scale_m: float
     source: str | None
@@ -302,8 +308,14 @@ class ServerPublicModel(BaseModel):
 
 
 class ConfigModel(BaseModel):
-    stereo: StereoParams
-    vpc: RectifiedPairConfig
+    revision: int = Field(description="the configuration's revision, also the ETag: one more at each change")
+    stereo: StereoParams = Field(description="the stereo parameters in effect")
+    rectified: RectifiedPairModel = Field(
+        description="the rectified pair in effect: projection and real size"
+    )
+    vpc: RectifiedPairConfig = Field(
+        description="the rectified pair as configured (settings section 'rectified', first named 'vpc')"
+    )
     server: ServerPublicModel
     cameras: dict[str, Any] | None
 

@@ -12,7 +12,8 @@ cameras:                         # rig.capture.CaptureConfig; omitted = no camer
   left:  {kind: v4l2, device: /dev/rig/left}
   right: {kind: v4l2, device: /dev/rig/right}
 calibration: {path: rig.yaml}    # rig.yaml or Kalibr camchain.yaml
-vpc: {projection: latlon, px_per_deg: 5.585}  # or {projection: pinhole, width: 640, height: 480}
+rectified: {projection: latlon, px_per_deg: 5.585}  # or {projection: pinhole, width: 640, height: 480}
+                                 # (read as "vpc:" too, the section's first name)
 stereo: {disparity_range: 96}    # rig.stereo.StereoParams
 ros: {namespace: /rig}           # rig.ros.RosNames: topic names and frame ids (Foxglove, MCAP)
 rectification: {check_interval_s: 10, auto_refine: false}   # rig.rectification.RectificationConfig
@@ -276,13 +277,29 @@ class Settings(BaseSettings):
     server: ServerSettings = Field(default_factory=ServerSettings)
     cameras: CaptureConfig | None = Field(None, description="the capture section; None = none configured")
     calibration: CalibrationSettings = Field(default_factory=CalibrationSettings)
-    vpc: RectifiedPairConfig = Field(default_factory=RectifiedPairConfig)
+    rectified: RectifiedPairConfig = Field(
+        default_factory=RectifiedPairConfig, description="the rectified pair: projection, size, field"
+    )
+    vpc: RectifiedPairConfig | None = Field(
+        None, exclude=True, description="the first name of 'rectified' (virtual pinhole cameras), still read"
+    )
     stereo: StereoParams = Field(default_factory=StereoParams)
     ros: RosNames = Field(default_factory=RosNames)
     cache_dir: Path | None = Field(None, description="LUT cache directory (env RIG_CACHE_DIR)")
     rectification: RectificationConfig = Field(
         default_factory=RectificationConfig, description="live rectification measure and online refinement"
     )
+
+    @model_validator(mode="after")
+    def _vpc_is_rectified(self) -> Settings:
+        if self.vpc is not None:
+            if "rectified" in self.model_fields_set:
+                raise ValueError(
+                    "give the rectified pair as 'rectified' or as 'vpc' (its first name), not both"
+                )
+            # Frozen sections, mutable settings: the section moves to its name of today.
+            self.rectified, self.vpc = self.vpc, None
+        return self
 
     @classmethod
     def settings_customise_sources(

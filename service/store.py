@@ -78,7 +78,8 @@ RectifiedRenderer = Callable[[str, Frame], NDArray[np.uint8]]
 class PublishedResult:
     """One processed pair. ``index`` counts published results (1, 2, …); ``seq``/``ts_ns`` are
     the pair's (left camera's); ``left``/``right`` the raw frames as the cameras delivered them;
-    ``published_ns`` when the worker published it (time.monotonic_ns). ``render_rectified`` makes the
+    ``published_ns`` when the worker published it (time.monotonic_ns), ``age_ms`` the time from the
+    later frame's arrival to then. ``render_rectified`` makes the
     colour VPC images on request (:meth:`rect_image`)."""
 
     index: int
@@ -86,7 +87,7 @@ class PublishedResult:
     left: Frame
     right: Frame
     published_ns: int
-    latency_ms: float
+    age_ms: float
     cache: EncodeCache = field(default_factory=EncodeCache)
     render_rectified: RectifiedRenderer | None = None
     # Made on request and kept with the result (carried over by dataclasses.replace).

@@ -181,7 +181,7 @@ class DepthWorker:
             left=pair.left,
             right=pair.right,
             published_ns=0,
-            latency_ms=0.0,
+            age_ms=0.0,
             cache=self.store.new_cache(),
             render_rectified=functools.partial(render_rectified, self.pipeline),
         )
@@ -190,11 +190,11 @@ class DepthWorker:
         # thread hop), for the price of that encode's time in every client's frame age.
         self._prefetch_for(result)
         now = time.monotonic_ns()
-        result = dataclasses.replace(result, published_ns=now, latency_ms=(now - arrived) / 1e6)
+        result = dataclasses.replace(result, published_ns=now, age_ms=(now - arrived) / 1e6)
         self._previous = result
         self.store.publish(result)
         with self._lock:
-            self._recent.append((now, timings, result.latency_ms))
+            self._recent.append((now, timings, result.age_ms))
             self._last_seq = pair.seq
             self._last_published_ns = now
         if self._on_result is not None:
@@ -240,6 +240,7 @@ class DepthWorker:
             **counted,
             "alive": self.is_alive(),
             "fps": fps,
+            "processing_ms": stage_ms.get("total"),
             "latency_ms": stage_ms.get("total"),
             "age_ms": (sum(r[2] for r in recent) / len(recent)) if recent else None,
             "last_result_age_ms": None if last_pub is None else (now - last_pub) / 1e6,

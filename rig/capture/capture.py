@@ -138,7 +138,7 @@ class StereoCapture:
         return self._pairer.gate_ns
 
     @property
-    def finished(self) -> bool:
+    def exhausted(self) -> bool:
         """A camera ended (replay without loop), no further pair can form and none is waiting."""
         with self._cond:
             return self._pairer.exhausted and not self._pairs

@@ -105,7 +105,7 @@ class Recorder:
         self._last_seq = seq
         self.written += 1
 
-    def finish(self) -> None:
+    def complete(self) -> None:
         """Close the recording; a run that ended normally without pairs still leaves an (empty)
         valid recording."""
         self._writer().close()
@@ -147,7 +147,7 @@ class Recorder:
                 break
             pair = self.capture.next_pair(0.1, newest=False)
             if pair is None:
-                if self.capture.finished:
+                if self.capture.exhausted:
                     stopped_by = "end of recording"
                     break
                 continue

@@ -108,13 +108,14 @@ class EvalConfig:
 def stereo_for(vpc: RectifiedPairConfig, nearest_k: float) -> StereoParams:
     """The product's default stereo settings with a disparity range that reaches the nearest
     plane (``fx / k`` px plus 10 %); ConfigError when that leaves too few columns to match."""
-    fx = (vpc.width / 2.0) / math.tan(math.radians(vpc.hfov_deg) / 2.0)
+    width, _, hfov_deg = vpc.pinhole_size
+    fx = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
     need = fx / nearest_k * _DISPARITY_MARGIN
     rng = max(16, 16 * math.ceil(need / 16.0 - 1e-9))  # fx = 320.00000000000006 is 320
-    if rng > vpc.width - _MIN_MATCH_COLUMNS:
-        k_min = fx * _DISPARITY_MARGIN / (vpc.width - _MIN_MATCH_COLUMNS)
+    if rng > width - _MIN_MATCH_COLUMNS:
+        k_min = fx * _DISPARITY_MARGIN / (width - _MIN_MATCH_COLUMNS)
         raise ConfigError(
-            f"a plane at {nearest_k:g} baselines needs {rng} disparities, too many for a {vpc.width} px "
+            f"a plane at {nearest_k:g} baselines needs {rng} disparities, too many for a {width} px "
             f"wide VPC; use distances of at least {k_min:.2g} baselines"
         )
     return StereoParams(disparity_range=rng)

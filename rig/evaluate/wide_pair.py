@@ -127,13 +127,14 @@ def default_variants(
     """The study's variants (see the module doc) for ``rig`` (already scaled) and the pinhole pair
     ``pinhole``; ``resolutions``: more lat-lon px/deg."""
     band = stereo.blind_band_px
-    f = (pinhole.width / 2.0) / math.tan(math.radians(pinhole.hfov_deg) / 2.0)
+    pw, ph, hfov_deg = pinhole.pinhole_size
+    f = (pw / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
     same_res = RectifiedPairConfig(projection="latlon", px_per_deg=round(math.radians(f), 3))
     wide = design_rectified_pair(rig, same_res, blind_band_px=band).camera
-    budget = latlon_for_budget(rig, pinhole.width * pinhole.height, band)
+    budget = latlon_for_budget(rig, pw * ph, band)
     # A pinhole of the lat-lon pair's pixel count at the same centre resolution: wider, not finer.
-    w = 16 * round(math.sqrt(wide.width * wide.height * pinhole.width / pinhole.height) / 16)
-    h = round(w * pinhole.height / pinhole.width)
+    w = 16 * round(math.sqrt(wide.width * wide.height * pw / ph) / 16)
+    h = round(w * ph / pw)
     wide_pinhole = RectifiedPairConfig(
         width=w, height=h, hfov_deg=round(2.0 * math.degrees(math.atan(w / 2.0 / f)), 2)
     )

@@ -4,7 +4,7 @@ Every ``check_interval_s`` a low-priority thread takes the newest pair the servi
 frame of its own, never on the depth worker's path), matches it in the epipolar views
 (:mod:`rig.rectification.matching`), keeps the matches that agree on one relative pose (the
 robust fit of :func:`calibration.relative_pose.refine_relative_pose`, so moving objects and
-mismatches do not count) and measures their vertical disparity in the VPC pair. The status
+mismatches do not count) and measures their vertical disparity in the rectified pair in effect. The status
 says ``degraded`` when the last ``confirm_checks`` measurements all pass a bound; a check
 without enough matches (or with matches bunched in one place) says ``not enough matches``,
 never ``degraded``.
@@ -44,6 +44,7 @@ from calibration.relative_pose import (
 from calibration.rig import Rig
 from rig.counters import CounterValue, complete
 from rig.errors import RigError
+from rig.in_effect import PairInEffect
 from rig.rectification.matching import MatchOptions, RayMatches, match_pair
 from rig.rectification.measure import VerticalDisparity, vertical_disparity
 from rig.rectification.refine import relative_pose, save_refined
@@ -56,7 +57,7 @@ from rig.rectification.status import (
     rectification_state,
 )
 from rig.rectification.views import EpipolarViews
-from rig.rectified import RectifiedPair, RectifiedPairConfig, design_rectified_pair
+from rig.rectified import RectifiedPair
 
 __all__ = [
     "CheckResult",
@@ -102,51 +103,59 @@ class _Counters:
 
 
 class RectificationMonitor:
-    """Measures (and optionally refines) the rectification of ``rig``'s pair ``vpc`` from the
-    pairs ``source`` gives (see the module doc). :meth:`check` runs one check on the calling
-    thread; :meth:`start` runs them every ``check_interval_s`` on a thread of its own."""
+    """Measures (and optionally refines) the rectification of the pair in effect that
+    ``in_effect`` returns (a :class:`rig.pipeline.DepthPipeline`'s) from the pairs ``source``
+    gives (see the module doc). Its epipolar views are rebuilt, at the monitor's resolution,
+    whenever the pair in effect gets another calibration. :meth:`check` runs one check on the
+    calling thread; :meth:`start` runs them every ``check_interval_s`` on a thread of its own.
+    ``apply(rig)`` makes a correction take effect (the service: ``DepthPipeline.apply``)."""
 
     def __init__(
         self,
-        rig: Rig,
-        vpc: RectifiedPairConfig,
+        in_effect: Callable[[], PairInEffect],
         source: PairSource,
         options: RectificationConfig | None = None,
         apply: Callable[[Rig], None] | None = None,
         calibration_path: Path | None = None,
+        cache_dir: str | Path | None = None,
     ) -> None:
         self.options = options or RectificationConfig()
         self.calibration_path = calibration_path
-        self.vpc = vpc
+        self._in_effect = in_effect
         self._source = source
         self._apply = apply
+        self._cache_dir = cache_dir
         self._lock = threading.Lock()
         self._counters = _Counters()
         self._pool = _Pool.new(self.options.pool_checks)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self.rig = rig
-        self._pair = design_rectified_pair(rig, vpc)  # checks the pair's cameras now
-        self._views: EpipolarViews | None = None  # built by the first check (not at start-up)
+        # Built by the first check (not at start-up), for the calibration it was built from.
+        self._views: tuple[Rig, EpipolarViews] | None = None
 
     # ----- geometry ----------------------------------------------------------------------------
-    def _set_rig(self, rig: Rig) -> None:
-        views = EpipolarViews(rig, self.vpc.left, self.vpc.right, max_px_per_deg=self.options.view_px_per_deg)
-        pair = design_rectified_pair(rig, self.vpc)
-        with self._lock:
-            self.rig, self._views, self._pair = rig, views, pair
-
     def _geometry(self) -> tuple[Rig, EpipolarViews, RectifiedPair]:
+        """The pair in effect's calibration and design, and epipolar views of that calibration."""
+        now = self._in_effect()
+        rig, pair = now.geometry.rig, now.pair
         with self._lock:
-            rig, views, pair = self.rig, self._views, self._pair
-        if views is None:
-            self._set_rig(rig)
-            return self._geometry()
-        return rig, views, pair
+            views = self._views
+        if views is None or views[0] is not rig:
+            built = EpipolarViews(
+                rig,
+                pair.left,
+                pair.right,
+                max_px_per_deg=self.options.view_px_per_deg,
+                cache_dir=self._cache_dir,
+            )
+            views = (rig, built)
+            with self._lock:
+                self._views = views
+        return rig, views[1], pair
 
     @property
     def pair(self) -> RectifiedPair:
-        return self._pair
+        return self._in_effect().pair
 
     # ----- lifecycle ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -262,9 +271,7 @@ class RectificationMonitor:
         new_rig = rig_with_relative_pose(rig, pair.left, pair.right, fit.T_right_left)
         consistent = pooled.select(fit.inliers)
         before = vertical_disparity(pair, consistent.left, consistent.right)
-        after = vertical_disparity(
-            design_rectified_pair(new_rig, self.vpc), consistent.left, consistent.right
-        )
+        after = vertical_disparity(self._in_effect().redesigned(new_rig), consistent.left, consistent.right)
         why_not = self._unjustified(fit, before, after)
         if why_not is not None:
             self._set_refinement(f"no correction: {why_not}")
@@ -276,7 +283,6 @@ class RectificationMonitor:
             self._set_refinement(f"correction not applied: {err}")
             log.warning("rectification: could not apply a %.3f° correction: %s", fit.angle_deg, err)
             return
-        self._set_rig(new_rig)
         self._pool = _Pool.new(opts.pool_checks)
         self._persist(new_rig)
         pitch, vergence, roll = fit.rotation_deg

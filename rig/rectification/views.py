@@ -1,19 +1,20 @@
 """Epipolar lat-lon views: both fisheye images resampled onto one grid of epipolar planes, where
 features are found and matched (docs/rectification.md).
 
-The view frame is the rectified pair's (:func:`rig.rectified.design_rectified_pair`: x along the baseline,
-y down, z forward). A view pixel ``(u, v)`` is the ray of longitude ``ψ = (u − cu) / s`` (the
-angle within its epipolar plane, from the plane x = 0 towards the baseline) and latitude
-``φ = (v − cv) / s`` (the epipolar plane's angle about the baseline)::
+The views are a lat-lon rectified pair (:func:`rig.rectified.design_rectified_pair` with the
+``latlon`` projection: x along the baseline, y down, z forward; the field is the lenses'
+overlap), designed and tabulated the way the depth pipeline's pair is (:class:`rig.in_effect.
+PairGeometry`, tables from the LUT cache), at a resolution of their own: the measure runs in the
+background and needs fewer pixels than depth. A view pixel ``(u, v)`` is the ray of longitude
+``ψ = (u − cx) / fx`` (the angle within its epipolar plane, from the plane x = 0 towards the
+baseline) and latitude ``φ = (v − cy) / fy`` (the epipolar plane's angle about the baseline)::
 
     d = (sin ψ, cos ψ · sin φ, cos ψ · cos φ)
 
 so a point seen by both cameras lies on one row of the two views whenever the calibration is
-right, whatever its angle off either lens's axis (past 90° too): the same rows a pinhole
-rectified pair has, over the whole overlap of two 190° lenses. The two views sample the same
+right, whatever its angle off either lens's axis (past 90° too). The two views sample the same
 rays through each camera's own model, so a patch looks alike in both (only parallax differs),
-which is what makes descriptors match across lenses 90° apart. ``s`` is the lenses' angular
-resolution on their axes (px/rad) times ``scale``.
+which is what makes descriptors match across lenses 90° apart.
 
 A keypoint's ray is exact, not interpolated: :meth:`EpipolarViews.rays` turns view pixels into
 unit rays in a camera's frame, the input of the relative-pose estimation.
@@ -22,6 +23,7 @@ unit rays in a camera's frame, the input of the relative-pose estimation.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -30,8 +32,10 @@ from numpy.typing import NDArray
 from calibration.models import CameraModel
 from calibration.rig import Rig
 from rig.errors import ConfigError, PipelineError
-from rig.lut import INVALID_COORD, Lut
-from rig.rectified import RectifiedPairConfig, design_rectified_pair
+from rig.in_effect import PairGeometry
+from rig.lut import Lut
+from rig.lut_cache import LutCache
+from rig.rectified import RectifiedPairConfig
 
 __all__ = ["EpipolarViews", "angular_resolution"]
 
@@ -57,11 +61,11 @@ def angular_resolution(model: CameraModel) -> float:
 class EpipolarViews:
     """The lat-lon views of cameras ``left`` and ``right`` of ``rig`` (see module doc).
 
-    ``lon_deg`` / ``lat_deg``: half extents of the grid; ``scale`` multiplies the lenses'
-    angular resolution (0.5: a quarter of the pixels), ``max_px_per_deg`` caps it (a cheap
-    check on any camera). ``luts[name]`` maps
-    each view pixel to its fisheye pixel; ``mask`` (H, W) uint8 is 255 where both cameras see,
-    shrunk by a margin: where features are looked for.
+    ``scale`` multiplies the lenses' angular resolution on their axes (0.5: a quarter of the
+    pixels), ``max_px_per_deg`` caps it (a cheap check on any camera). ``luts[name]`` maps each
+    view pixel to its fisheye pixel; ``mask`` (H, W) uint8 is 255 where both cameras see, shrunk
+    by a margin: where features are looked for. ``cache_dir``: the LUT cache (default: the
+    pipeline's).
     """
 
     def __init__(
@@ -72,35 +76,27 @@ class EpipolarViews:
         *,
         scale: float = 1.0,
         max_px_per_deg: float | None = None,
-        lon_deg: float = 60.0,
-        lat_deg: float = 80.0,
+        cache_dir: str | Path | None = None,
     ) -> None:
         if not (math.isfinite(scale) and 0.05 <= scale <= 4.0):
             raise ConfigError(f"epipolar views: scale must be in [0.05, 4], got {scale!r}")
-        if not (0.0 < lon_deg < 90.0 and 0.0 < lat_deg <= 90.0):
-            raise ConfigError(
-                f"epipolar views: lon_deg must be in (0, 90) and lat_deg in (0, 90], got {lon_deg}, {lat_deg}"
-            )
-        pair = design_rectified_pair(rig, RectifiedPairConfig(left=left, right=right))
         self.names = (left, right)
-        self.R_cam_view = {n: pair.R_cam_rect[n] for n in self.names}
-        self.cameras = {n: rig.cameras[n] for n in self.names}
-        self.px_per_rad = scale * min(angular_resolution(c) for c in self.cameras.values())
+        px_per_rad = scale * min(angular_resolution(rig.cameras[n]) for n in self.names if n in rig.cameras)
         if max_px_per_deg is not None:
-            self.px_per_rad = min(self.px_per_rad, max_px_per_deg * 180.0 / math.pi)
-        s = self.px_per_rad
-        self.width = 2 * round(math.radians(lon_deg) * s) + 1
-        self.height = 2 * round(math.radians(lat_deg) * s) + 1
-        self.cu, self.cv = (self.width - 1) / 2.0, (self.height - 1) / 2.0
-        u, v = np.meshgrid(np.arange(self.width, dtype=np.float64), np.arange(self.height, dtype=np.float64))
-        d = self.view_rays(np.stack([u.ravel(), v.ravel()], axis=1))
-        self.luts: dict[str, Lut] = {}
-        for name in self.names:
-            cam = d @ self.R_cam_view[name].T
-            pix, ok = self.cameras[name].project(cam)
-            map_x = np.where(ok, pix[:, 0], INVALID_COORD).astype(np.float32).reshape(self.height, self.width)
-            map_y = np.where(ok, pix[:, 1], INVALID_COORD).astype(np.float32).reshape(self.height, self.width)
-            self.luts[name] = Lut.from_float_maps(map_x, map_y, ok.reshape(self.height, self.width))
+            px_per_rad = min(px_per_rad, max_px_per_deg * 180.0 / math.pi)
+        config = RectifiedPairConfig(
+            projection="latlon",
+            px_per_deg=max(0.5, round(math.radians(px_per_rad), 6)),
+            left=left,
+            right=right,
+        )
+        self.geometry = PairGeometry.build(rig, config, LutCache(cache_dir))
+        camera = self.geometry.pair.camera
+        self.px_per_rad = camera.fx
+        self.R_cam_view = dict(self.geometry.pair.R_cam_rect)
+        self.cameras = {n: rig.cameras[n] for n in self.names}
+        self.luts: dict[str, Lut] = self.geometry.luts
+        self.width, self.height = camera.width, camera.height
         both = (self.luts[left].valid & self.luts[right].valid).astype(np.uint8) * 255
         kernel = np.ones((2 * _MASK_MARGIN_PX + 1, 2 * _MASK_MARGIN_PX + 1), np.uint8)
         self.mask: U8 = np.asarray(cv2.erode(both, kernel), dtype=np.uint8)
@@ -112,11 +108,10 @@ class EpipolarViews:
 
     def view_rays(self, pixels: F64) -> F64:
         """Unit rays (N, 3) in the view frame of view pixels (N, 2)."""
-        p = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-        lon = (p[:, 0] - self.cu) / self.px_per_rad
-        lat = (p[:, 1] - self.cv) / self.px_per_rad
-        c = np.cos(lon)
-        return np.stack([np.sin(lon), c * np.sin(lat), c * np.cos(lat)], axis=1)
+        rays, _ = self.geometry.pair.camera.unproject(
+            np.asarray(pixels, dtype=np.float64).reshape(-1, 2), in_image=False
+        )
+        return rays
 
     def rays(self, name: str, pixels: F64) -> F64:
         """Unit rays (N, 3) in camera ``name``'s frame of its view's pixels (N, 2)."""

@@ -119,7 +119,7 @@ class MessageBuilder:
 
     def _refresh(self) -> None:
         """Camera infos and transforms of the pipeline's current geometry: an online
-        rectification correction (:meth:`DepthPipeline.replace_rig`) changes them."""
+        rectification correction (:meth:`DepthPipeline.apply`) changes them."""
         geometry = self.pipeline.geometry
         if geometry is self._built_for:
             return

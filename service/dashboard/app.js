@@ -149,10 +149,10 @@ function showHealth(h) {
   status.textContent = h.status;
   status.className = "badge " + h.status;
   $("fps").textContent = fmt(h.worker.fps, 1);
-  $("latency").textContent = fmt(h.worker.latency_ms, 0);
+  $("latency").textContent = fmt(h.worker.processing_ms, 0);
   $("seq").textContent = h.worker.last_seq === null ? "–" : h.worker.last_seq;
   $("worker-fps").textContent = fmt(h.worker.fps, 1);
-  $("worker-latency").textContent = fmt(h.worker.latency_ms, 1);
+  $("worker-latency").textContent = fmt(h.worker.processing_ms, 1);
   $("skew").textContent = fmt(h.pairing.skew_ms, 2);
   $("host-temp").textContent = h.host.cpu_temp_c === null ? "n/a" : h.host.cpu_temp_c.toFixed(0) + " °C";
   $("host-load").textContent = h.host.load_avg ? h.host.load_avg.map((x) => x.toFixed(2)).join(" ") : "n/a";

@@ -20,11 +20,13 @@ from fastapi.encoders import jsonable_encoder
 from pydantic import ValidationError
 
 from rig.errors import ConfigError, PipelineError
+from rig.in_effect import PairInEffect
 from rig.pipeline import DepthPipeline
 from rig.stereo import StereoMatcher, StereoParams
 from service.deps import RuntimeDep
-from service.errors import ConfigChanged, StereoParamsRefused
-from service.runtime import Runtime
+from service.errors import StereoParamsRefused
+from service.routes.calibration import rectified_pair_model
+from service.runtime import Runtime, etag
 from service.schemas import BODY_ERRORS, ConfigModel, ConfigPatch, ErrorModel, ServerPublicModel
 from service.security import AuthDep, TokenFirstRoute
 
@@ -33,12 +35,14 @@ __all__ = ["config_model", "router"]
 router = APIRouter(tags=["config"], route_class=TokenFirstRoute)
 
 
-def config_model(runtime: Runtime) -> ConfigModel:
+def config_model(runtime: Runtime, in_effect: PairInEffect) -> ConfigModel:
     s = runtime.settings
     server = s.server
     return ConfigModel(
-        stereo=runtime.pipeline.stereo,
-        vpc=runtime.pipeline.pair_config,
+        revision=in_effect.revision,
+        stereo=in_effect.stereo,
+        rectified=rectified_pair_model(in_effect),
+        vpc=in_effect.config,
         server=ServerPublicModel(
             host=server.host,
             port=server.port,
@@ -73,21 +77,17 @@ def dry_run(pipeline: DepthPipeline, params: StereoParams) -> None:
     StereoMatcher(params).match(blank, blank)
 
 
-def _etag(revision: int) -> str:
-    return f'"{revision}"'
-
-
 @router.get("/config", response_model=ConfigModel, summary="Effective configuration (no secrets)")
 def get_config(runtime: RuntimeDep, response: Response) -> ConfigModel:
-    with runtime.config_lock:
-        response.headers["ETag"] = _etag(runtime.config_revision)
-        return config_model(runtime)
+    in_effect = runtime.pipeline.in_effect  # never waits for a change being applied
+    response.headers["ETag"] = etag(in_effect.revision)
+    return config_model(runtime, in_effect)
 
 
-def _merged_params(runtime: Runtime, changes: dict[str, object]) -> StereoParams:
-    """The current parameters with ``changes``, validated and tried on the matcher."""
+def _merged_params(runtime: Runtime, current: StereoParams, changes: dict[str, object]) -> StereoParams:
+    """``current`` with ``changes``, validated and tried on the matcher."""
     try:
-        params = StereoParams.model_validate({**runtime.pipeline.stereo.model_dump(), **changes})
+        params = StereoParams.model_validate({**current.model_dump(), **changes})
         dry_run(runtime.pipeline, params)
     except ValidationError as err:
         detail = jsonable_encoder(err.errors(include_url=False, include_context=False))
@@ -120,16 +120,9 @@ def patch_config(
 ) -> ConfigModel:
     # null = keep the current value (the schema allows null for every field).
     changes = {k: v for k, v in patch.stereo.model_dump(exclude_unset=True).items() if v is not None}
-    with runtime.config_lock:
-        current = _etag(runtime.config_revision)
-        if if_match is not None and if_match.strip() != "*":
-            wanted = [tag.strip().removeprefix("W/") for tag in if_match.split(",")]
-            if current not in wanted:
-                raise ConfigChanged(
-                    f"the configuration is at revision {current}, not {if_match.strip()}: "
-                    "GET /config and apply the change to what it shows"
-                )
-        runtime.pipeline.update_stereo(_merged_params(runtime, changes))
-        runtime.config_revision += 1
-        response.headers["ETag"] = _etag(runtime.config_revision)
-        return config_model(runtime)
+    wanted = None
+    if if_match is not None and if_match.strip() != "*":
+        wanted = [tag.strip().removeprefix("W/") for tag in if_match.split(",")]
+    in_effect = runtime.change_stereo(lambda current: _merged_params(runtime, current, changes), wanted)
+    response.headers["ETag"] = etag(in_effect.revision)
+    return config_model(runtime, in_effect)

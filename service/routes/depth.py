@@ -114,7 +114,7 @@ async def get_depth(
     responses=binary_response_doc(
         "png: uint16 in units of X-Range-Scale metres (server.depth_scale_m, 1 mm default), 0 = invalid; "
         "npy: float32 metres, NaN = invalid. The distance from the left rectified view's centre along "
-        "each pixel's ray, for either projection; aligned with /depth and /frames/left?view=vpc.",
+        "each pixel's ray, for either projection; aligned with /depth and /frames/left?view=rectified.",
         "image/png",
         NPY,
         scale_header="X-Range-Scale",

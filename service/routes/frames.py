@@ -22,7 +22,7 @@ router = APIRouter(tags=["frames"])
 
 _DOC = binary_response_doc(
     "JPEG. raw: the fisheye frame as the camera delivered it (MJPEG bytes unchanged; other formats "
-    "encoded once); vpc: the rectified virtual pinhole image.",
+    "encoded once); rectified (also vpc, its first name): the rectified image.",
     "image/jpeg",
 )
 _DOC[404] = {"description": "unknown camera", "content": {"application/json": {"schema": {"type": "object"}}}}
@@ -33,15 +33,18 @@ async def get_frame(
     result: ResultDep,
     settings: SettingsDep,
     camera: Annotated[str, Path(description="left or right")],
-    view: Annotated[Literal["raw", "vpc"], Query(description="raw fisheye frame or VPC image")] = "vpc",
+    view: Annotated[
+        Literal["raw", "rectified", "vpc"],
+        Query(description="raw fisheye frame or rectified image (vpc: the rectified image's first name)"),
+    ] = "rectified",
 ) -> Response:
     check_camera(camera)
     quality = settings.server.jpeg_quality
     headers = frame_headers(result, **{"X-Camera": camera, "X-View": view})
-    if view == "vpc":
-        # Colour VPC images are made on request (the worker works on luma only).
+    if view != "raw":
+        # Colour rectified images are made on request (the worker works on luma only).
         body = await cached_body(
-            result, f"vpc:{camera}", lambda: encode_jpeg(result.rect_image(camera), quality)
+            result, f"rectified:{camera}", lambda: encode_jpeg(result.rect_image(camera), quality)
         )
         return Response(body, media_type="image/jpeg", headers=headers)
     raw = result.raw_frame(camera)

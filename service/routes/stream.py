@@ -1,9 +1,9 @@
 """``/stream.mjpg``: colourised depth as multipart/x-mixed-replace (an ``<img>`` plays it).
 
 Each part carries the frame's headers (``X-Frame-Seq``, ``X-Timestamp-Ns``) and its timings
-(``X-Latency-Ms`` arrival → published, ``X-Processing-Ms`` and one ``X-Timing-<stage>-Ms`` per
-pipeline stage). Parts are the cached JPEG of each new frame, at most ``server.stream_fps`` a
-second.
+(``X-Age-Ms`` arrival → published, also as ``X-Latency-Ms``, its first name; ``X-Processing-Ms``
+and one ``X-Timing-<stage>-Ms`` per pipeline stage). Parts are the cached JPEG of each new
+frame, at most ``server.stream_fps`` a second.
 
 A slow reader gets the newest frame when it is ready for one, never a queue of old ones: the
 connection buffers about one part (the kernel's send buffer is :data:`SEND_BUFFER_BYTES`, and
@@ -52,7 +52,8 @@ def _part_head(result: PublishedResult, length: int) -> bytes:
         f"Content-Length: {length}",
         f"X-Frame-Seq: {result.seq}",
         f"X-Timestamp-Ns: {result.ts_ns}",
-        f"X-Latency-Ms: {result.latency_ms:.2f}",
+        f"X-Age-Ms: {result.age_ms:.2f}",
+        f"X-Latency-Ms: {result.age_ms:.2f}",
         f"X-Processing-Ms: {result.frame.timings_ms.get('total', 0.0):.2f}",
     ]
     lines += [f"X-Timing-{stage.capitalize()}-Ms: {ms:.2f}" for stage, ms in result.frame.timings_ms.items()]
@@ -75,12 +76,11 @@ class MjpegStream(Response):
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         runtime = self.runtime
-        limit = runtime.settings.server.max_streams
-        if runtime.streams_open >= limit:
-            busy = TooManyStreams(f"{limit} clients are streaming already (server.max_streams); try later")
+        try:
+            runtime.open_stream()
+        except TooManyStreams as busy:
             await error_response(busy)(scope, receive, send)
             return
-        runtime.streams_open += 1
         gone = asyncio.Event()
         watcher = asyncio.get_running_loop().create_task(_watch_disconnect(receive, gone))
         try:
@@ -88,7 +88,7 @@ class MjpegStream(Response):
             if await self._parts(send, transport_control(scope), gone):
                 await send({"type": "http.response.body", "body": b""})
         finally:
-            runtime.streams_open -= 1
+            runtime.close_stream()
             watcher.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await watcher

@@ -13,8 +13,8 @@ import cv2
 import numpy as np
 import pytest
 
-import rig.finish as finish_module
 import rig.lut_cache as lut_cache
+import rig.postprocess as finish_module
 from calibration.geometry import rot_x, rot_y
 from calibration.models import ScaramuzzaModel, create
 from rig.capture.frame import Frame, FramePair
@@ -151,7 +151,7 @@ def pipe(shot: StereoShot, lut_cache: Path) -> DepthPipeline:
 def test_pipeline_stages_are_process(pipe: DepthPipeline, shot: StereoShot) -> None:
     whole = pipe.process(shot.left, shot.right, seq=3, ts_ns=9)
     rect = pipe.rectify(shot.left, shot.right)
-    staged = pipe.finish(pipe.match(rect), 3, 9)
+    staged = pipe.postprocess(pipe.match(rect), 3, 9)
     for name in ("depth", "disparity", "valid", "confidence", "left_rect", "right_rect"):
         assert np.array_equal(getattr(whole, name), getattr(staged, name), equal_nan=name != "valid"), name
     assert staged.timings_ms["total"] == pytest.approx(
@@ -178,7 +178,7 @@ def test_banded_finish_is_one_pass(
         )
         rect = pipe.rectify(shot.left, shot.right)
         # Two frames: the second one through the temporal filter's history when it is on.
-        return [pipe.finish(pipe.match(rect), i, 0) for i in range(2)]
+        return [pipe.postprocess(pipe.match(rect), i, 0) for i in range(2)]
 
     banded, whole = finish(True), finish(False)
     assert finish_module._REFINE_THREADS >= 2, "this machine has one core: nothing is banded"

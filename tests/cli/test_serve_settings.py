@@ -56,7 +56,7 @@ def test_the_demo_says_it_ignores_the_configured_cameras(
     assert "--demo: the configured cameras and calibration are ignored" in " ".join(err.split())
     assert settings.cameras is not None and settings.cameras.left.kind == "file"
     assert settings.calibration.path == demo_is / "calibration.yaml"
-    assert settings.vpc.width == 320  # what the demo does not replace is used
+    assert settings.rectified.width == 320  # what the demo does not replace is used
     serve_settings(cfg, demo=True, calibration=tmp_path / "other.yaml")
     assert "--calibration is ignored with --demo" in " ".join(capsys.readouterr().err.split())
 
@@ -89,5 +89,7 @@ def test_a_vpc_that_cannot_fit_in_memory_is_refused_at_start(tmp_path: Path, jpe
         RIG_STEREO__FULL_DP="true",
     )
     result = run_rig(["serve", "--recording", str(jpeg_recording), "--port", "0"], env)
-    line = assert_one_line_error(result, "field 'vpc': a 8192x8192 VPC with 1024 disparities needs about")
+    line = assert_one_line_error(
+        result, "field 'rectified': a 8192x8192 pinhole pair with 1024 disparities needs about"
+    )
     assert "matcher" in line and "MiB this machine has left" in line

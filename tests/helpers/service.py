@@ -95,7 +95,7 @@ def service_overrides(
             "right": {**camera, "camera": "right"},
             "supervisor": supervisor if supervisor is not None else FAST_SUPERVISOR.model_dump(),
         },
-        "vpc": SMALL_SPEC.vpc.model_dump(),
+        "rectified": SMALL_SPEC.vpc.model_dump(),
         "stereo": {"disparity_range": 64},
         "cache_dir": str(lut_cache),
     }

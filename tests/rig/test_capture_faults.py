@@ -184,7 +184,7 @@ def test_replay_without_loop_finishes(rec: Path) -> None:
         seqs = []
         while (p := cap.next_pair(2.0, newest=False)) is not None:
             seqs.append(p.seq)
-        assert cap.finished
+        assert cap.exhausted
         assert seqs == list(range(30))
         assert {c.state for c in cap.health().cameras.values()} == {"ended"}
 

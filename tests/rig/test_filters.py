@@ -180,7 +180,7 @@ def pipe(lut_cache: Path) -> DepthPipeline:
 
 
 def _measure(pipe: DepthPipeline, shot: StereoShot, noise_seed: int = 1, **params: Any) -> DepthFrame:
-    pipe.update_stereo(StereoParams(**(BASE | params)))
+    pipe.apply(stereo=StereoParams(**(BASE | params)))
     return pipe.process(add_noise(shot.left, 1.5, noise_seed), add_noise(shot.right, 1.5, noise_seed + 1))
 
 
@@ -284,7 +284,7 @@ def test_temporal_filter_measured_on_noisy_frames(lut_cache: Path) -> None:
     box = central_box(shot.depth.shape)
     last = {}
     for alpha in (0.0, 0.8):
-        pipe.update_stereo(StereoParams(**BASE, temporal_alpha=alpha))
+        pipe.apply(stereo=StereoParams(**BASE, temporal_alpha=alpha))
         for i in range(8):
             frame = pipe.process(add_noise(shot.left, 6.0, 10 + i), add_noise(shot.right, 6.0, 50 + i))
         err = (frame.disparity - shot.disparity)[box]

@@ -37,7 +37,7 @@ def measured(
     pipe = DepthPipeline(shots[SCENES[0]].rig, PHANTOM_VPC, cache_dir=tmp_path_factory.mktemp("lut"))
     out: dict[str, dict[str, PhantomStats]] = {}
     for label, params in (("defaults", StereoParams()), ("before", BEFORE)):
-        pipe.update_stereo(params)
+        pipe.apply(stereo=params)
         out[label] = {}
         for name, shot in shots.items():
             frame = pipe.process(shot.left, shot.right)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-import rig.finish as finish_module
+import rig.postprocess as finish_module
 from calibration.geometry import make_transform, rot_y
 from calibration.models import create
 from calibration.rig import Rig
@@ -95,10 +95,10 @@ def test_finish_on_the_active_columns_is_exactly_the_whole_frame(
     matched = pipe.match(pipe.rectify(shot.left, shot.right))
     cols = finish_module.active_columns(pipe._disparity(matched).valid, 9)
     assert cols.start >= 64 - 9, "nothing to leave out"
-    window = [pipe.finish(matched, i) for i in range(2)]
+    window = [pipe.postprocess(matched, i) for i in range(2)]
     monkeypatch.setattr(finish_module, "active_columns", lambda valid, margin: slice(0, valid.shape[1]))
     pipe = DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=64, **stereo), cache_dir=lut_cache)  # type: ignore[arg-type]
-    whole = [pipe.finish(matched, i) for i in range(2)]  # twice: the temporal filter's history
+    whole = [pipe.postprocess(matched, i) for i in range(2)]  # twice: the temporal filter's history
     for a, b in zip(window, whole, strict=True):
         assert np.array_equal(a.valid, b.valid) and a.valid.mean() > 0.5
         for name in ("disparity", "depth", "confidence"):
@@ -156,7 +156,7 @@ def test_finish_is_the_stage_functions_in_one_pass(
     for seq, left in enumerate((rect.left_gray, np.roll(rect.left_gray, 1, axis=1))):
         # Two frames, the second one a pixel nearer: the temporal filter's history and reset.
         moved = replace(rect, left_gray=left)
-        got = pipe.finish(pipe.match(moved), seq)
+        got = pipe.postprocess(pipe.match(moved), seq)
         want = _finish_by_the_stage_functions(
             left, rect.right_gray, params, temporal, pipe.pair.fx * pipe.baseline_m
         )
@@ -272,9 +272,9 @@ def test_bad_inputs_are_clear_errors(pipe: DepthPipeline, shot: StereoShot) -> N
         pipe.process(shot.left, np.asarray(shot.right, dtype=np.float32))
     with pytest.raises(PipelineError, match="gray"):
         pipe.process(np.dstack([shot.left] * 4), shot.right)
-    with pytest.raises(ConfigError, match="below the VPC width"):
-        pipe.update_stereo(StereoParams(disparity_range=320))
-    with pytest.raises(ConfigError, match="below the VPC width"):
+    with pytest.raises(ConfigError, match="below the rectified view's width"):
+        pipe.apply(stereo=StereoParams(disparity_range=320))
+    with pytest.raises(ConfigError, match="below the rectified view's width"):
         DepthPipeline(shot.rig, VPC, StereoParams(disparity_range=320), cache_dir=pipe.cache.directory)
 
 
@@ -298,8 +298,8 @@ def test_update_stereo_is_thread_safe_and_takes_effect_next_frame(
     t.start()
     try:
         for i in range(20):
-            pipe.update_stereo(
-                StereoParams(disparity_range=64, confidence=bool(i % 2), median=(0, 3, 5)[i % 3])
+            pipe.apply(
+                stereo=StereoParams(disparity_range=64, confidence=bool(i % 2), median=(0, 3, 5)[i % 3])
             )
             threading.Event().wait(0.01)
     finally:
@@ -307,6 +307,6 @@ def test_update_stereo_is_thread_safe_and_takes_effect_next_frame(
         t.join(timeout=60)
     assert not errors, errors
     assert len(seen) >= 2
-    pipe.update_stereo(StereoParams(disparity_range=64, confidence=False))
+    pipe.apply(stereo=StereoParams(disparity_range=64, confidence=False))
     assert pipe.stereo.confidence is False
     assert pipe.process(shot.left, shot.right).confidence is None

@@ -93,7 +93,9 @@ def test_matching_only_the_columns_the_lenses_see_keeps_the_range(
     rect = pipe.rectify(shot.left, shot.right)
     matcher = StereoMatcher(STEREO)
     frames = [
-        pipe.finish(MatchedImages(rect, matcher, matcher.compute(rect.left_gray, rect.right_gray, s), 0.0))
+        pipe.postprocess(
+            MatchedImages(rect, matcher, matcher.compute(rect.left_gray, rect.right_gray, s), 0.0)
+        )
         for s in (seen, None)
     ]
     cropped, whole = frames
@@ -152,7 +154,7 @@ def test_a_wider_blind_band_later_is_logged(tmp_path: Path, caplog: pytest.LogCa
         tmp_path,
     )
     with caplog.at_level(logging.WARNING, logger="rig.pipeline"):
-        pipe.update_stereo(StereoParams(disparity_range=32, min_disparity=4))
-        pipe.update_stereo(StereoParams(disparity_range=16))
+        pipe.apply(stereo=StereoParams(disparity_range=32, min_disparity=4))
+        pipe.apply(stereo=StereoParams(disparity_range=16))
     messages = [r.getMessage() for r in caplog.records]
     assert len(messages) == 1 and "room for 32 unmatched columns, the new settings leave 36" in messages[0]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -19,6 +20,7 @@ import pytest
 from calibration.formats import load_rig, save_rig
 from calibration.rig import Rig
 from rig.errors import RecordingError, RectificationError
+from rig.pipeline import DepthPipeline
 from rig.recording import Recording, RecordingWriter
 from rig.rectification import EpipolarViews, RefineOptions, match_pair, refine_recording, vertical_disparity
 from rig.rectification.monitor import RectificationConfig, RectificationMonitor
@@ -43,6 +45,25 @@ def room(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Rig]:
     rec = Recording(out)
     assert rec.calibration_path is not None
     return out, load_rig(rec.calibration_path)
+
+
+def monitor_of(
+    rig: Rig,
+    options: RectificationConfig,
+    applied: list[Rig] | None = None,
+    cache: Path | None = None,
+    **kw: Any,
+) -> tuple[RectificationMonitor, DepthPipeline]:
+    """A monitor of the pair in effect of a pipeline of ``rig``; a correction it applies takes
+    effect in that pipeline and is appended to ``applied``."""
+    pipeline = DepthPipeline(rig, VPC, cache_dir=cache, tune_malloc=False)
+
+    def apply(new: Rig) -> None:
+        pipeline.apply(rig=new)
+        if applied is not None:
+            applied.append(new)
+
+    return RectificationMonitor(lambda: pipeline.in_effect, lambda: None, options, apply, **kw), pipeline
 
 
 def gray_pairs(root: Path) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -140,7 +161,9 @@ def test_bad_input_is_one_clear_error(room: tuple[Path, Rig], tmp_path: Path) ->
         refine_recording(Recording(root), truth, VPC, RefineOptions(frames=1, min_matches=100_000))
 
 
-def test_monitor_measures_degrades_and_refines(room: tuple[Path, Rig], tmp_path: Path) -> None:
+def test_monitor_measures_degrades_and_refines(
+    room: tuple[Path, Rig], tmp_path: Path, lut_cache: Path
+) -> None:
     """A calibration 0.7° off: degraded after two checks, corrected after three agreeing ones,
     then ok, with the truth recovered; the LUT swap hook gets the corrected rig once, and it is
     persisted over the calibration file with the original kept."""
@@ -151,8 +174,8 @@ def test_monitor_measures_degrades_and_refines(room: tuple[Path, Rig], tmp_path:
     save_rig(perturbed(truth, (0.3, 0.5, -0.4)), calibration)
     original = calibration.read_bytes()
     options = RectificationConfig(auto_refine=True, persist_path=calibration)
-    monitor = RectificationMonitor(
-        load_rig(calibration), VPC, lambda: None, options, applied.append, calibration_path=calibration
+    monitor, pipeline = monitor_of(
+        load_rig(calibration), options, applied, lut_cache, calibration_path=calibration
     )
     assert monitor.status().state == "waiting"
     states = []
@@ -166,7 +189,7 @@ def test_monitor_measures_degrades_and_refines(room: tuple[Path, Rig], tmp_path:
     assert len(applied) == 1 and status.corrections_applied == 1
     assert states[-1] == "ok" and status.p50_px is not None and status.p50_px < 0.2
     assert relative_rotation_error_deg(applied[0], truth) <= 0.02
-    assert relative_rotation_error_deg(monitor.rig, truth) <= 0.02
+    assert relative_rotation_error_deg(pipeline.rig, truth) <= 0.02
     assert (tmp_path / "rig.orig.yaml").read_bytes() == original
     assert relative_rotation_error_deg(load_rig(calibration), truth) <= 0.02
 
@@ -193,12 +216,12 @@ def test_save_refined_keeps_the_original(room: tuple[Path, Rig], tmp_path: Path)
     ]
 
 
-def test_monitor_low_texture_is_never_an_alarm(room: tuple[Path, Rig]) -> None:
+def test_monitor_low_texture_is_never_an_alarm(room: tuple[Path, Rig], lut_cache: Path) -> None:
     root, truth = room
     left, _ = gray_pairs(root)[0]
     blank = np.full_like(left, 90)
-    monitor = RectificationMonitor(
-        perturbed(truth, (1.0, 0.0, 0.0)), VPC, lambda: None, RectificationConfig(auto_refine=True)
+    monitor, _ = monitor_of(
+        perturbed(truth, (1.0, 0.0, 0.0)), RectificationConfig(auto_refine=True), cache=lut_cache
     )
     for _ in range(3):
         monitor.check(blank, blank)
@@ -214,21 +237,19 @@ def test_monitor_low_texture_is_never_an_alarm(room: tuple[Path, Rig]) -> None:
     assert monitor.status().state == "not enough matches"
 
 
-def test_online_refinement_never_applies_an_unjustified_step(room: tuple[Path, Rig]) -> None:
+def test_online_refinement_never_applies_an_unjustified_step(room: tuple[Path, Rig], lut_cache: Path) -> None:
     root, truth = room
     pairs = gray_pairs(root)
     # Already right: nothing to gain.
     applied: list[Rig] = []
     auto = RectificationConfig(auto_refine=True)
-    monitor = RectificationMonitor(truth, VPC, lambda: None, auto, applied.append)
+    monitor, _ = monitor_of(truth, auto, applied, lut_cache)
     for k in range(4):
         monitor.check(*pairs[k % 2])
     assert not applied and "no correction" in (monitor.status().refinement or "")
     # Beyond the step bound: reported, not applied (and the status is degraded, so it is seen).
     options = RectificationConfig(auto_refine=True, max_step_deg=0.5)
-    monitor = RectificationMonitor(
-        perturbed(truth, (0.8, 0.0, 0.0)), VPC, lambda: None, options, applied.append
-    )
+    monitor, _ = monitor_of(perturbed(truth, (0.8, 0.0, 0.0)), options, applied, lut_cache)
     for k in range(4):
         monitor.check(*pairs[k % 2])
     status = monitor.status()
@@ -236,7 +257,7 @@ def test_online_refinement_never_applies_an_unjustified_step(room: tuple[Path, R
     # Checks that disagree (the right image shifted by 2 px every other time): not stable.
     left, right = pairs[0]
     shifted = np.roll(right, 2, axis=0)
-    monitor = RectificationMonitor(perturbed(truth, (0.3, 0.0, 0.0)), VPC, lambda: None, auto, applied.append)
+    monitor, _ = monitor_of(perturbed(truth, (0.3, 0.0, 0.0)), auto, applied, lut_cache)
     for k in range(4):
         monitor.check(left, shifted if k % 2 else right)
     assert not applied and "disagree" in (monitor.status().refinement or "")

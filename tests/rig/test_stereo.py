@@ -178,7 +178,7 @@ def test_speckles_removed_after_compute_are_the_bare_matchers(stereo: dict[str, 
         removed = (without.compute(left, right) != bare).sum()
     assert removed > 50, "no speckles to remove: the test pair proves nothing"
     np.testing.assert_array_equal(matcher.raw(left, right), bare)
-    res = matcher.finish(unfiltered)
+    res = matcher.disparity_of(unfiltered)
     filtered = unfiltered.left.copy()  # finish filtered it in place; a second pass changes nothing
     matcher.remove_speckles(unfiltered.left)
     np.testing.assert_array_equal(unfiltered.left, filtered)

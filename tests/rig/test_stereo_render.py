@@ -42,7 +42,7 @@ def test_subpixel_refinement_beats_plain_sgbm_at_every_fractional_distance(lut_c
         assert np.allclose(truth, d, rtol=1e-4), "the plane is fronto-parallel: one disparity"
         rms = {}
         for name, params in variants.items():
-            pipe.update_stereo(params)
+            pipe.apply(stereo=params)
             frame = pipe.process(shot.left, shot.right)
             err = frame.disparity[box] - truth
             assert np.isfinite(err).mean() > 0.98

@@ -26,6 +26,8 @@ def test_depth_headers_and_formats(shared_server: LiveServer) -> None:
     r = httpx.get(shared_server.base_url + "/depth")
     assert r.status_code == 200 and r.headers["content-type"] == "image/png"
     assert int(r.headers["X-Frame-Seq"]) >= 0 and int(r.headers["X-Timestamp-Ns"]) > 0
+    # The frame's age, arrival to published, under its name and its first name.
+    assert float(r.headers["X-Age-Ms"]) >= 0 and r.headers["X-Latency-Ms"] == r.headers["X-Age-Ms"]
     assert r.headers["X-Depth-Scale"] == "0.001"
     png = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_UNCHANGED)
     assert png.dtype == np.uint16 and png.shape == (SMALL_SPEC.vpc.height, SMALL_SPEC.vpc.width)
@@ -190,7 +192,9 @@ def test_health_ok_and_contract_fields(shared_server: LiveServer) -> None:
     for key in ("fps", "latency_ms"):
         assert key in h["worker"]
     assert "skew_ms" in h["pairing"]
-    assert h["worker"]["fps"] > 0 and h["worker"]["latency_ms"] > 0
+    assert h["worker"]["fps"] > 0 and h["worker"]["processing_ms"] > 0
+    # latency_ms is processing_ms under its first name, not the frame's age (age_ms).
+    assert h["worker"]["latency_ms"] == h["worker"]["processing_ms"]
     assert set(h["host"]) >= {"cpu_temp_c", "load_avg", "disk_free_bytes"}
     assert h["host"]["disk_free_bytes"] > 0
 

@@ -10,7 +10,8 @@ import httpx
 import pytest
 
 import service.memory
-from rig.memory_budget import MIB, available_memory
+from rig.memory_budget import FRAMES_ALIVE, MIB, available_memory
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from service.errors import SettingsError
 from service.memory import service_estimate
 from service.runtime import Runtime
@@ -23,14 +24,14 @@ def test_a_vpc_that_cannot_fit_is_refused_before_any_table_is_built(
     cache = tmp_path / "lut-cache"
     settings = service_settings(small_recording.loop, tmp_path, cache)
     huge = settings.model_copy(
-        update={"vpc": settings.vpc.model_copy(update={"width": 4096, "height": 3072})}
+        update={"rectified": settings.rectified.model_copy(update={"width": 4096, "height": 3072})}
     )
     monkeypatch.setattr(service.memory, "available_memory", lambda: 1024 * MIB)  # a 1 GiB board
     with pytest.raises(SettingsError) as refused:
         Runtime.build(huge)
     message = str(refused.value)
-    assert "field 'vpc': a 4096x3072 VPC with 64 disparities needs about" in message
-    assert "more than the 1024 MiB this machine has left" in message and "vpc frames" in message
+    assert "field 'rectified': a 4096x3072 pinhole pair with 64 disparities needs about" in message
+    assert "more than the 1024 MiB this machine has left" in message and "rectified frames" in message
     assert not cache.exists() or not any(cache.iterdir())  # no table was built
 
 
@@ -40,25 +41,52 @@ def test_a_tight_budget_is_warned_about(
     settings = service_settings(small_recording.loop, tmp_path, lut_cache)
     runtime = Runtime.build(settings)
     estimate = runtime.memory_budget
+    now = runtime.pipeline.in_effect
     with caplog.at_level(logging.WARNING, logger="service.memory"):
-        service.memory.check_memory(settings, estimate, available=int(estimate.total / 0.9))
-    assert "needs about" in caplog.text and "320x240 VPC" in caplog.text
+        service.memory.check_memory(estimate, now.pair, now.stereo, available=int(estimate.total / 0.9))
+    assert "needs about" in caplog.text and "320x240 pinhole pair" in caplog.text
     caplog.clear()
-    service.memory.check_memory(settings, estimate, available=4 * estimate.total)
+    service.memory.check_memory(estimate, now.pair, now.stereo, available=4 * estimate.total)
     assert caplog.text == ""
+
+
+def test_the_lat_lon_budget_is_sized_by_the_pair_in_effect_and_its_advice_fits_it(
+    small_recording: SmallRecording, tmp_path: Path, lut_cache: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The lat-lon pair's size follows from its resolution and the lenses' overlap, not from a
+    pinhole's width and height: the budget is the designed pair's, and the advice when it does
+    not fit names what sizes a lat-lon pair."""
+    latlon = service_settings(small_recording.loop, tmp_path, lut_cache).model_copy(
+        update={"rectified": RectifiedPairConfig(px_per_deg=4.0)}
+    )
+    runtime = Runtime.build(latlon)
+    cam = runtime.pipeline.in_effect.camera
+    assert runtime.pipeline.pair.projection == "latlon" and (cam.width, cam.height) != (640, 480)
+    parts = runtime.memory_budget.parts
+    assert parts["rectified_frames"] == FRAMES_ALIVE * 40 * cam.width * cam.height
+    assert parts["lookup_tables"] == 2 * 15 * cam.width * cam.height
+    finer = latlon.model_copy(update={"rectified": RectifiedPairConfig(px_per_deg=8.0)})
+    monkeypatch.setattr(service.memory, "available_memory", lambda: 64 * MIB)
+    with pytest.raises(SettingsError) as refused:
+        Runtime.build(finer)
+    message = str(refused.value)
+    assert "lat-lon pair (8.000 px/deg)" in message and "a lower rectified.px_per_deg" in message
+    assert "vpc.width" not in message and "rectified.width" not in message
 
 
 def test_the_estimate_grows_with_what_it_estimates(small_recording: SmallRecording, tmp_path: Path) -> None:
     base = service_settings(small_recording.loop, tmp_path, tmp_path)
     rig = Runtime.build(base).rig
-    small = service_estimate(base, rig)
-    wide = base.model_copy(update={"vpc": base.vpc.model_copy(update={"width": 640, "height": 480})})
-    assert service_estimate(wide, rig).parts["rect_frames"] == 4 * small.parts["rect_frames"]
-    full = base.model_copy(
-        update={"stereo": base.stereo.model_copy(update={"full_dp": True, "sgbm_mode": "hh"})}
+    pair = design_rectified_pair(rig, base.rectified)
+    small = service_estimate(base, rig, pair, base.stereo)
+    wide = design_rectified_pair(rig, base.rectified.model_copy(update={"width": 640, "height": 480}))
+    assert (
+        service_estimate(base, rig, wide, base.stereo).parts["rectified_frames"]
+        == 4 * small.parts["rectified_frames"]
     )
+    full = base.stereo.model_copy(update={"full_dp": True, "sgbm_mode": "hh"})
     # SGBM's full 8-path mode keeps the whole cost volume: 4 bytes per pixel and disparity.
-    assert service_estimate(full, rig).parts["matcher"] >= 4 * 320 * 240 * 64
+    assert service_estimate(base, rig, pair, full).parts["matcher"] >= 4 * 320 * 240 * 64
 
 
 def test_available_memory_reads_meminfo_and_the_cgroup_limit(tmp_path: Path) -> None:

@@ -12,7 +12,7 @@ from collections.abc import Iterator
 
 import pytest
 
-import rig.finish as finish_module
+import rig.postprocess as finish_module
 from rig import priority
 from tests.helpers.service import StartServer
 

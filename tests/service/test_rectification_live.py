@@ -77,8 +77,9 @@ def test_a_turned_calibration_is_corrected_online_without_losing_a_frame(
     assert indexes == list(range(1, len(indexes) + 1))
     gaps = [b - a for (a, _), (b, _) in itertools.pairwise(published)]
     assert max(gaps) < 1.0, max(gaps)
-    # The running pipeline, the monitor and /calibration's rig are the corrected one.
-    assert runtime.pipeline.rig is monitor.rig is runtime.rig
+    # The running pipeline, the monitor (which reads the pipeline's pair in effect) and
+    # /calibration's rig are the corrected one.
+    assert runtime.pipeline.rig is runtime.rig and monitor.pair is runtime.pipeline.pair
     assert relative_rotation_error_deg(runtime.pipeline.rig, truth) < 0.05
     assert relative_rotation_error_deg(load_rig(calibration), truth) < 0.05
     assert (tmp_path / "rig.orig.yaml").read_bytes() == original

@@ -36,7 +36,8 @@ def test_defaults_bind_loopback_and_build_nothing() -> None:
     assert s.server.cors_origins == []
     assert s.server.depth_scale_m == 0.001
     assert s.cameras is None
-    assert s.vpc.width == 640 and s.stereo.disparity_range == 96 and s.stereo.lr_check
+    assert s.rectified.projection == "latlon" and s.rectified.width is None and s.vpc is None
+    assert s.stereo.disparity_range == 96 and s.stereo.lr_check
 
 
 def test_yaml_file_with_relative_paths_resolved_against_the_file(tmp_path: Path) -> None:
@@ -66,7 +67,7 @@ cache_dir: lut
     assert isinstance(s.cameras.left, FileCameraConfig)
     assert s.cameras.left.recording == cfg / ".." / "rec"
     assert isinstance(s.cameras.right, V4L2CameraConfig) and s.cameras.right.device == "/dev/rig/right"
-    assert s.vpc.hfov_deg == 80
+    assert s.rectified.hfov_deg == 80  # read from the section's first name, vpc:
     assert s.stereo.sgbm_mode == "3way"  # ROS numbering 2 = SGBM_3WAY
 
 

@@ -80,7 +80,7 @@ def test_an_undecodable_frame_is_counted_against_its_camera(
     worker = DepthWorker(capture, pipe, ResultStore(), on_result=lambda r, t: seen.append(r.seq), poll_s=0.02)
     worker.start()
     try:
-        wait_for(lambda: capture.finished and len(seen) >= PAIRS - 1, 60.0, "the replay to end")
+        wait_for(lambda: capture.exhausted and len(seen) >= PAIRS - 1, 60.0, "the replay to end")
         health, stats = capture.health(), worker.stats()
     finally:
         worker.stop()

@@ -1,4 +1,4 @@
-"""The service on the lat-lon pair (``vpc.projection: latlon``), against the renderer's exact
+"""The service on the lat-lon pair (``rectified.projection: latlon``), against the renderer's exact
 range: ``/range``, ``/depth``, ``/pointcloud``, ``/calibration``, the client, the OpenAPI
 document and the dashboard in Chromium; and ``/range`` of the pinhole pair."""
 
@@ -30,7 +30,7 @@ def wide_server(
     small_recording: SmallRecording, lut_cache: Path, tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[LiveServer]:
     doc = service_overrides(small_recording.loop, tmp_path_factory.mktemp("wide"), lut_cache)
-    doc["vpc"] = WIDE
+    doc["rectified"] = WIDE
     live = LiveServer(load_settings(None, doc)).start()
     live.wait_ready()
     yield live

@@ -1,4 +1,4 @@
-"""The depth pipeline's finish stage (:meth:`rig.pipeline.DepthPipeline.finish`): the matcher's
+"""The depth pipeline's post-processing stage (:meth:`rig.pipeline.DepthPipeline.postprocess`): the matcher's
 speckle removal, then subpixel refinement, filters, confidence and depth of one matched pair.
 
 Its sections: the refinement's preparation (image normalisation on the pool while this thread
@@ -39,7 +39,7 @@ from rig.subpixel import (
     refinement_inputs,
 )
 
-__all__ = ["FinishOutputs", "FinishStage", "active_columns", "refine_pool"]
+__all__ = ["PostprocessOutputs", "PostprocessStage", "active_columns", "refine_pool"]
 
 F32 = NDArray[np.float32]
 U8 = NDArray[np.uint8]
@@ -53,8 +53,8 @@ _REFINE_THREADS = min(4, os.cpu_count() or 1)
 
 
 def refine_pool() -> ThreadPoolExecutor | None:
-    """The process's threads for the banded finish stage (:func:`rig.bands.run_in_bands`);
-    None on a single core. Shared by all pipelines: the finish stage is serialised anyway. Its
+    """The process's threads for the banded post-processing stage (:func:`rig.bands.run_in_bands`);
+    None on a single core. Shared by all pipelines: the post-processing stage is serialised anyway. Its
     threads take the depth threads' priority (:mod:`rig.priority`) when they start; a new
     priority gets a new pool (the old one's threads finish their bands and end)."""
     global _refine_pool, _refine_pool_nice
@@ -73,8 +73,8 @@ def refine_pool() -> ThreadPoolExecutor | None:
 
 
 @dataclass
-class FinishOutputs:
-    """The finish stage's output arrays (H, W), filled band by band."""
+class PostprocessOutputs:
+    """The post-processing stage's output arrays (H, W), filled band by band."""
 
     disparity: F32
     valid: Mask
@@ -85,7 +85,7 @@ class FinishOutputs:
     @classmethod
     def empty(
         cls, shape: tuple[int, ...], *, with_confidence: bool, cols: slice, range_is_depth: bool
-    ) -> FinishOutputs:
+    ) -> PostprocessOutputs:
         """Arrays to fill in columns ``cols`` (step 1; depth and range everywhere), invalid
         outside them. ``range_is_depth``: one array for both (the lat-lon pair)."""
 
@@ -110,7 +110,7 @@ class FinishOutputs:
 
 def active_columns(valid: Mask, margin: int) -> slice:
     """The columns holding every valid pixel, and ``margin`` more either side. Outside them
-    everything is invalid, so the finish stage need not look: the matcher leaves its first
+    everything is invalid, so the post-processing stage need not look: the matcher leaves its first
     ``min_disparity + disparity_range`` columns invalid (a fifth of a 640 px wide frame by
     default). Within, every valid pixel sees what it would see in the whole frame (as across a
     band's margin; and invalid pixels add nothing to the refinement's sums)."""
@@ -164,7 +164,7 @@ def _prepare(
 
 
 class _Bands:
-    """The row-local sections of one pair's finish stage, called per row band by
+    """The row-local sections of one pair's post-processing stage, called per row band by
     :func:`rig.bands.run_in_bands`: subpixel refinement, median filter, confidence and, given
     ``depth_rows``, depth; written into ``out``, each band's times kept."""
 
@@ -172,8 +172,8 @@ class _Bands:
         self,
         p: StereoParams,
         prep: _Prepared,
-        out: FinishOutputs,
-        depth_rows: Callable[[FinishOutputs, int, int], StageTimes] | None,
+        out: PostprocessOutputs,
+        depth_rows: Callable[[PostprocessOutputs, int, int], StageTimes] | None,
     ) -> None:
         self.p = p
         self.prep = prep
@@ -228,8 +228,8 @@ class _Bands:
         return {k: max(t.get(k, 0.0) for t in self.band_ms) for k in ("refine", "filters", "depth")}
 
 
-class FinishStage:
-    """A pipeline's finish stage for the rectified pair of left view ``camera`` (pinhole or
+class PostprocessStage:
+    """A pipeline's post-processing stage for the rectified pair of left view ``camera`` (pinhole or
     lat-lon) and baseline ``baseline_m``: call it in frame order (the temporal filter's history);
     callers are serialised. ``matcher`` is the pipeline's first matcher, whose parameters start
     the temporal filter."""
@@ -252,8 +252,8 @@ class FinishStage:
         left_gray: U8,
         right_gray: U8,
         disparity_of: Callable[[], MatchedDisparity],
-    ) -> tuple[FinishOutputs, float, StageTimes]:
-        """The finish stage of the pair whose gray VPC images are ``left_gray``/``right_gray``,
+    ) -> tuple[PostprocessOutputs, float, StageTimes]:
+        """The post-processing stage of the pair whose gray VPC images are ``left_gray``/``right_gray``,
         with the parameters of the ``matcher`` that matched it; ``disparity_of()`` removes its
         speckles and gives its disparity. Returns the outputs, the speckle removal's time (ms)
         and the stage's times (ms) by section: refine, filters, depth."""
@@ -262,7 +262,7 @@ class FinishStage:
         prep = _prepare(p, left_gray, right_gray, disparity_of, pool)
         temporal = p.temporal_alpha > 0.0
         self._follow(matcher)
-        out = FinishOutputs.empty(
+        out = PostprocessOutputs.empty(
             prep.disparity.shape,
             with_confidence=p.confidence,
             cols=prep.cols,
@@ -292,7 +292,7 @@ class FinishStage:
             self._temporal = TemporalFilter(p.temporal_alpha, p.temporal_reset)
             self._temporal_owner = matcher
 
-    def _temporal_and_depth(self, out: FinishOutputs, stage: StageTimes) -> None:
+    def _temporal_and_depth(self, out: PostprocessOutputs, stage: StageTimes) -> None:
         """The temporal filter over the whole frame, then its depth; their times added to
         ``stage``'s filters and depth."""
         t0 = time.perf_counter()
@@ -301,7 +301,7 @@ class FinishStage:
         for key, ms in self._depth_rows(out, 0, out.disparity.shape[0]).items():
             stage[key] += ms
 
-    def _depth_rows(self, out: FinishOutputs, r0: int, r1: int) -> StageTimes:
+    def _depth_rows(self, out: PostprocessOutputs, r0: int, r1: int) -> StageTimes:
         """Depth and range of rows ``[r0, r1)`` of ``out`` (in place; whole rows: numpy is 2-3×
         slower on a column window than on contiguous rows); its time."""
         t0 = time.perf_counter()

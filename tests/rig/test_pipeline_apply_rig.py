@@ -1,4 +1,4 @@
-"""``DepthPipeline.replace_rig``: a corrected calibration swapped into a running pipeline gives
+"""``DepthPipeline.apply(rig=...)``: a corrected calibration swapped into a running pipeline gives
 what a pipeline built on it gives, a pair rectified before the swap finishes with the geometry it
 began with, and only a rotation-and-direction change of the same lenses and baseline is taken;
 the ROS message builder follows the swap."""
@@ -43,12 +43,15 @@ def test_a_swapped_pipeline_equals_one_built_on_the_corrected_rig(tmp_path: Path
     corrected = perturbed(s.rig, (0.2, -0.3, 0.1))
     before = pipe.rectify(s.left, s.right)  # in flight across the swap
     old = pipe.geometry
-    new = pipe.replace_rig(corrected)
-    assert pipe.geometry is new and pipe.rig is corrected and new is not old
+    before_revision = pipe.in_effect.revision
+    new = pipe.apply(rig=corrected)
+    assert pipe.in_effect is new and pipe.geometry is new.geometry and pipe.rig is corrected
+    assert new.geometry is not old and new.revision == before_revision + 1
+    assert new.stereo is STEREO or new.stereo == STEREO  # the stereo parameters stay in effect
     assert not np.allclose(new.pair.R_cam_rect["right"], old.pair.R_cam_rect["right"])
     # The pair rectified before the swap keeps its geometry to the end.
     assert before.geometry is old
-    finished = pipe.finish(pipe.match(before))
+    finished = pipe.postprocess(pipe.match(before))
     reference_old = DepthPipeline(s.rig, VPC, STEREO, cache_dir=tmp_path).process(s.left, s.right)
     assert _same(finished.disparity, reference_old.disparity)
     # Pairs after the swap: exactly what a pipeline built on the corrected rig makes.
@@ -66,9 +69,9 @@ def test_only_the_same_lenses_and_baseline_are_taken(tmp_path: Path) -> None:
     pipe = DepthPipeline(s.rig, VPC, STEREO, cache_dir=tmp_path)
     other_lens = s.rig.cameras["right"].replace(fx=s.rig.cameras["right"].param_dict["fx"] * 1.01)
     with pytest.raises(ConfigError, match="not the same lens"):
-        pipe.replace_rig(Rig({"left": s.rig.cameras["left"], "right": other_lens}, dict(s.rig.T_rig_cam)))
+        pipe.apply(rig=Rig({"left": s.rig.cameras["left"], "right": other_lens}, dict(s.rig.T_rig_cam)))
     with pytest.raises(ConfigError, match="baseline changes"):
-        pipe.replace_rig(perturbed(s.rig, (0.0, 0.0, 0.0), along_baseline_m=0.001))
+        pipe.apply(rig=perturbed(s.rig, (0.0, 0.0, 0.0), along_baseline_m=0.001))
     assert pipe.rig is s.rig
 
 
@@ -78,7 +81,7 @@ def test_ros_messages_follow_the_swap(tmp_path: Path) -> None:
     builder = MessageBuilder(pipe)
     old_info, old_tf = builder.raw_infos["right"], builder.transforms
     corrected = perturbed(s.rig, (0.2, -0.3, 0.1))
-    pipe.replace_rig(corrected)
+    pipe.apply(rig=corrected)
     fresh = MessageBuilder(DepthPipeline(corrected, VPC, STEREO, cache_dir=tmp_path))
     assert _equal(builder.raw_infos, fresh.raw_infos) and _equal(builder.rect_infos, fresh.rect_infos)
     assert _equal(builder.transforms, fresh.transforms)
@@ -95,7 +98,7 @@ def test_a_lat_lon_pair_keeps_its_image_grid_across_a_swap(tmp_path: Path) -> No
     old = pipe.geometry
     before = pipe.process(s.left, s.right)
     corrected = perturbed(s.rig, (0.5, -0.5, 0.3))
-    new = pipe.replace_rig(corrected)
+    new = pipe.apply(rig=corrected)
     assert new.pair.camera == old.pair.camera
     redesigned = design_rectified_pair(corrected, vpc, blind_band_px=STEREO.blind_band_px)
     for name in ("left", "right"):
