@@ -1,12 +1,14 @@
 """Camera models: one interface (``project``/``unproject`` with validity masks) for all.
 
 ``create(name, width, height, **params)`` builds one by name; :data:`MODELS` lists them.
-:class:`LatLonModel` (the wide rectified view) has the same surface but is no lens: not in MODELS.
+:class:`LatLonModel` (the wide rectified view) and :class:`EquirectModel` (a panorama) have the same
+surface but are no lenses: not in MODELS.
 """
 
 from calibration.models.base import MODELS, CameraModel, create, register
 from calibration.models.double_sphere import DoubleSphereModel
 from calibration.models.equidistant import EquidistantModel
+from calibration.models.equirect import EquirectModel
 from calibration.models.eucm import EucmModel
 from calibration.models.kannala_brandt import KannalaBrandtModel
 from calibration.models.latlon import LatLonModel
@@ -19,6 +21,7 @@ __all__ = [
     "CameraModel",
     "DoubleSphereModel",
     "EquidistantModel",
+    "EquirectModel",
     "EucmModel",
     "KannalaBrandtModel",
     "LatLonModel",

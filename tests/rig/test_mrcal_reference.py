@@ -1,6 +1,6 @@
 """The lat-lon pair against mrcal itself (its own Python, in a subprocess): the projection
-(``LENSMODEL_LATLON``), the rectified frame and intrinsics of ``mrcal.rectified_system`` and the
-ranges of ``mrcal.stereo_range``.
+(``LENSMODEL_LATLON``, and the panorama's ``LENSMODEL_LONLAT``), the rectified frame and
+intrinsics of ``mrcal.rectified_system`` and the ranges of ``mrcal.stereo_range``.
 
 mrcal is not on PyPI for this Python; Debian ships it (``apt-get install python3-mrcal``) for the
 system interpreter. ``RIG_MRCAL_PYTHON`` names an interpreter that imports it (default
@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from calibration.geometry import invert_transform, make_transform, rot_x, rot_y
-from calibration.models import LatLonModel, create
+from calibration.models import EquirectModel, LatLonModel, create
 from calibration.rig import Rig
 from rig.depth import latlon_range
 from rig.rectified import RectifiedPairConfig, design_rectified_pair
@@ -55,6 +55,20 @@ def test_projection_is_mrcal_latlon(tmp_path: Path) -> None:
     out = _run(
         tmp_path,
         "O['q'] = mrcal.project(I['p'], 'LENSMODEL_LATLON', I['k'])",
+        {"p": pts, "k": np.array([m.fx, m.fy, m.cx, m.cy])},
+    )
+    ours, ok = m.project(pts, in_image=False)
+    assert ok.all()
+    assert np.abs(ours - out["q"]).max() < 1e-8
+
+
+def test_panorama_projection_is_mrcal_lonlat(tmp_path: Path) -> None:
+    rng = np.random.default_rng(1)
+    pts = rng.normal(size=(3000, 3)) * rng.uniform(0.1, 30.0, (3000, 1))
+    m = EquirectModel.whole_sphere(3.0)
+    out = _run(
+        tmp_path,
+        "O['q'] = mrcal.project(I['p'], 'LENSMODEL_LONLAT', I['k'])",
         {"p": pts, "k": np.array([m.fx, m.fy, m.cx, m.cy])},
     )
     ours, ok = m.project(pts, in_image=False)

@@ -1,0 +1,279 @@
+"""One 360° range panorama from the range of every pair of a rig (docs/ring.md, "The panorama").
+
+The panorama is an equirectangular image (:class:`calibration.models.EquirectModel`: 360° of
+azimuth across, 180° of elevation down) about the rig's **origin** (the mean of the cameras'
+optical centres) in the panorama frame ``R_rig_pano``: y is the rig's down (the normal of the
+plane the optical axes span, pointing to the rig frame's +y side), z the mean optical axis made
+horizontal (the first camera's when the axes cancel, as on a ring), x = y × z. Each pixel holds
+the range from the origin along its ray, metres.
+
+**Fusion.** Each pair's range is read along every panorama ray: the point ``origin + r·ray``
+that the pair ranges is found by fixed-point steps (from the ray seen from the pair's camera,
+then corrected for the parallax between that camera and the origin: exact, not assumed away),
+the pair's range sampled bilinearly where its neighbouring pixels agree and from the nearest
+valid pixel across a depth edge (never a blend of two surfaces). Each sample carries its
+predicted relative error ``σ_r / r = σ_d / d``: the matcher's disparity uncertainty ``σ_d``
+(from the confidence, ``σ_d = −σ0 · ln(confidence)``, or ``default_sigma_px`` without one) over
+the disparity ``d`` there, the pair's parallax. Per panorama pixel the pair
+with the smallest predicted error is the **best**; the pairs whose range agrees with the best
+within ``agree_sigmas`` of their combined predicted error are averaged with inverse-variance
+weights (flag :data:`FUSED` when more than one). A pair that sees the pixel and disagrees beyond
+that is not averaged in: the best pair's range stands and the pixel is flagged
+:data:`DISAGREE` (a surface seen differently by two pairs: an occlusion edge, a mismatch, or a
+calibration error: never an average of wrong values). Nothing fills holes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from calibration.models import EquirectModel
+from calibration.rig import Rig
+from rig.errors import ConfigError
+from rig.rectified import RectifiedPair
+
+__all__ = [
+    "DEFAULT_PANORAMA_PX_PER_DEG",
+    "DISAGREE",
+    "FUSED",
+    "PairRange",
+    "PanoramaFrame",
+    "PanoramaSpec",
+    "fuse_panorama",
+    "lenses_seeing",
+]
+
+F32 = NDArray[np.float32]
+F64 = NDArray[np.float64]
+
+#: Panorama resolution when none is asked for: coarser than the pairs' lat-lon views (5.6 px/deg),
+#: so that their samples cover it without holes.
+DEFAULT_PANORAMA_PX_PER_DEG = 4.0
+#: Flag: the range is the inverse-variance mean of two or more pairs that agree.
+FUSED = 1
+#: Flag: a pair that sees this direction disagrees with the best one beyond their predicted error.
+DISAGREE = 2
+
+
+@dataclass(frozen=True)
+class PanoramaSpec:
+    """Where the panorama is: its projection (``camera``), its frame in the rig (``R_rig_pano``,
+    columns x, y, z) and its centre ``origin`` (rig frame, m)."""
+
+    camera: EquirectModel
+    R_rig_pano: F64
+    origin: F64
+
+    @classmethod
+    def for_rig(cls, rig: Rig, px_per_deg: float = DEFAULT_PANORAMA_PX_PER_DEG) -> PanoramaSpec:
+        """The panorama of ``rig`` (see the module doc for its frame and origin)."""
+        if not (math.isfinite(px_per_deg) and 0.25 <= px_per_deg <= 20.0):
+            raise ConfigError(f"panorama: px_per_deg must be in [0.25, 20], got {px_per_deg!r}")
+        axes = np.array([rig.axis(n) for n in rig.names])
+        down = _down(rig, axes)
+        forward = axes.mean(axis=0)
+        forward -= np.dot(forward, down) * down
+        if np.linalg.norm(forward) < 0.1:  # a ring: the axes cancel out
+            forward = axes[0] - np.dot(axes[0], down) * down
+        forward /= np.linalg.norm(forward)
+        R = np.column_stack([np.cross(down, forward), down, forward])
+        origin = np.mean([rig.center(n) for n in rig.names], axis=0)
+        return cls(EquirectModel.whole_sphere(px_per_deg), R, origin)
+
+    @property
+    def px_per_deg(self) -> float:
+        return math.radians(self.camera.fx)
+
+    @property
+    def T_rig_pano(self) -> F64:
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = self.R_rig_pano, self.origin
+        return T
+
+    def as_json(self, pairs: Sequence[str] = ()) -> dict[str, Any]:
+        """``panorama.json`` (docs/ring.md)."""
+        c = self.camera
+        return {
+            "projection": "equirect",
+            "width": c.width,
+            "height": c.height,
+            "px_per_deg": self.px_per_deg,
+            "fx": c.fx,
+            "fy": c.fy,
+            "cx": c.cx,
+            "cy": c.cy,
+            "R_rig_pano": self.R_rig_pano.tolist(),
+            "origin_m": self.origin.tolist(),
+            "units": "range in metres along each pixel's ray from the origin; PNG: uint16 mm, 0 = none",
+            "flags": {str(FUSED): "fused from several pairs that agree", str(DISAGREE): "pairs disagree"},
+            "pairs": list(pairs),
+        }
+
+
+def _down(rig: Rig, axes: F64) -> F64:
+    """The normal of the plane the optical axes span, on the side of the rig frame's +y."""
+    # Two axes span a plane; more: the direction they vary least along.
+    normal = np.cross(axes[0], axes[1]) if len(axes) == 2 else np.linalg.svd(axes)[2][-1]
+    if np.linalg.norm(normal) < 1e-6:
+        raise ConfigError("panorama: the cameras' optical axes are parallel; the rig has no up axis")
+    down: F64 = normal / np.linalg.norm(normal)
+    return down if down[1] >= 0.0 else -down
+
+
+@dataclass(frozen=True)
+class PairRange:
+    """One pair's output as the fusion takes it: its name (``"A-B"``), its rectified pair, and
+    its range, disparity (px) and confidence (or None) on the left view (H, W), NaN invalid."""
+
+    name: str
+    pair: RectifiedPair
+    range: F32
+    disparity: F32
+    confidence: F32 | None = None
+    confidence_sigma_px: float = 0.1
+
+
+@dataclass(frozen=True)
+class PanoramaFrame:
+    """A fused panorama (H, W): ``range`` float32 m from the origin (NaN: none), ``sigma``
+    float32 m its predicted standard deviation, ``source`` int8 the index of the best pair (−1:
+    none), ``flags`` uint8 (:data:`FUSED`, :data:`DISAGREE`), ``samples`` uint8 how many pairs
+    range the pixel."""
+
+    range: F32
+    sigma: F32
+    source: NDArray[np.int8]
+    flags: NDArray[np.uint8]
+    samples: NDArray[np.uint8]
+
+
+def _sample(image: F64, q: F64) -> F64:
+    """``image`` (H, W; NaN = none) at pixels ``q`` (N, 2): bilinear among the valid neighbours
+    where they agree within 3 %, else the nearest valid one (a depth edge is never blended into
+    a range no surface has); NaN outside or where no neighbour is valid."""
+    h, w = image.shape
+    u0 = np.floor(q[:, 0]).astype(np.int64)
+    v0 = np.floor(q[:, 1]).astype(np.int64)
+    fu, fv = q[:, 0] - u0, q[:, 1] - v0
+    values = np.full((q.shape[0], 4), np.nan)
+    weights = np.zeros((q.shape[0], 4))
+    for k, (du, dv) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
+        u, v = u0 + du, v0 + dv
+        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        values[inside, k] = image[v[inside], u[inside]]
+        weights[:, k] = (fu if du else 1.0 - fu) * (fv if dv else 1.0 - fv)
+    have = np.isfinite(values)
+    weights = np.where(have, weights, 0.0)
+    total = weights.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore", all="ignore"):
+        lo, hi = (
+            np.nanmin(np.where(have, values, np.inf), axis=1),
+            np.nanmax(np.where(have, values, -np.inf), axis=1),
+        )
+        blended = np.nansum(np.where(have, values, 0.0) * weights, axis=1) / total
+        nearest = values[np.arange(q.shape[0]), np.argmax(weights, axis=1)]
+        out: F64 = np.where(hi <= 1.03 * lo, blended, nearest)
+    out[total <= 0.0] = np.nan
+    return out
+
+
+def _pull(
+    spec: PanoramaSpec, rays: F64, p: PairRange, default_sigma_px: float, iterations: int
+) -> tuple[F64, F64]:
+    """Pair ``p``'s range along the panorama ``rays`` (N, 3, rig frame, from the origin) and its
+    relative predicted error: the point ``origin + r·ray`` that the pair ranges, found by a few
+    fixed-point steps from the direction seen from the pair's camera (exact where they converge;
+    NaN where they do not, or the pair has no range there)."""
+    pair = p.pair
+    T = pair.T_rig_rect[pair.left]
+    centre, R = T[:3, 3], T[:3, :3]
+    rng = p.range.astype(np.float64)
+    offset = spec.origin - centre
+    r = np.full(rays.shape[0], np.inf)
+    q = np.zeros((rays.shape[0], 2))
+    for _ in range(iterations):
+        seen_from_pair = np.where(np.isfinite(r)[:, None], offset + r[:, None] * rays, rays)
+        q, ok = pair.camera.project(seen_from_pair @ R, in_image=False)
+        r_pair = np.where(ok, _sample(rng, q), np.nan)
+        pix_rays, _ = pair.camera.unproject(q, in_image=False)
+        point = (pix_rays @ R.T) * r_pair[:, None] - offset  # from the origin
+        r = np.einsum("nk,nk->n", point, rays)
+    # Converged: the pair's point lies on the panorama ray (within a thousandth of its range).
+    miss = np.linalg.norm(point - r[:, None] * rays, axis=1)
+    r = np.where(np.isfinite(r) & (miss <= 1e-3 * np.abs(r)) & (r > 0), r, np.nan)
+    disparity = _sample(p.disparity.astype(np.float64), q)
+    if p.confidence is not None:
+        conf = np.clip(_sample(p.confidence.astype(np.float64), q), 1e-12, 1.0)
+        sigma_px = np.maximum(-p.confidence_sigma_px * np.log(conf), 0.05)
+    else:
+        sigma_px = np.full(r.shape, default_sigma_px)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rel = np.where(disparity > 0, sigma_px / disparity, np.nan)
+    r[~np.isfinite(rel)] = np.nan
+    return r, rel
+
+
+def fuse_panorama(
+    spec: PanoramaSpec,
+    pairs: Sequence[PairRange],
+    *,
+    agree_sigmas: float = 3.0,
+    default_sigma_px: float = 0.25,
+    iterations: int = 4,
+) -> PanoramaFrame:
+    """The panorama of ``pairs``' ranges (see the module doc)."""
+    if not pairs:
+        raise ConfigError("panorama: no pair to fuse")
+    cam = spec.camera
+    v, u = np.mgrid[0 : cam.height, 0 : cam.width]
+    rays, _ = cam.unproject(np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64), in_image=False)
+    rays = rays @ spec.R_rig_pano.T
+    pulled = [_pull(spec, rays, p, default_sigma_px, iterations) for p in pairs]
+    shape = (len(pairs), cam.height, cam.width)
+    r = np.stack([x[0] for x in pulled]).reshape(shape)  # (P, H, W)
+    rel = np.stack([x[1] for x in pulled]).reshape(shape)
+    have = np.isfinite(r)
+    sigma = np.where(have, rel * r, np.inf)
+    best = np.argmin(sigma, axis=0)
+    any_sample = have.any(axis=0)
+    r_best = np.take_along_axis(r, best[None], axis=0)[0]
+    s_best = np.take_along_axis(sigma, best[None], axis=0)[0]
+    with np.errstate(invalid="ignore"):
+        agree = have & (np.abs(r - r_best) <= agree_sigmas * np.sqrt(sigma**2 + s_best**2))
+    weights = np.where(agree, 1.0 / np.maximum(sigma, 1e-9) ** 2, 0.0)
+    total = weights.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fused = np.where(total > 0, np.nansum(np.where(agree, r, 0.0) * weights, axis=0) / total, np.nan)
+        fused_sigma = np.where(total > 0, 1.0 / np.sqrt(total), np.nan)
+    n_agree = agree.sum(axis=0)
+    disagree = (have & ~agree).any(axis=0)
+    flags = np.zeros(r_best.shape, np.uint8)
+    flags[n_agree > 1] |= FUSED
+    flags[disagree] |= DISAGREE
+    return PanoramaFrame(
+        range=np.where(any_sample, fused, np.nan).astype(np.float32),
+        sigma=np.where(any_sample, fused_sigma, np.nan).astype(np.float32),
+        source=np.where(any_sample, best, -1).astype(np.int8),
+        flags=flags,
+        samples=have.sum(axis=0).astype(np.uint8),
+    )
+
+
+def lenses_seeing(rig: Rig, spec: PanoramaSpec) -> NDArray[np.uint8]:
+    """How many of ``rig``'s lenses see each panorama direction (H, W), the direction taken from
+    each camera's own centre (far surfaces: parallax left out)."""
+    cam = spec.camera
+    v, u = np.mgrid[0 : cam.height, 0 : cam.width]
+    rays, _ = cam.unproject(np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64), in_image=False)
+    in_rig = rays @ spec.R_rig_pano.T
+    count = np.zeros(rays.shape[0], np.uint8)
+    for name in rig.names:
+        in_cam = in_rig @ rig.T_rig_cam[name][:3, :3]
+        count += rig.cameras[name].project(in_cam)[1].astype(np.uint8)
+    return count.reshape(cam.height, cam.width)
