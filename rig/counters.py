@@ -307,7 +307,7 @@ COUNTERS: tuple[CounterSpec, ...] = (
         "vertical_disparity_p50_px",
         "gauge",
         "px",
-        "median |v_left - v_right| of the last check's consistent matches in the VPC pair (null "
+        "median |v_left - v_right| of the last check's consistent matches in the rectified pair (null "
         "until a check had enough matches; then the last such check's)",
         value=float,
         optional=True,
@@ -350,7 +350,7 @@ COUNTERS: tuple[CounterSpec, ...] = (
         "matches",
         "gauge",
         "matches",
-        "consistent matches inside the VPC pair in the last check (null before the first)",
+        "consistent matches inside the rectified pair in the last check (null before the first)",
         optional=True,
         value=int,
     ),
@@ -374,6 +374,14 @@ COUNTERS: tuple[CounterSpec, ...] = (
         "angle of the last correction applied online (null before the first)",
         value=float,
         optional=True,
+    ),
+    _rectification(
+        "drift_deg",
+        "gauge",
+        "deg",
+        "the pair's total rotation from its calibration after the corrections applied online "
+        "(bounded by rectification.max_total_deg: beyond it, recalibrate)",
+        value=float,
     ),
     _rectification(
         "last_check_age_s",

@@ -18,6 +18,7 @@ the rest; the price is the nearest depth (fx·B/96 at the VPC's fx) and a second
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -31,6 +32,8 @@ from rig.filters import fill_where, left_right_consistent
 from rig.settings_model import SettingsModel
 
 __all__ = [
+    "COST_PER_WINDOW_PIXEL",
+    "MAX_PATH_COST",
     "SGBM_MODES",
     "MatchedDisparity",
     "SeenColumns",
@@ -52,6 +55,14 @@ SGBM_MODES: dict[str, int] = {
 }
 # ROS 2's disparity node numbers the SGBM variants 0..3 in this order.
 _ROS_SGBM_MODE = ("sgbm", "hh", "3way", "hh4")
+
+
+#: SGBM's cost type is int16: the largest path cost that does not saturate.
+MAX_PATH_COST = 32767
+#: A window pixel's share of the matching cost at which SGBM's path costs saturate, measured on
+#: renders (tests/rig/test_stereo_limits.py): with P2 + 16·w² above 32767 nearly every disparity
+#: is wrong (w = 27 with the default penalties; P2 = 32000 with a 7 px window).
+COST_PER_WINDOW_PIXEL = 16
 
 
 class StereoParams(SettingsModel):
@@ -111,9 +122,30 @@ class StereoParams(SettingsModel):
             problems.append(f"full_dp conflicts with sgbm_mode {self.sgbm_mode!r} (full_dp means 'hh')")
         if self.P2 and self.P1 and self.P2 <= self.P1:
             problems.append(f"P2 ({self.P2}) must be larger than P1 ({self.P1})")
+        elif self.stereo_algorithm == 1:
+            problems += self._cost_headroom()
         if problems:  # all of them: one answer lists every mistake
             raise ValueError("; ".join(problems))
         return self
+
+    def _cost_headroom(self) -> list[str]:
+        """SGBM keeps its path costs in 16 bits: the larger penalty plus a window's matching cost
+        must stay below 32768, or the costs saturate and every disparity comes out wrong while
+        most pixels still look valid (docs/stereo.md, "What the matcher can do")."""
+        w = self.correlation_window_size
+        _, p2 = self.penalties()
+        need = p2 + COST_PER_WINDOW_PIXEL * w * w
+        if need <= MAX_PATH_COST:
+            return []
+        room = MAX_PATH_COST - COST_PER_WINDOW_PIXEL * w * w
+        largest = math.isqrt(MAX_PATH_COST // (COST_PER_WINDOW_PIXEL + 32))
+        largest_w = largest if largest % 2 else largest - 1  # windows are odd
+        fix = f"P2 at most {room}" if room > 0 else "a smaller window"
+        return [
+            f"correlation_window_size {w} with P2 {p2} overflows SGBM's 16-bit path costs "
+            f"(P2 + {COST_PER_WINDOW_PIXEL}·window² = {need} > {MAX_PATH_COST}): use {fix}, or a window "
+            f"of at most {largest_w} with the default penalties"
+        ]
 
     @property
     def blind_band_px(self) -> int:

@@ -28,6 +28,7 @@ from rig.capture.capture import CAMERA_NAMES, StereoCapture
 from rig.capture.config import CaptureConfig, FileCameraConfig
 from rig.capture.health import CaptureHealth
 from rig.capture.recorded import open_recording
+from rig.depth_watch import Coverage, DepthWatch
 from rig.errors import CorruptFrameError
 from rig.heap import heap_stats
 from rig.in_effect import PairInEffect
@@ -70,6 +71,9 @@ def resolve_calibration(settings: Settings) -> Path:
         "settings: field 'calibration.path': not set, and the cameras replay no recording with a "
         "calibration.yaml"
     )
+
+
+_NONE = Coverage(0.0, 0.0, 0)
 
 
 def etag(revision: int) -> str:
@@ -163,8 +167,16 @@ class Runtime:
             )
         self.started_ns = time.monotonic_ns()
         self.documents = DocumentMemo()  # /calibration's response, made once per calibration
-        # The calibration checked against the first processed pair (rig.calibration_check).
+        # The calibration checked against the first processed pair (rig.calibration_check), and
+        # against the pair where the depth collapsed (rig.depth_watch), for its likely cause.
         self.calibration_check: CalibrationCheck | None = None
+        self.collapse_check: CalibrationCheck | None = None
+        watch = settings.depth_watch
+        self.depth_watch = DepthWatch(
+            recent_s=watch.recent_s, reference_s=watch.reference_s, collapse_ratio=watch.collapse_ratio
+        )
+        self._collapse: str | None = None
+        self._collapse_checked_at = -1e9
         self._check_started = False
         self._check_lock = threading.Lock()
         self._running = False
@@ -241,29 +253,63 @@ class Runtime:
         self.capture.stop()
         self._running = False
 
-    # ----- the calibration against the first pair ----------------------------------------------
+    # ----- the calibration against the first pair, the depth watch ----------------------------
     def _observe(self, result: PublishedResult, timings_ms: dict[str, float]) -> None:
-        """Each published result: metrics; the first one also starts the calibration check."""
+        """Each published result: metrics and the depth watch; the first one also starts the
+        calibration check, and a collapse of the depth looks for its likely cause."""
         self.metrics.observe(result, timings_ms)
+        now = self.pipeline.in_effect
+        watch = self.depth_watch
+        at = time.monotonic()
+        watch.observe(at, watch.coverage(result.frame.valid, now), now.revision)
         with self._check_lock:
             first, self._check_started = not self._check_started, True
+            verdict = self._collapse
+            if at - self._collapse_checked_at >= 1.0:  # judged once a second, not every frame
+                verdict, self._collapse_checked_at = watch.verdict(at), at
+            started = verdict is not None and self._collapse is None
+            ended = verdict is None and self._collapse is not None
+            self._collapse = verdict
         if first:
-            threading.Thread(
-                target=self._check_calibration, args=(result,), name="rig-calibration-check", daemon=True
-            ).start()
+            self._in_background(self._check_calibration, result, "")
+        if started:
+            log.warning("depth: %s", verdict)
+            self._in_background(self._check_calibration, result, ", where depth collapsed")
+        if ended:
+            log.info("depth: recovered (%.0f %% of the overlap)", 100 * (watch.latest() or _NONE).share)
+            self.collapse_check = None
 
-    def _check_calibration(self, result: PublishedResult) -> None:
+    @staticmethod
+    def _in_background(
+        check: Callable[[PublishedResult, str], None], result: PublishedResult, what: str
+    ) -> None:
+        threading.Thread(target=check, args=(result, what), name="rig-calibration-check", daemon=True).start()
+
+    def _check_calibration(self, result: PublishedResult, what: str) -> None:
         """Off the worker's threads (feature matching takes a while): errors are logged once and
-        stay in /health's reasons; warnings are logged once."""
+        stay in /health's reasons; warnings are logged once. On the first pair it is the
+        calibration check; on a pair where depth collapsed, the likely cause."""
         try:
             check = check_calibration(self.pipeline, result.left.gray, result.right.gray, result.frame)
         except Exception as err:  # a diagnostic must never stop the service
-            log.warning("calibration check against the first pair failed: %s", err)
+            log.warning("calibration check on pair %d%s failed: %s", result.frame.seq, what, err)
             return
-        self.calibration_check = check
+        if self.calibration_check is None:
+            self.calibration_check = check
+        else:
+            self.collapse_check = check
         for finding in check.findings:
             level = logging.ERROR if finding.severity == "error" else logging.WARNING
-            log.log(level, "calibration check on pair %d: %s", result.frame.seq, finding.message)
+            log.log(level, "calibration check on pair %d%s: %s", result.frame.seq, what, finding.message)
+
+    def depth_collapse(self) -> str | None:
+        """The depth watch's verdict with its likely cause, or None while depth keeps coming."""
+        verdict = self._collapse
+        if verdict is None:
+            return None
+        check = self.collapse_check
+        causes = [] if check is None else [f.message for f in check.errors]
+        return verdict + (f"; likely cause: {'; '.join(causes)}" if causes else "")
 
     # ----- rectification -----------------------------------------------------------------------
     def _latest_gray_pair(self) -> tuple[NDArray[np.uint8], NDArray[np.uint8]] | None:
@@ -401,6 +447,9 @@ class Runtime:
         check = self.calibration_check
         if check is not None:
             reasons += [f"calibration check: {f.message}" for f in check.errors]
+        collapse = self.depth_collapse()
+        if collapse is not None:
+            reasons.append(f"depth: {collapse}")
         recording = self.recordings.active
         if recording is not None and recording.error is not None:
             # The operator asked for this recording and it has stopped writing (e.g. disk full).

@@ -17,6 +17,7 @@ rectified: {projection: latlon, px_per_deg: 5.585}  # or {projection: pinhole, w
 stereo: {disparity_range: 96}    # rig.stereo.StereoParams
 ros: {namespace: /rig}           # rig.ros.RosNames: topic names and frame ids (Foxglove, MCAP)
 rectification: {check_interval_s: 10, auto_refine: false}   # rig.rectification.RectificationConfig
+depth_watch: {recent_s: 10, reference_s: 60}   # collapsing valid depth is reported (rig.depth_watch)
 cache_dir: null                  # LUT cache (default: $RIG_CACHE_DIR or the user cache dir)
 ```
 
@@ -60,6 +61,7 @@ __all__ = [
     "CONFIG_ENV",
     "TOKEN_ENV",
     "CalibrationSettings",
+    "DepthWatchSettings",
     "FoxgloveSettings",
     "ServerSettings",
     "Settings",
@@ -237,6 +239,18 @@ class ServerSettings(SettingsModel):
         return None if self.api_token is None else self.api_token.get_secret_value()
 
 
+class DepthWatchSettings(SettingsModel):
+    """The depth watch (rig.depth_watch): valid depth that collapses is reported as degraded."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    recent_s: float = Field(10.0, gt=0.0, le=3600.0, description="the recent window whose median is judged")
+    reference_s: float = Field(60.0, gt=0.0, le=86400.0, description="the window before it, the reference")
+    collapse_ratio: float = Field(
+        0.35, gt=0.0, lt=1.0, description="recent median below this share of the reference: collapsed"
+    )
+
+
 class CalibrationSettings(SettingsModel):
     model_config = ConfigDict(extra="forbid")
 
@@ -288,6 +302,9 @@ class Settings(BaseSettings):
     cache_dir: Path | None = Field(None, description="LUT cache directory (env RIG_CACHE_DIR)")
     rectification: RectificationConfig = Field(
         default_factory=RectificationConfig, description="live rectification measure and online refinement"
+    )
+    depth_watch: DepthWatchSettings = Field(
+        default_factory=DepthWatchSettings, description="valid depth that collapses is reported"
     )
 
     @model_validator(mode="after")

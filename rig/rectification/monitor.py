@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calibration.errors import CalibrationError, CalibrationFailed
+from calibration.geometry import rotation_angle
 from calibration.relative_pose import (
     RelativePoseFit,
     RelativePoseOptions,
@@ -60,11 +61,13 @@ from rig.rectification.views import EpipolarViews
 from rig.rectified import RectifiedPair
 
 __all__ = [
+    "AppliedCorrection",
     "CheckResult",
     "RectificationConfig",
     "RectificationMonitor",
     "RectificationState",
     "RectificationStatus",
+    "drift_deg",
 ]
 
 log = logging.getLogger("rig.rectification")
@@ -90,6 +93,23 @@ class _Pool:
     @classmethod
     def new(cls, size: int) -> _Pool:
         return cls(deque(maxlen=size), deque(maxlen=size))
+
+
+@dataclass(frozen=True)
+class AppliedCorrection:
+    """An online correction applied: when (``time.monotonic()`` s), its angle, and the pair's
+    total drift from its calibration after it (degrees)."""
+
+    at_s: float
+    angle_deg: float
+    total_deg: float
+
+
+def drift_deg(calibrated: Rig, rig: Rig, left: str, right: str) -> float:
+    """The angle between the relative rotations of ``left`` and ``right`` in two calibrations."""
+    R_cal = relative_pose(calibrated, left, right)[:3, :3]
+    R_now = relative_pose(rig, left, right)[:3, :3]
+    return math.degrees(rotation_angle(R_now @ R_cal.T))
 
 
 @dataclass
@@ -132,6 +152,11 @@ class RectificationMonitor:
         self._thread: threading.Thread | None = None
         # Built by the first check (not at start-up), for the calibration it was built from.
         self._views: tuple[Rig, EpipolarViews] | None = None
+        # The calibration the service started with: online corrections add up to at most
+        # max_total_deg from it (one step of that size is refused; so are four smaller ones).
+        self._calibrated = in_effect().geometry.rig
+        self._recalibrate: str | None = None
+        self.corrections: list[AppliedCorrection] = []
 
     # ----- geometry ----------------------------------------------------------------------------
     def _geometry(self) -> tuple[Rig, EpipolarViews, RectifiedPair]:
@@ -272,7 +297,8 @@ class RectificationMonitor:
         consistent = pooled.select(fit.inliers)
         before = vertical_disparity(pair, consistent.left, consistent.right)
         after = vertical_disparity(self._in_effect().redesigned(new_rig), consistent.left, consistent.right)
-        why_not = self._unjustified(fit, before, after)
+        total = drift_deg(self._calibrated, new_rig, pair.left, pair.right)
+        why_not = self._unjustified(fit, before, after) or self._too_far(total)
         if why_not is not None:
             self._set_refinement(f"no correction: {why_not}")
             return
@@ -285,6 +311,8 @@ class RectificationMonitor:
             return
         self._pool = _Pool.new(opts.pool_checks)
         self._persist(new_rig)
+        with self._lock:
+            self.corrections.append(AppliedCorrection(time.monotonic(), fit.angle_deg, total))
         pitch, vergence, roll = fit.rotation_deg
         log.info(
             "rectification: applied a %.3f° ± %.3f° correction of the right camera (about the baseline "
@@ -342,6 +370,19 @@ class RectificationMonitor:
             )
         return None
 
+    def _too_far(self, total_deg: float) -> str | None:
+        """Why a correction that would put the pair ``total_deg`` from its calibration must not be
+        applied (online corrections add up to at most ``max_total_deg``), or None."""
+        limit = self.options.max_total_deg
+        if total_deg <= limit:
+            self._recalibrate = None
+            return None
+        self._recalibrate = (
+            f"recalibrate: the corrections would take camera {self.pair.right} {total_deg:.2f}° from its "
+            f"calibration (max_total_deg {limit:g}°)"
+        )
+        return self._recalibrate
+
     def _set_refinement(self, text: str) -> None:
         with self._lock:
             changed = self._counters.refinement != text
@@ -359,10 +400,13 @@ class RectificationMonitor:
             history = list(c.history)
             checks, without, corrections = c.checks, c.without_matches, c.corrections
             last_corr, refinement = c.last_correction_deg, c.refinement
+            drift = self.corrections[-1].total_deg if self.corrections else 0.0
         valid = [h for h in history if h.measure.ok]
         last = history[-1] if history else None
         good = valid[-1] if valid else None
         state, reason = rectification_state(last, valid, opts)
+        if state == "degraded" and self._recalibrate is not None:
+            reason = f"{reason}; {self._recalibrate}"
         figures: dict[str, CounterValue] = {
             "vertical_disparity_p50_px": None if good is None else good.measure.p50_px,
             "vertical_disparity_p95_px": None if good is None else good.measure.p95_px,
@@ -374,6 +418,7 @@ class RectificationMonitor:
             "checks_without_enough_matches": without,
             "corrections_applied": corrections,
             "last_correction_deg": last_corr,
+            "drift_deg": drift,
             "last_check_age_s": None if last is None else now - last.at_s,
             "check_cpu_ms": None if last is None else last.cpu_ms,
         }

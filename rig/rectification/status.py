@@ -55,6 +55,13 @@ class RectificationConfig(SettingsModel):
     stable_checks: int = Field(3, ge=1, le=100, description="last checks that must agree")
     stable_deg: float = Field(0.05, gt=0.0, le=5.0, description="how closely they must agree")
     max_step_deg: float = Field(1.0, gt=0.0, le=10.0, description="largest correction applied online")
+    max_total_deg: float = Field(
+        1.0,
+        gt=0.0,
+        le=10.0,
+        description="largest total drift from the calibration that online corrections may add up to; "
+        "beyond it the service says recalibrate",
+    )
     min_gain_px: float = Field(0.1, ge=0.0, description="smallest p50 improvement worth a LUT swap")
     persist_path: Path | None = Field(
         None, description="write each applied correction here (rig.yaml, atomically; original kept)"

@@ -19,6 +19,7 @@ from fastapi import APIRouter, Header, Response
 from fastapi.encoders import jsonable_encoder
 from pydantic import ValidationError
 
+from rig.depth_watch import try_settings
 from rig.errors import ConfigError, PipelineError
 from rig.in_effect import PairInEffect
 from rig.pipeline import DepthPipeline
@@ -59,7 +60,7 @@ def config_model(runtime: Runtime, in_effect: PairInEffect) -> ConfigModel:
 
 
 def dry_run(pipeline: DepthPipeline, params: StereoParams) -> None:
-    """Run a matcher with ``params`` once on a blank pair of the VPC size: OpenCV checks some
+    """Run a matcher with ``params`` once on a blank pair of the rectified size: OpenCV checks some
     limits (window vs. disparity range vs. image width) only when it matches, and a refused
     configuration must be refused here, not fail every frame in the worker. Combinations that
     crash OpenCV itself (a native crash takes the whole service down) are refused unrun."""
@@ -75,6 +76,20 @@ def dry_run(pipeline: DepthPipeline, params: StereoParams) -> None:
     cam = pipeline.pair.camera
     blank = np.zeros((cam.height, cam.width), dtype=np.uint8)
     StereoMatcher(params).match(blank, blank)
+
+
+def _trial(runtime: Runtime, params: StereoParams) -> None:
+    """Refuse parameters that break the matcher on the newest frame (rig.depth_watch): inside
+    every field's bounds, some combinations give depth on almost nothing, or wrong depth on
+    everything (StereoParams refuses those it can tell; this catches what only the scene shows)."""
+    result = runtime.store.latest
+    if result is None:
+        return
+    frame = result.frame
+    trial = try_settings(runtime.pipeline.in_effect, frame.left_rect, frame.right_rect, params)
+    why = trial.collapse()
+    if why is not None:
+        raise StereoParamsRefused(f"stereo parameters refused: {why}")
 
 
 @router.get("/config", response_model=ConfigModel, summary="Effective configuration (no secrets)")
@@ -100,8 +115,9 @@ def _merged_params(runtime: Runtime, current: StereoParams, changes: dict[str, o
         width = runtime.pipeline.pair.camera.width
         message = " ".join(str(err).split())
         raise StereoParamsRefused(
-            f"stereo parameters refused by the matcher (VPC width {width} px): {message}"
+            f"stereo parameters refused by the matcher (rectified width {width} px): {message}"
         ) from err
+    _trial(runtime, params)
     return params
 
 

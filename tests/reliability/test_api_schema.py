@@ -30,13 +30,17 @@ from tests.helpers.waiting import wait_for
 pytestmark = [pytest.mark.timeout(900)]
 
 EXAMPLES_PER_OPERATION = 40
-#: rig.stereo.StereoParams' cross-field rules, the pipeline's VPC limit and OpenCV's own refusals.
+#: rig.stereo.StereoParams' cross-field rules (16-bit path costs among them), the pipeline's
+#: width limit, OpenCV's own refusals, the trial on the newest frame and the memory budget.
 CROSS_FIELD_RULES = (
     "full_dp conflicts with sgbm_mode",
     "must be >= 5 for block matching",
     "must be larger than P1",
-    "must be below the VPC width",
+    "overflows SGBM's 16-bit path costs",
+    "must be below the rectified view's width",
     "refused by the matcher",
+    "stereo parameters refused: on the newest frame",
+    "MiB this machine has left",
 )
 
 

@@ -187,6 +187,12 @@ def test_monitor_measures_degrades_and_refines(
           f"{status.check_cpu_ms:.0f} ms CPU on its thread; {status.refinement}")  # fmt: skip
     assert states[:2] == ["ok", "degraded"]
     assert len(applied) == 1 and status.corrections_applied == 1
+    # The history keeps it, with the pair's drift from the calibration it started with.
+    (correction,) = monitor.corrections
+    assert correction.total_deg == pytest.approx(status.counters["drift_deg"])
+    assert 0.5 < correction.total_deg < 1.0 and correction.angle_deg == pytest.approx(
+        correction.total_deg, abs=1e-6
+    )
     assert states[-1] == "ok" and status.p50_px is not None and status.p50_px < 0.2
     assert relative_rotation_error_deg(applied[0], truth) <= 0.02
     assert relative_rotation_error_deg(pipeline.rig, truth) <= 0.02
@@ -261,3 +267,21 @@ def test_online_refinement_never_applies_an_unjustified_step(room: tuple[Path, R
     for k in range(4):
         monitor.check(left, shifted if k % 2 else right)
     assert not applied and "disagree" in (monitor.status().refinement or "")
+
+
+def test_corrections_never_ratchet_past_the_total_bound(room: tuple[Path, Rig], lut_cache: Path) -> None:
+    """Each step under max_step_deg, but the sum bounded too: a correction that would take the
+    pair further than max_total_deg from its calibration is refused, and the service says
+    recalibrate (where four small steps once walked a camera 3.2° away)."""
+    root, truth = room
+    pairs = gray_pairs(root)
+    applied: list[Rig] = []
+    options = RectificationConfig(auto_refine=True, max_step_deg=1.0, max_total_deg=0.3)
+    monitor, pipeline = monitor_of(perturbed(truth, (0.5, 0.0, 0.0)), options, applied, lut_cache)
+    for k in range(5):
+        monitor.check(*pairs[k % 2])
+    status = monitor.status()
+    assert not applied and monitor.corrections == [] and status.counters["drift_deg"] == 0.0
+    assert "recalibrate" in (status.refinement or "") and "max_total_deg 0.3°" in (status.refinement or "")
+    assert status.state == "degraded" and "recalibrate" in (status.reason or "")
+    assert pipeline.in_effect.revision == 1  # nothing reached the pipeline

@@ -99,7 +99,8 @@ def test_patch_config_applies_validated_stereo_params(start_server: StartServer)
             ({"disparity_range": 50}, "multiple of 16"),
             ({"median": 4}, "median"),
             ({"correlation_window_size": 4}, "odd"),
-            ({"disparity_range": 512}, "VPC width"),
+            ({"disparity_range": 512}, "rectified view's width"),
+            ({"correlation_window_size": 27}, "16-bit path costs"),
             ({"no_such_param": 1}, "no_such_param"),
             ({"confidence": 0}, "boolean"),  # strict, as the schema says
             ({"P1": 1e300}, "less than or equal"),  # bounded: OpenCV overflows on such penalties
