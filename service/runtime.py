@@ -13,9 +13,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Collection
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,7 +24,6 @@ from rig import priority
 from rig.calibration_check import CalibrationCheck, check_calibration
 from rig.capture.capture import CAMERA_NAMES, StereoCapture
 from rig.capture.config import CaptureConfig, FileCameraConfig
-from rig.capture.health import CaptureHealth
 from rig.capture.recorded import open_recording
 from rig.depth_watch import Coverage, DepthWatch
 from rig.errors import CorruptFrameError
@@ -34,21 +31,21 @@ from rig.heap import heap_stats
 from rig.in_effect import PairInEffect
 from rig.memory_budget import MIB, MemoryEstimate
 from rig.pipeline import DepthPipeline
-from rig.rectification.monitor import RectificationMonitor, RectificationStatus
+from rig.rectification.monitor import RectificationMonitor
 from rig.rectified import design_rectified_pair
 from rig.stereo import StereoParams
 from service.encoders import confidence_png, depth_png, disparity_png, npy_bytes
 from service.errors import ConfigChanged, SettingsError, StereoParamsRefused, TooManyStreams
-from service.host import HostInfo, host_info
+from service.health_report import HealthReport, HealthSnapshot, health_report
 from service.memo import DocumentMemo
 from service.memory import check_memory, service_estimate
 from service.metrics import MetricsSnapshot, ServiceMetrics
-from service.recordings import RecordingManager, RecordingStatus
+from service.recordings import RecordingManager
 from service.settings import Settings
 from service.store import PublishedResult, ResultStore
-from service.worker import DepthWorker, WorkerStats
+from service.worker import DepthWorker
 
-__all__ = ["HealthReport", "HealthSnapshot", "Runtime", "etag", "resolve_calibration"]
+__all__ = ["Runtime", "etag", "resolve_calibration"]
 
 log = logging.getLogger("service.runtime")
 
@@ -92,24 +89,6 @@ def _check_sizes(settings_cams: CaptureConfig, capture: StereoCapture, rig: Rig)
                 f"settings: field 'cameras.{name}': the camera's {source} gives {info.width}x{info.height} "
                 f"frames but its calibration is {model.width}x{model.height}"
             )
-
-
-HealthStatus = Literal["ok", "degraded", "down"]
-HealthSnapshot = tuple[bytes, int]
-"""A rendered health report, shared by the callers of :meth:`Runtime.health_snapshot`: the
-``/health`` body and its HTTP status."""
-
-
-@dataclass(frozen=True)
-class HealthReport:
-    status: HealthStatus
-    reasons: list[str]
-    uptime_s: float
-    capture: CaptureHealth
-    worker: WorkerStats
-    host: HostInfo
-    recording: RecordingStatus | None
-    rectification: RectificationStatus | None = None
 
 
 class Runtime:
@@ -416,58 +395,5 @@ class Runtime:
         return None if active is None else (active.name, active.error)
 
     def health(self) -> HealthReport:
-        """``down``: no camera delivers, the worker or the capture is not running; ``degraded``:
-        one camera out, a camera losing more frames than its limits allow over the rate window
-        (:mod:`rig.capture.rates`), a calibration that failed its check against the first pair
-        (:mod:`rig.calibration_check`), no depth yet, depth older than ``server.stale_after_s``, the
-        active recording has stopped writing or the rectification is off its bound; else ``ok``."""
-        cap = self.capture.health()
-        worker = self.worker.stats()
-        reasons: list[str] = []
-        for name, cam in cap.cameras.items():
-            if not cam.connected:
-                why = cam.reason or cam.last_error or "no frames yet"
-                reasons.append(f"camera {name} {cam.state}: {why}")
-            elif cam.degraded_reason is not None:
-                reasons.append(f"camera {name}: {cam.degraded_reason}")
-        if not worker.alive:
-            reasons.append("depth worker not running")
-        stale_ms = self.settings.server.stale_after_s * 1e3
-        result_age_ms = worker.counters["last_result_age_ms"]
-        if result_age_ms is None:
-            reasons.append("no depth frame yet")
-        elif result_age_ms > stale_ms:
-            reasons.append(f"no depth frame for {result_age_ms / 1e3:.1f} s")
-        if (
-            worker.last_error is not None
-            and worker.last_error_age_ms is not None
-            and worker.last_error_age_ms < stale_ms
-        ):
-            reasons.append(f"depth worker error: {worker.last_error}")
-        check = self.calibration_check
-        if check is not None:
-            reasons += [f"calibration check: {f.message}" for f in check.errors]
-        collapse = self.depth_collapse()
-        if collapse is not None:
-            reasons.append(f"depth: {collapse}")
-        recording = self.recordings.active
-        if recording is not None and recording.error is not None:
-            # The operator asked for this recording and it has stopped writing (e.g. disk full).
-            reasons.append(f"recording {recording.name} stopped writing: {recording.error}")
-        rectification = None if self.rectification is None else self.rectification.status()
-        if rectification is not None and rectification.state == "degraded":
-            reasons.append(f"rectification: {rectification.reason}")
-        down = not cap.running or not worker.alive or not any(c.connected for c in cap.cameras.values())
-        if not cap.running:
-            reasons.append("capture not running")
-        status: HealthStatus = "down" if down else ("degraded" if reasons else "ok")
-        return HealthReport(
-            status=status,
-            reasons=reasons,
-            uptime_s=(time.monotonic_ns() - self.started_ns) / 1e9,
-            capture=cap,
-            worker=worker,
-            host=host_info(self.settings.server.recordings_dir),
-            recording=recording,
-            rectification=rectification,
-        )
+        """The service's health now (:func:`service.health_report.health_report`)."""
+        return health_report(self)

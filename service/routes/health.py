@@ -8,7 +8,8 @@ from fastapi.responses import JSONResponse
 
 from rig.counters import flatten
 from service.deps import RuntimeDep, SettingsDep
-from service.runtime import HealthReport, Runtime
+from service.health_report import HealthReport
+from service.runtime import Runtime
 from service.schemas import (
     CameraHealthModel,
     HealthModel,

@@ -13,7 +13,8 @@ from typing import Any
 import httpx
 
 from calibration.formats import load_rig, save_rig
-from service.runtime import HealthReport, Runtime
+from service.health_report import HealthReport
+from service.runtime import Runtime
 from service.settings import load_settings
 from tests.helpers.service import LiveServer, SmallRecording, service_overrides
 from tests.helpers.waiting import wait_for
