@@ -37,6 +37,7 @@ from calibration.models import EquirectModel
 from calibration.rig import Rig
 from rig.errors import ConfigError
 from rig.rectified import RectifiedPair
+from rig.resample import sample_surface
 
 __all__ = [
     "DEFAULT_PANORAMA_PX_PER_DEG",
@@ -153,36 +154,6 @@ class PanoramaFrame:
     samples: NDArray[np.uint8]
 
 
-def _sample(image: F64, q: F64) -> F64:
-    """``image`` (H, W; NaN = none) at pixels ``q`` (N, 2): bilinear among the valid neighbours
-    where they agree within 3 %, else the nearest valid one (a depth edge is never blended into
-    a range no surface has); NaN outside or where no neighbour is valid."""
-    h, w = image.shape
-    u0 = np.floor(q[:, 0]).astype(np.int64)
-    v0 = np.floor(q[:, 1]).astype(np.int64)
-    fu, fv = q[:, 0] - u0, q[:, 1] - v0
-    values = np.full((q.shape[0], 4), np.nan)
-    weights = np.zeros((q.shape[0], 4))
-    for k, (du, dv) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
-        u, v = u0 + du, v0 + dv
-        inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        values[inside, k] = image[v[inside], u[inside]]
-        weights[:, k] = (fu if du else 1.0 - fu) * (fv if dv else 1.0 - fv)
-    have = np.isfinite(values)
-    weights = np.where(have, weights, 0.0)
-    total = weights.sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore", all="ignore"):
-        lo, hi = (
-            np.nanmin(np.where(have, values, np.inf), axis=1),
-            np.nanmax(np.where(have, values, -np.inf), axis=1),
-        )
-        blended = np.nansum(np.where(have, values, 0.0) * weights, axis=1) / total
-        nearest = values[np.arange(q.shape[0]), np.argmax(weights, axis=1)]
-        out: F64 = np.where(hi <= 1.03 * lo, blended, nearest)
-    out[total <= 0.0] = np.nan
-    return out
-
-
 def _pull(
     spec: PanoramaSpec, rays: F64, p: PairRange, default_sigma_px: float, iterations: int
 ) -> tuple[F64, F64]:
@@ -200,16 +171,16 @@ def _pull(
     for _ in range(iterations):
         seen_from_pair = np.where(np.isfinite(r)[:, None], offset + r[:, None] * rays, rays)
         q, ok = pair.camera.project(seen_from_pair @ R, in_image=False)
-        r_pair = np.where(ok, _sample(rng, q), np.nan)
+        r_pair = np.where(ok, sample_surface(rng, q), np.nan)
         pix_rays, _ = pair.camera.unproject(q, in_image=False)
         point = (pix_rays @ R.T) * r_pair[:, None] - offset  # from the origin
         r = np.einsum("nk,nk->n", point, rays)
     # Converged: the pair's point lies on the panorama ray (within a thousandth of its range).
     miss = np.linalg.norm(point - r[:, None] * rays, axis=1)
     r = np.where(np.isfinite(r) & (miss <= 1e-3 * np.abs(r)) & (r > 0), r, np.nan)
-    disparity = _sample(p.disparity.astype(np.float64), q)
+    disparity = sample_surface(p.disparity.astype(np.float64), q)
     if p.confidence is not None:
-        conf = np.clip(_sample(p.confidence.astype(np.float64), q), 1e-12, 1.0)
+        conf = np.clip(sample_surface(p.confidence.astype(np.float64), q), 1e-12, 1.0)
         sigma_px = np.maximum(-p.confidence_sigma_px * np.log(conf), 0.05)
     else:
         sigma_px = np.full(r.shape, default_sigma_px)

@@ -30,6 +30,7 @@ from rig.errors import CorruptFrameError
 from rig.heap import heap_stats
 from rig.in_effect import PairInEffect
 from rig.memory_budget import MIB, MemoryEstimate
+from rig.pinhole_depth import PinholeDepthView
 from rig.pipeline import DepthPipeline
 from rig.rectification.monitor import RectificationMonitor
 from rig.rectified import design_rectified_pair
@@ -121,6 +122,8 @@ class Runtime:
             "depth_npy": lambda r: npy_bytes(r.frame.depth),
             "range_png": lambda r: depth_png(r.frame.range, scale, level),
             "range_npy": lambda r: npy_bytes(r.frame.range),
+            "pinhole_depth_png": lambda r: depth_png(self.pinhole_depth(r), scale, level),
+            "pinhole_depth_npy": lambda r: npy_bytes(self.pinhole_depth(r)),
             "disparity_png": lambda r: disparity_png(r.frame.disparity, level),
             "disparity_npy": lambda r: npy_bytes(r.frame.disparity),
             "confidence_png": lambda r: confidence_png(r.confidence(), level),
@@ -333,6 +336,17 @@ class Runtime:
             except SettingsError as err:
                 raise StereoParamsRefused(str(err).removeprefix("settings: field 'rectified': ")) from err
             return self.pipeline.apply(stereo=params)
+
+    def pinhole_view(self) -> PinholeDepthView:
+        """The pinhole depth image of the pair in effect (made once per pair design)."""
+        pair = self.pipeline.in_effect.pair
+        return self.documents.get(
+            "pinhole_depth", pair, lambda: PinholeDepthView(pair, self.settings.pinhole_depth)
+        )
+
+    def pinhole_depth(self, result: PublishedResult) -> NDArray[np.float32]:
+        """``result``'s range as z on the pinhole depth image (rig.pinhole_depth)."""
+        return self.pinhole_view().depth(result.frame.range)
 
     def open_stream(self) -> None:
         """Count a ``/stream.mjpg`` response in; TooManyStreams at ``server.max_streams``."""

@@ -18,6 +18,7 @@ stereo: {disparity_range: 96}    # rig.stereo.StereoParams
 ros: {namespace: /rig}           # rig.ros.RosNames: topic names and frame ids (Foxglove, MCAP)
 rectification: {check_interval_s: 10, auto_refine: false}   # rig.rectification.RectificationConfig
 depth_watch: {recent_s: 10, reference_s: 60}   # collapsing valid depth is reported (rig.depth_watch)
+pinhole_depth: {width: 640, height: 480, hfov_deg: 90}  # /depth/pinhole: z on a pinhole (rig.pinhole_depth)
 cache_dir: null                  # LUT cache (default: $RIG_CACHE_DIR or the user cache dir)
 ```
 
@@ -50,6 +51,7 @@ from pydantic_core import ErrorDetails
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
 from rig.capture.config import CAMERA_KINDS, CaptureConfig
+from rig.pinhole_depth import PinholeDepthConfig
 from rig.rectification.monitor import RectificationConfig
 from rig.rectified import RectifiedPairConfig
 from rig.ros.names import RosNames
@@ -302,6 +304,10 @@ class Settings(BaseSettings):
     cache_dir: Path | None = Field(None, description="LUT cache directory (env RIG_CACHE_DIR)")
     rectification: RectificationConfig = Field(
         default_factory=RectificationConfig, description="live rectification measure and online refinement"
+    )
+    pinhole_depth: PinholeDepthConfig = Field(
+        default_factory=PinholeDepthConfig,
+        description="the pinhole depth image cut from the range (/depth/pinhole, ROS tools read it)",
     )
     depth_watch: DepthWatchSettings = Field(
         default_factory=DepthWatchSettings, description="valid depth that collapses is reported"

@@ -42,10 +42,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calibration.models import CameraModel
+from rig.pinhole_depth import PinholeDepthView
 from rig.rectified import RectifiedPair
 from rig.ros.names import RosNames
 
-__all__ = ["CameraInfo", "raw_camera_info", "rectified_camera_info", "rectified_projection", "stamp_json"]
+__all__ = [
+    "CameraInfo",
+    "pinhole_depth_camera_info",
+    "raw_camera_info",
+    "rectified_camera_info",
+    "rectified_projection",
+    "stamp_json",
+]
 
 F64 = NDArray[np.float64]
 
@@ -149,4 +157,22 @@ def rectified_camera_info(pair: RectifiedPair, camera: str, names: RosNames) -> 
         k=_k(c.fx, c.fy, c.cx, c.cy),
         r=np.eye(3),
         p=rectified_projection(pair, camera),
+    )
+
+
+def pinhole_depth_camera_info(view: PinholeDepthView, names: RosNames) -> CameraInfo:
+    """The pinhole depth image's camera (rig.pinhole_depth): ``plumb_bob`` with zero distortion in
+    the left rectified view's frame, identity ``R``, ``P = [K | 0]``: what depth_image_proc, Nav2
+    and RViz read."""
+    c = view.camera
+    k = _k(c.fx, c.fy, c.cx, c.cy)
+    return CameraInfo(
+        frame_id=names.rect_frame(view.pair.left),
+        width=c.width,
+        height=c.height,
+        distortion_model="plumb_bob",
+        d=(0.0, 0.0, 0.0, 0.0, 0.0),
+        k=k,
+        r=np.eye(3),
+        p=np.hstack([k, np.zeros((3, 1))]),
     )

@@ -2,8 +2,9 @@
 
 ``left``/``right``: the fisheye cameras (their model's D and K, the rectification R into their
 rectified view and its P); ``rectified``: a rectified view (``?side=left``, the default, is the
-depth image's camera; ``right`` has ``Tx = −fx·B``). The same messages as the MCAP export's and
-the Foxglove server's ``camera_info`` topics (see ``rig.ros.camera_info``).
+depth image's camera; ``right`` has ``Tx = −fx·B``); ``pinhole_depth``: the camera of
+``/depth/pinhole`` (plumb_bob, zero D, in the left rectified frame). The same messages as the
+MCAP export's and the Foxglove server's ``camera_info`` topics (see ``rig.ros.camera_info``).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query
 
-from rig.ros.camera_info import raw_camera_info, rectified_camera_info
+from rig.ros.camera_info import pinhole_depth_camera_info, raw_camera_info, rectified_camera_info
 from service.deps import RuntimeDep
 from service.schemas import CameraInfoModel
 
@@ -27,7 +28,7 @@ router = APIRouter(tags=["calibration"])
     summary="A camera's calibration as ROS 2 sensor_msgs/msg/CameraInfo",
 )
 def get_camera_info(
-    camera: Literal["left", "right", "rectified"],
+    camera: Literal["left", "right", "rectified", "pinhole_depth"],
     runtime: RuntimeDep,
     side: Annotated[Literal["left", "right"], Query(description="which rectified view")] = "left",
 ) -> CameraInfoModel:
@@ -35,6 +36,8 @@ def get_camera_info(
     names = runtime.settings.ros
     if camera == "rectified":
         info = rectified_camera_info(pair, pair.left if side == "left" else pair.right, names)
+    elif camera == "pinhole_depth":
+        info = pinhole_depth_camera_info(runtime.pinhole_view(), names)
     else:
         info = raw_camera_info(runtime.rig.cameras[camera], pair, camera, names)
     latest = runtime.store.latest

@@ -37,9 +37,10 @@ PLY = "application/x-ply"
 PCD = "application/x-pcd"
 CloudFormat = Literal["ply", "pcd"]
 ArrayFormat = Literal["png", "npy"]
-ArrayEndpoint = Literal["depth", "range", "disparity", "confidence"]
+ArrayEndpoint = Literal["depth", "range", "disparity", "confidence", "pinhole_depth"]
 _SCALE_HEADERS: dict[str, str] = {
     "depth": "X-Depth-Scale",
+    "pinhole_depth": "X-Depth-Scale",
     "range": "X-Range-Scale",
     "disparity": "X-Disparity-Scale",
     "confidence": "X-Confidence-Scale",
@@ -64,7 +65,7 @@ def array_body(endpoint: ArrayEndpoint, format: ArrayFormat, depth_scale_m: floa
     ``depth_scale_m``)."""
     if format == "npy":
         scale = "1"
-    elif endpoint in ("depth", "range"):
+    elif endpoint in ("depth", "range", "pinhole_depth"):
         scale = f"{depth_scale_m:g}"
     else:
         scale = f"{_PNG_SCALES[endpoint]:g}"
@@ -127,6 +128,30 @@ async def get_range(
     format: Annotated[ArrayFormat, Query(description="png (16-bit) or npy (float32 m)")] = "png",
 ) -> Response:
     return await _array_response("range", format, result, runtime, settings)
+
+
+@router.get(
+    "/depth/pinhole",
+    response_class=Response,
+    summary="Latest depth on a pinhole image (what ROS depth tools read)",
+    responses=binary_response_doc(
+        "png: uint16 in units of X-Depth-Scale metres, 0 = invalid; npy: float32 metres, NaN = invalid. "
+        "z on a distortion-free pinhole in the left rectified frame (settings pinhole_depth: size, "
+        "field of view; its CameraInfo: /camera_info/pinhole_depth, plumb_bob, zero D), cut from the "
+        "range of whichever rectified pair is in effect: depth_image_proc, Nav2 and RViz build the "
+        "right cloud from it, where they would misread the lat-lon pair's /depth.",
+        "image/png",
+        NPY,
+        scale_header="X-Depth-Scale",
+    ),
+)
+async def get_pinhole_depth(
+    result: ResultDep,
+    runtime: RuntimeDep,
+    settings: SettingsDep,
+    format: Annotated[ArrayFormat, Query(description="png (16-bit) or npy (float32 m)")] = "png",
+) -> Response:
+    return await _array_response("pinhole_depth", format, result, runtime, settings)
 
 
 @router.get(
