@@ -46,7 +46,7 @@ from calibration.rig import Rig
 from rig.evaluate.consistency import ConsistencyFigures
 from rig.evaluate.consistency_study import ConsistencyStudy, consistency_study, pair_pipelines
 from rig.evaluate.ring_renders import render_rig_shot
-from rig.rectification import EpipolarViews, RayMatches, match_pair, vertical_disparity
+from rig.rectification import EpipolarViews, RayMatches, VerticalDisparity, match_pair, vertical_disparity
 from rig.rectification.refine import refine_frames
 from rig.ring import PairNames, adjacent_pairs
 from rig.sim import room_scene
@@ -65,6 +65,16 @@ def _default_data() -> Path:
     return root / RING_DIR
 
 
+def _pair_rows(
+    rig: Rig, frames: Sequence[dict[str, U8]], a: str, b: str
+) -> tuple[RayMatches, VerticalDisparity]:
+    """SIFT matches of the pair a|b over ``frames`` (epipolar views at half the lenses'
+    resolution) and their vertical disparity in the pair's rectified views of ``rig``."""
+    views = EpipolarViews(rig, a, b, scale=0.5)
+    m = RayMatches.concat([match_pair(views, f[a], f[b], frame=i) for i, f in enumerate(frames)])
+    return m, vertical_disparity(design_vpc_pair(rig, VpcConfig(left=a, right=b)), m.left, m.right)
+
+
 def _loader_check(
     ring: RealRing, pairs: Sequence[PairNames]
 ) -> tuple[list[dict[str, Any]], dict[PairNames, RayMatches]]:
@@ -73,10 +83,7 @@ def _loader_check(
         table.add_column(col, justify="right")
     rows, matches = [], {}
     for a, b in pairs:
-        views = EpipolarViews(ring.rig, a, b, scale=0.5)
-        m = RayMatches.concat([match_pair(views, f[a], f[b], frame=i) for i, f in enumerate(ring.frames)])
-        matches[(a, b)] = m
-        vd = vertical_disparity(design_vpc_pair(ring.rig, VpcConfig(left=a, right=b)), m.left, m.right)
+        matches[(a, b)], vd = _pair_rows(ring.rig, ring.frames, a, b)
         row = {
             "pair": f"{a}|{b}",
             "baseline_m": ring.rig.baseline(a, b),
@@ -231,6 +238,20 @@ def _analysis(
     wide = coverage_with(ring.rig, ring.frames, pairs, StereoParams(disparity_range=192), cache)
     console.print("  coverage with 192 disparities: " + ", ".join(f"{k} {v:.3f}" for k, v in wide.items()))
     out["coverage_192_disparities"] = wide
+    # The OCamCalib files alone bound no lens field: the models stay valid to the sensor's corners
+    # (about 155° off the axis), black beyond the lens's ~113°, and the views take that in.
+    unbounded = Rig(
+        {n: c.replace(fov_deg=None, invpol=c.param_dict["invpol"]) for n, c in ring.rig.cameras.items()},
+        dict(ring.rig.T_rig_cam),
+    )
+    loose = consistency_study(unbounded, ring.frames, pairs, cache_dir=cache)
+    console.print(
+        "  the lenses' fields unbounded (the OCamCalib files alone): coverage "
+        + ", ".join(f"{p.label} {p.mean_coverage:.3f}" for p in loose.pairs)
+        + "; median |e| "
+        + ", ".join(f"{c.couple.label} {100 * c.figures.median_abs:.2f} %" for c in loose.couples)
+    )
+    out["fields_unbounded"] = loose.as_dict()
     return out
 
 
@@ -252,6 +273,7 @@ def _renders(ring: RealRing, pairs: Sequence[PairNames], cache: str) -> dict[str
         "median |dd| px",
         "within 3 %",
         "coverage (pairs)",
+        "median |vert. disp.| px (pairs)",
     ):
         table.add_column(col, justify="right")
     out = {}
@@ -259,6 +281,8 @@ def _renders(ring: RealRing, pairs: Sequence[PairNames], cache: str) -> dict[str
         study = consistency_study(change(ring.rig), [shot.images], pairs, cache_dir=cache)
         fs = [c.figures for c in study.couples]
         cov = [p.coverage[0] for p in study.pairs]
+        rows = [_pair_rows(change(ring.rig), [shot.images], a, b)[1].p50_px for a, b in pairs]
+        vertical = [float("nan") if v is None else v for v in rows]
 
         def span(values: list[float], fmt: str) -> str:
             return f"{format(min(values), fmt)} – {format(max(values), fmt)}"
@@ -267,9 +291,9 @@ def _renders(ring: RealRing, pairs: Sequence[PairNames], cache: str) -> dict[str
             label, span([100 * f.median_abs for f in fs], ".2f") + " %",
             span([100 * f.median_signed for f in fs], "+.2f") + " %",
             span([f.median_abs_px for f in fs], ".2f"), span([f.within_3 for f in fs], ".2f"),
-            span(cov, ".3f"),
+            span(cov, ".3f"), span(vertical, ".2f"),
         )  # fmt: skip
-        out[label] = study.as_dict()
+        out[label] = {**study.as_dict(), "vertical_p50_px": vertical}
     console.print(table)
     return out
 
