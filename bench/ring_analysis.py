@@ -39,7 +39,7 @@ from rig.pipeline import DepthPipeline
 from rig.rectification import RayMatches
 from rig.ring import PairNames
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig, design_vpc_pair
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 
 __all__ = [
     "PERTURBATIONS",
@@ -76,7 +76,7 @@ class Bin:
 def _angle_off(pipe: DepthPipeline, name: str, pixels: F64) -> F64:
     """Degrees between camera ``name``'s axis and the rays of ``pipe``'s left view pixels (N, 2)."""
     rays, _ = pipe.pair.camera.unproject(pixels, in_image=False)
-    z = (rays @ pipe.pair.R_cam_vpc[name].T)[:, 2]
+    z = (rays @ pipe.pair.R_cam_rect[name].T)[:, 2]
     return np.degrees(np.arccos(np.clip(z, -1.0, 1.0)))
 
 
@@ -118,9 +118,9 @@ def vertical_by_angle(
     rectified views of ``rig``, binned by the angle off the rim-most of the two lenses' axes:
     rows (lo, hi, matches, median |v_left − v_right|, its signed median)."""
     a, b = names
-    pair = design_vpc_pair(rig, VpcConfig(left=a, right=b))
-    pl, ok_l = pair.camera.project(matches.left @ pair.R_cam_vpc[a])
-    pr, ok_r = pair.camera.project(matches.right @ pair.R_cam_vpc[b])
+    pair = design_rectified_pair(rig, RectifiedPairConfig(left=a, right=b))
+    pl, ok_l = pair.camera.project(matches.left @ pair.R_cam_rect[a])
+    pr, ok_r = pair.camera.project(matches.right @ pair.R_cam_rect[b])
     ok = ok_l & ok_r
     dv = (pl[:, 1] - pr[:, 1])[ok]
     off = np.degrees(np.arccos(np.clip(np.minimum(matches.left[ok, 2], matches.right[ok, 2]), -1.0, 1.0)))

@@ -52,7 +52,7 @@ from rig.ring import PairNames, adjacent_pairs
 from rig.sim import room_scene
 from rig.sim.simulate import room_path
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig, design_vpc_pair
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from tests.helpers.ring import RING_DIR, RealRing, load_ring
 
 __all__ = ["main"]
@@ -72,7 +72,7 @@ def _pair_rows(
     resolution) and their vertical disparity in the pair's rectified views of ``rig``."""
     views = EpipolarViews(rig, a, b, scale=0.5)
     m = RayMatches.concat([match_pair(views, f[a], f[b], frame=i) for i, f in enumerate(frames)])
-    return m, vertical_disparity(design_vpc_pair(rig, VpcConfig(left=a, right=b)), m.left, m.right)
+    return m, vertical_disparity(design_rectified_pair(rig, RectifiedPairConfig(left=a, right=b)), m.left, m.right)
 
 
 def _loader_check(
@@ -157,7 +157,7 @@ def _refined(
         table.add_column(col, justify="right")
     rigs, rows = {}, []
     for a, b in pairs:
-        r = refine_frames(ring.rig, [(f[a], f[b]) for f in ring.frames], VpcConfig(left=a, right=b))
+        r = refine_frames(ring.rig, [(f[a], f[b]) for f in ring.frames], RectifiedPairConfig(left=a, right=b))
         rigs[(a, b)] = r.rig_after
         row = {
             "pair": f"{a}|{b}", "matches": r.matches, "inliers": int(r.fit.inliers.sum()),

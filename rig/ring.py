@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from calibration.rig import Rig
 from rig.errors import ConfigError
 from rig.field import overlap
-from rig.vpc import rectified_frame
+from rig.rectified import rectified_frame
 
 __all__ = ["PLANE_SPREAD", "PairNames", "StereoPairs", "adjacent_pairs", "axis_azimuths", "rig_up"]
 

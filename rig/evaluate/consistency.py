@@ -37,7 +37,7 @@ from calibration.geometry import invert_transform, make_transform
 from rig.depth import range_points
 from rig.errors import EvaluationError
 from rig.ring import PairNames
-from rig.vpc import VpcPair
+from rig.rectified import RectifiedPair
 
 __all__ = [
     "ConsistencyFigures",
@@ -71,7 +71,7 @@ class PairRange:
     pixel's ray (NaN invalid, :attr:`rig.pipeline.DepthFrame.range`) and ``view`` (H, W) bool,
     what it is measured over (:func:`view_mask`)."""
 
-    pair: VpcPair
+    pair: RectifiedPair
     range: F32
     view: Mask
 
@@ -88,12 +88,12 @@ class PairRange:
         return (self.pair.left, self.pair.right)
 
 
-def camera_pose(pair: VpcPair, name: str) -> F64:
+def camera_pose(pair: RectifiedPair, name: str) -> F64:
     """T_rig_cam (4, 4) of camera ``name`` as ``pair``'s design has it (its rectified views'
-    orientation turned back by ``R_cam_vpc``, at their centre)."""
-    if name not in pair.R_cam_vpc:
+    orientation turned back by ``R_cam_rect``, at their centre)."""
+    if name not in pair.R_cam_rect:
         raise EvaluationError(f"camera {name!r} is not in pair {pair.left}|{pair.right}")
-    return make_transform(pair.R_rig_vpc @ pair.R_cam_vpc[name].T, pair.T_rig_vpc[name][:3, 3])
+    return make_transform(pair.R_rig_rect @ pair.R_cam_rect[name].T, pair.T_rig_rect[name][:3, 3])
 
 
 def sample_range(range_m: F32, pixels: F64) -> F64:
@@ -162,7 +162,7 @@ class TransferredRange:
         )  # fmt: skip
 
 
-def _disparity(pair: VpcPair, points: F64, columns: F64) -> F64:
+def _disparity(pair: RectifiedPair, points: F64, columns: F64) -> F64:
     """Disparity (N,) in ``pair`` of points (N, 3) in its left rectified frame whose left
     column is ``columns``: that column less the point's column in the right view (NaN where the
     right view has no pixel for it)."""
@@ -179,10 +179,10 @@ def transfer_range(source: PairRange, target: PairRange, shared: str, stride: in
     src, tgt = source.pair, target.pair
     pts32, index = range_points(source.range, src.camera, None, stride)
     M = (
-        invert_transform(tgt.T_rig_vpc[tgt.left])
+        invert_transform(tgt.T_rig_rect[tgt.left])
         @ camera_pose(tgt, shared)
         @ invert_transform(camera_pose(src, shared))
-        @ src.T_rig_vpc[src.left]
+        @ src.T_rig_rect[src.left]
     )
     pts = pts32.astype(np.float64) @ M[:3, :3].T + M[:3, 3]
     pixel, ok = tgt.camera.project(pts)

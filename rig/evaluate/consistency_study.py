@@ -35,7 +35,7 @@ from rig.field import pixel_solid_angles
 from rig.pipeline import DepthPipeline
 from rig.ring import PairNames, adjacent_pairs
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 
 __all__ = [
     "ConsistencyStudy",
@@ -111,8 +111,8 @@ class ConsistencyStudy:
         }
 
 
-def _pair_config(vpc: VpcConfig, names: PairNames) -> VpcConfig:
-    return VpcConfig.model_validate(
+def _pair_config(vpc: RectifiedPairConfig, names: PairNames) -> RectifiedPairConfig:
+    return RectifiedPairConfig.model_validate(
         {**vpc.model_dump(exclude_defaults=True), "left": names[0], "right": names[1]}
     )
 
@@ -121,14 +121,14 @@ def pair_pipelines(
     rig: Rig,
     pairs: Sequence[PairNames],
     *,
-    vpc: VpcConfig | None = None,
+    vpc: RectifiedPairConfig | None = None,
     stereo: StereoParams | None = None,
     cache_dir: str | Path | None = None,
     rigs: Mapping[PairNames, Rig] | None = None,
 ) -> dict[PairNames, DepthPipeline]:
     """A depth pipeline per pair: ``vpc``'s projection and field settings (default today's) with
     the pair's cameras, on ``rigs[pair]`` where given, else ``rig``."""
-    base = vpc or VpcConfig()
+    base = vpc or RectifiedPairConfig()
     own = rigs or {}
     return {
         p: DepthPipeline(own.get(p, rig), _pair_config(base, p), stereo, cache_dir, tune_malloc=False)
@@ -154,7 +154,7 @@ def consistency_study(
     frames: Sequence[Frame],
     pairs: Sequence[PairNames] | None = None,
     *,
-    vpc: VpcConfig | None = None,
+    vpc: RectifiedPairConfig | None = None,
     stereo: StereoParams | None = None,
     cache_dir: str | Path | None = None,
     rigs: Mapping[PairNames, Rig] | None = None,

@@ -71,7 +71,7 @@ def render_rig_shot(
         if name in boxes
     }
     truth = {
-        p: render_range(scene, pipe.pair.camera, T_world_rig @ pipe.pair.T_rig_vpc[pipe.pair.left])[0]
+        p: render_range(scene, pipe.pair.camera, T_world_rig @ pipe.pair.T_rig_rect[pipe.pair.left])[0]
         for p, pipe in pipelines.items()
     }
     return RigShot(images, truth, np.asarray(T_world_rig, dtype=np.float64))

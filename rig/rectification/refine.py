@@ -7,7 +7,7 @@ robust estimation (:func:`calibration.relative_pose.refine_relative_pose`), so m
 and mismatches, which agree on no single rotation, drop out as outliers. The right camera is
 turned (and its centre moved on a sphere about the left one, the baseline's length kept); the
 left camera keeps its pose. Before/after vertical disparity is measured on the same inlier
-matches in the VPC pair of the given :class:`~rig.vpc.VpcConfig`.
+matches in the VPC pair of the given :class:`~rig.rectified.RectifiedPairConfig`.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from rig.recording import Recording
 from rig.rectification.matching import MatchOptions, RayMatches, match_pair
 from rig.rectification.measure import VerticalDisparity, vertical_disparity
 from rig.rectification.views import EpipolarViews
-from rig.vpc import VpcConfig, design_vpc_pair
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 
 __all__ = [
     "RectificationRefinement",
@@ -99,7 +99,7 @@ def relative_pose(rig: Rig, left: str, right: str) -> np.ndarray:
     return invert_transform(rig.T_rig_cam[right]) @ rig.T_rig_cam[left]
 
 
-def _check_rig(rig: Rig, vpc: VpcConfig) -> None:
+def _check_rig(rig: Rig, vpc: RectifiedPairConfig) -> None:
     for name in (vpc.left, vpc.right):
         if name not in rig.cameras:
             raise RectificationError(
@@ -111,14 +111,14 @@ def _check_rig(rig: Rig, vpc: VpcConfig) -> None:
 def refine_rig(
     rig: Rig,
     matches: RayMatches,
-    vpc: VpcConfig | None = None,
+    vpc: RectifiedPairConfig | None = None,
     options: RefineOptions | None = None,
     *,
     views: EpipolarViews | None = None,
 ) -> RectificationRefinement:
     """Refine ``rig`` from ``matches`` (rays of ``vpc.left`` / ``vpc.right``); RectificationError
     when the matches do not support a result."""
-    vpc = vpc or VpcConfig()
+    vpc = vpc or RectifiedPairConfig()
     opts = options or RefineOptions()
     _check_rig(rig, vpc)
     left, right = vpc.left, vpc.right
@@ -128,17 +128,17 @@ def refine_rig(
         inlier_threshold_deg=float(np.degrees(opts.inlier_px / views.px_per_rad)),
         min_inliers=opts.min_matches,
     )
-    pair = design_vpc_pair(rig, vpc)
+    pair = design_rectified_pair(rig, vpc)
     try:
         fit = refine_relative_pose(
-            matches.left, matches.right, relative_pose(rig, left, right), pair.R_cam_vpc[left], pose_opts
+            matches.left, matches.right, relative_pose(rig, left, right), pair.R_cam_rect[left], pose_opts
         )
     except CalibrationFailed as err:
         raise RectificationError(str(err)) from err
     after_rig = rig_with_relative_pose(rig, left, right, fit.T_right_left)
     inl = matches.select(fit.inliers)
     before = vertical_disparity(pair, inl.left, inl.right)
-    after = vertical_disparity(design_vpc_pair(after_rig, vpc), inl.left, inl.right)
+    after = vertical_disparity(design_rectified_pair(after_rig, vpc), inl.left, inl.right)
     counts = np.bincount(matches.frame) if len(matches) else np.zeros(0, dtype=np.int64)
     per_frame = {int(i): int(c) for i, c in enumerate(counts) if c}
     return RectificationRefinement(left, right, rig, after_rig, fit, before, after, len(matches), per_frame)
@@ -211,13 +211,13 @@ def _enough(matches: RayMatches, opts: RefineOptions, where: str) -> None:
 def refine_frames(
     rig: Rig,
     frames: Sequence[tuple[U8, U8]],
-    vpc: VpcConfig | None = None,
+    vpc: RectifiedPairConfig | None = None,
     options: RefineOptions | None = None,
 ) -> RectificationRefinement:
     """Refine ``rig`` from gray fisheye pairs in memory, each (``vpc.left``'s image,
     ``vpc.right``'s): what :func:`refine_recording` does with a recording's pairs, for frames
     that are not a two-camera recording (a pair of a ring's cameras)."""
-    vpc = vpc or VpcConfig()
+    vpc = vpc or RectifiedPairConfig()
     opts = options or RefineOptions()
     _check_rig(rig, vpc)
     views = EpipolarViews(rig, vpc.left, vpc.right, scale=opts.view_scale)
@@ -231,12 +231,12 @@ def refine_frames(
 def refine_recording(
     recording: Recording,
     rig: Rig,
-    vpc: VpcConfig | None = None,
+    vpc: RectifiedPairConfig | None = None,
     options: RefineOptions | None = None,
     progress: Progress | None = None,
 ) -> RectificationRefinement:
     """Refine ``rig`` from the scene of ``recording`` (see the module doc)."""
-    vpc = vpc or VpcConfig()
+    vpc = vpc or RectifiedPairConfig()
     opts = options or RefineOptions()
     _check_rig(rig, vpc)
     views = EpipolarViews(rig, vpc.left, vpc.right, scale=opts.view_scale)

@@ -30,18 +30,18 @@ from rig.evaluate.consistency import (
 )
 from rig.field import overlap, pixel_solid_angles
 from rig.sim.presets import get_ring_preset
-from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
+from rig.rectified import RectifiedPairConfig, RectifiedPair, design_rectified_pair
 
 BOX_LO, BOX_HI = np.array([-2.5, -1.4, -3.0]), np.array([3.5, 1.1, 4.0])  # rig frame, metres
 BAND = 24  # unmatched columns of the synthetic matcher
 
 
-def _box_range(pair: VpcPair, T_world_rig: np.ndarray) -> np.ndarray:
+def _box_range(pair: RectifiedPair, T_world_rig: np.ndarray) -> np.ndarray:
     """Exact range (H, W) float32 along the left view's pixel rays to the box's walls."""
     cam = pair.camera
     v, u = np.mgrid[0 : cam.height, 0 : cam.width].astype(np.float64)
     rays, _ = cam.unproject(np.stack([u.ravel(), v.ravel()], 1), in_image=False)
-    T = T_world_rig @ pair.T_rig_vpc[pair.left]
+    T = T_world_rig @ pair.T_rig_rect[pair.left]
     d = rays @ T[:3, :3].T
     o = T[:3, 3]
     with np.errstate(divide="ignore"):
@@ -52,22 +52,22 @@ def _box_range(pair: VpcPair, T_world_rig: np.ndarray) -> np.ndarray:
 
 
 @functools.cache
-def _ring() -> tuple[Rig, dict[tuple[str, str], VpcPair]]:
+def _ring() -> tuple[Rig, dict[tuple[str, str], RectifiedPair]]:
     rig = get_ring_preset("ring4").rig
-    vpc = {p: VpcConfig(px_per_deg=2.0, left=p[0], right=p[1]) for p in (("cam1", "cam2"), ("cam2", "cam3"))}
-    return rig, {p: design_vpc_pair(rig, c, blind_band_px=BAND) for p, c in vpc.items()}
+    vpc = {p: RectifiedPairConfig(px_per_deg=2.0, left=p[0], right=p[1]) for p in (("cam1", "cam2"), ("cam2", "cam3"))}
+    return rig, {p: design_rectified_pair(rig, c, blind_band_px=BAND) for p, c in vpc.items()}
 
 
-def _view(rig: Rig, pair: VpcPair) -> np.ndarray:
+def _view(rig: Rig, pair: RectifiedPair) -> np.ndarray:
     """Directions both lenses see (their models, not lookup tables) left of the band."""
     cam = pair.camera
     v, u = np.mgrid[0 : cam.height, 0 : cam.width].astype(np.float64)
     rays, _ = cam.unproject(np.stack([u.ravel(), v.ravel()], 1), in_image=False)
-    ok = [rig.cameras[n].project(rays @ pair.R_cam_vpc[n].T)[1] for n in (pair.left, pair.right)]
+    ok = [rig.cameras[n].project(rays @ pair.R_cam_rect[n].T)[1] for n in (pair.left, pair.right)]
     return view_mask(ok[0].reshape(v.shape), ok[1].reshape(v.shape), BAND)
 
 
-def _exact(pair: VpcPair, rig: Rig, T_world_rig: np.ndarray | None = None) -> PairRange:
+def _exact(pair: RectifiedPair, rig: Rig, T_world_rig: np.ndarray | None = None) -> PairRange:
     view = _view(rig, pair)
     r = _box_range(pair, np.eye(4) if T_world_rig is None else T_world_rig)
     r[~view] = np.nan
@@ -130,8 +130,8 @@ def test_pairs_calibrated_apart_meet_in_the_shared_camera() -> None:
     rig, pairs = _ring()
     T = make_transform(rot_y(0.35) @ rot_x(-0.1), [0.3, 0.05, -0.2])
     moved = Rig(dict(rig.cameras), {n: T @ P for n, P in rig.T_rig_cam.items()})
-    tgt_pair = design_vpc_pair(
-        moved, VpcConfig(px_per_deg=2.0, left="cam2", right="cam3"), blind_band_px=BAND
+    tgt_pair = design_rectified_pair(
+        moved, RectifiedPairConfig(px_per_deg=2.0, left="cam2", right="cam3"), blind_band_px=BAND
     )
     assert np.allclose(camera_pose(tgt_pair, "cam2"), moved.T_rig_cam["cam2"], atol=1e-12)
     src = _exact(pairs["cam1", "cam2"], rig)
@@ -164,7 +164,7 @@ def test_coverage_is_the_solid_angle_share_of_the_view() -> None:
     closed = np.cos(cam.azimuths())[None, :] / (cam.fx * cam.fy)
     assert np.allclose(solid, closed, rtol=1e-4)
     view_sr = float((closed * pr.view).sum())
-    ov = overlap(rig, pr.pair.R_rig_vpc, "cam1", "cam2", step_deg=0.25)
+    ov = overlap(rig, pr.pair.R_rig_rect, "cam1", "cam2", step_deg=0.25)
     assert view_sr == pytest.approx(ov.solid_angle_sr, rel=0.02)
     assert range_coverage(pr, solid) == pytest.approx(1.0)
     half = pr.range.copy()

@@ -17,7 +17,7 @@ from rig.ring import adjacent_pairs, axis_azimuths, rig_up
 from rig.sim import divergent_rig, get_preset
 from rig.sim.mount import ring_rig
 from rig.sim.presets import RING_PRESETS, get_ring_preset
-from rig.vpc import rectified_frame
+from rig.rectified import rectified_frame
 
 RING = [("cam1", "cam2"), ("cam2", "cam3"), ("cam3", "cam4"), ("cam4", "cam1")]
 

@@ -16,7 +16,7 @@ from calibration.rig import Rig
 from rig.evaluate.consistency_study import consistency_study
 from rig.rectification import EpipolarViews, RayMatches, match_pair, vertical_disparity
 from rig.ring import adjacent_pairs
-from rig.vpc import VpcConfig, design_vpc_pair
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from tests.conftest import shared_file
 from tests.helpers.ring import RING_DIR, RealRing, load_ring, write_ring
 
@@ -34,7 +34,7 @@ def _rows(rig: Rig, ring: RealRing, a: str, b: str) -> tuple[int, float | None]:
     """Matches over the three frames and the median |vertical disparity| (px at 5.585 px/deg)."""
     views = EpipolarViews(rig, a, b, scale=0.5)
     matches = RayMatches.concat([match_pair(views, f[a], f[b], frame=i) for i, f in enumerate(ring.frames)])
-    vd = vertical_disparity(design_vpc_pair(rig, VpcConfig(left=a, right=b)), matches.left, matches.right)
+    vd = vertical_disparity(design_rectified_pair(rig, RectifiedPairConfig(left=a, right=b)), matches.left, matches.right)
     return vd.count, vd.p50_px
 
 
