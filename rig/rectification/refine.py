@@ -14,12 +14,13 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from calibration.errors import CalibrationFailed, CalibrationFileError
 from calibration.formats import save_rig
@@ -44,12 +45,15 @@ __all__ = [
     "RefineOptions",
     "backup_path",
     "collect_matches",
+    "refine_frames",
     "refine_recording",
     "refine_rig",
     "save_refined",
 ]
 
 log = logging.getLogger(__name__)
+
+U8 = NDArray[np.uint8]
 
 # Frames whose grey levels vary less than this are blank (no scene to match).
 _BLANK_STD = 2.0
@@ -195,6 +199,35 @@ def collect_matches(
     return RayMatches.concat(parts), skipped
 
 
+def _enough(matches: RayMatches, opts: RefineOptions, where: str) -> None:
+    """RectificationError naming ``where`` (the pairs looked at) when there are too few matches."""
+    if len(matches) < opts.min_matches:
+        raise RectificationError(
+            f"not enough matches: {len(matches)} in {where}, need at least {opts.min_matches} "
+            "(a blank or low-texture scene?)"
+        )
+
+
+def refine_frames(
+    rig: Rig,
+    frames: Sequence[tuple[U8, U8]],
+    vpc: RectifiedPairConfig | None = None,
+    options: RefineOptions | None = None,
+) -> RectificationRefinement:
+    """Refine ``rig`` from gray fisheye pairs in memory, each (``vpc.left``'s image,
+    ``vpc.right``'s): what :func:`refine_recording` does with a recording's pairs, for frames
+    that are not a two-camera recording (a pair of a ring's cameras)."""
+    vpc = vpc or RectifiedPairConfig()
+    opts = options or RefineOptions()
+    _check_rig(rig, vpc)
+    views = EpipolarViews(rig, vpc.left, vpc.right, scale=opts.view_scale)
+    matches = RayMatches.concat(
+        [match_pair(views, a, b, opts.match, frame=i) for i, (a, b) in enumerate(frames)]
+    )
+    _enough(matches, opts, f"{len(frames)} pairs of {vpc.left}|{vpc.right}")
+    return refine_rig(rig, matches, vpc, opts, views=views)
+
+
 def refine_recording(
     recording: Recording,
     rig: Rig,
@@ -208,13 +241,8 @@ def refine_recording(
     _check_rig(rig, vpc)
     views = EpipolarViews(rig, vpc.left, vpc.right, scale=opts.view_scale)
     matches, skipped = collect_matches(recording, views, opts, progress)
-    if len(matches) < opts.min_matches:
-        used = min(len(recording), opts.frames) - len(skipped)
-        raise RectificationError(
-            f"{recording.root}: not enough matches: {len(matches)} in {used} pairs, need at least "
-            f"{opts.min_matches} (a blank or low-texture scene?)"
-        )
     try:
+        _enough(matches, opts, f"{min(len(recording), opts.frames) - len(skipped)} pairs")
         result = refine_rig(rig, matches, vpc, opts, views=views)
     except RectificationError as err:
         raise RectificationError(f"{recording.root}: {err}") from err

@@ -1,8 +1,10 @@
-"""The orthogonally divergent mount: two cameras a baseline apart, axes yawed apart."""
+"""The orthogonally divergent mount: two cameras a baseline apart, axes yawed apart; and a ring
+of N such cameras on a regular polygon."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -11,7 +13,7 @@ from calibration.models import CameraModel
 from calibration.rig import Rig
 from rig.errors import ConfigError
 
-__all__ = ["divergent_rig"]
+__all__ = ["divergent_rig", "ring_rig"]
 
 
 def divergent_rig(
@@ -48,3 +50,26 @@ def divergent_rig(
             "right": make_transform(R_right, np.array([b / 2.0, 0.0, 0.0])),
         },
     )
+
+
+def ring_rig(lenses: Sequence[CameraModel], baseline_m: float) -> Rig:
+    """Rig of N = len(lenses) ≥ 3 cameras ``cam1``..``camN`` on the corners of a regular polygon
+    of side ``baseline_m`` in the horizontal plane (y = 0), each looking out of the polygon's
+    centre (the origin) through its corner, so neighbours are 360°/N apart, clockwise seen from
+    above. ``cam1`` looks 180°/N left of the rig's z, ``cam2`` as far right: the pair cam1|cam2 is
+    :func:`divergent_rig`'s left|right at the same baseline (for N = 4, the 90° mount)."""
+    n, b = len(lenses), float(baseline_m)
+    if n < 3:
+        raise ConfigError(f"mount: a ring needs at least 3 cameras, got {n}")
+    if not (math.isfinite(b) and b > 0):
+        raise ConfigError(f"mount: baseline_m must be a positive number of metres, got {baseline_m!r}")
+    radius = b / 2.0 / math.sin(math.pi / n)
+    cameras, poses = {}, {}
+    for k, lens in enumerate(lenses):
+        azimuth = 2.0 * math.pi * k / n - math.pi / n
+        name = f"cam{k + 1}"
+        cameras[name] = lens
+        poses[name] = make_transform(
+            rot_y(azimuth), np.array([radius * math.sin(azimuth), 0.0, radius * math.cos(azimuth)])
+        )
+    return Rig(cameras, poses)

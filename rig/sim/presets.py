@@ -7,6 +7,10 @@
 baseline. Kannala-Brandt coefficients from the paper's Table II (CamOdoCal k2..k5 = our k1..k4);
 the paper gives no focal length: fx ≈ 297 px puts 95° at ~485 px, so the lens circle is cut off
 at the top (left camera) or bottom (right camera) and sits slightly off-centre, as in its Fig. 9.
+
+Rings (:data:`RING_PRESETS`, cameras ``cam1``..``camN``): ``ring4``, four prototype lenses (its
+left and right lens in turn) at 90° on the corners of a 72 mm square, looking out through them:
+every adjacent pair is the prototype's pair, baseline and angle.
 """
 
 from __future__ import annotations
@@ -18,15 +22,16 @@ from dataclasses import dataclass, replace
 from calibration.models import CameraModel, create
 from calibration.rig import Rig
 from rig.errors import ConfigError
-from rig.sim.mount import divergent_rig
+from rig.sim.mount import divergent_rig, ring_rig
 
-__all__ = ["PRESETS", "Preset", "get_preset", "scale_camera"]
+__all__ = ["PRESETS", "RING_PRESETS", "Preset", "get_preset", "get_ring_preset", "scale_camera"]
 
 
 @dataclass(frozen=True)
 class Preset:
-    """A simulated rig: cameras "left"/"right", frame rate, and default sensor effects
-    (``noise_std`` grey levels, ``vignetting`` strength) that ``rig sim`` applies."""
+    """A simulated rig: cameras "left"/"right" (a ring's: ``cam1``..``camN``), frame rate, and
+    default sensor effects (``noise_std`` grey levels, ``vignetting`` strength) that ``rig sim``
+    applies."""
 
     name: str
     rig: Rig
@@ -78,7 +83,7 @@ def _paper_sim() -> Preset:
     )
 
 
-def _prototype() -> Preset:
+def _prototype_lenses() -> tuple[CameraModel, CameraModel]:
     left = create(
         "kannala_brandt", 1280, 960, fx=298.0, fy=298.0, cx=651.0, cy=471.0,
         k1=3.78e-4, k2=4.48e-5, k3=5.79e-3, k4=-2.41e-3, fov_deg=190.0,
@@ -87,6 +92,11 @@ def _prototype() -> Preset:
         "kannala_brandt", 1280, 960, fx=297.0, fy=297.0, cx=628.5, cy=489.0,
         k1=3.80e-4, k2=1.89e-3, k3=-1.20e-3, k4=-1.22e-4, fov_deg=190.0,
     )  # fmt: skip
+    return left, right
+
+
+def _prototype() -> Preset:
+    left, right = _prototype_lenses()
     return Preset(
         "prototype",
         divergent_rig(left, right, 0.072, 90.0),
@@ -97,8 +107,22 @@ def _prototype() -> Preset:
     )
 
 
-#: Every preset by name. :func:`get_preset` hands out independent copies.
+def _ring4() -> Preset:
+    left, right = _prototype_lenses()
+    return Preset(
+        "ring4",
+        ring_rig([left, right, left.replace(), right.replace()], 0.072),
+        30.0,
+        "four prototype lenses at 90° on the corners of a 72 mm square, looking out",
+        noise_std=1.5,
+        vignetting=0.35,
+    )
+
+
+#: Every two-camera preset by name. :func:`get_preset` hands out independent copies.
 PRESETS: dict[str, Preset] = {p.name: p for p in (_paper_sim(), _prototype())}
+#: The rings of N cameras (``cam1``..``camN``) by name; :func:`get_ring_preset` hands out copies.
+RING_PRESETS: dict[str, Preset] = {p.name: p for p in (_ring4(),)}
 
 
 def get_preset(name: str) -> Preset:
@@ -107,3 +131,11 @@ def get_preset(name: str) -> Preset:
         return copy.deepcopy(PRESETS[name])
     except (KeyError, TypeError):
         raise ConfigError(f"unknown preset {name!r}; valid presets: {', '.join(PRESETS)}") from None
+
+
+def get_ring_preset(name: str) -> Preset:
+    """A fresh copy of ring preset ``name``; ConfigError listing the valid names otherwise."""
+    try:
+        return copy.deepcopy(RING_PRESETS[name])
+    except (KeyError, TypeError):
+        raise ConfigError(f"unknown ring {name!r}; valid rings: {', '.join(RING_PRESETS)}") from None

@@ -11,10 +11,23 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench import api_load, dask_scale, hostile, lut_build, memory, process, rectification, startup, worker
+from bench import (
+    api_load,
+    dask_scale,
+    hostile,
+    lut_build,
+    memory,
+    process,
+    rectification,
+    ring_consistency,
+    startup,
+    worker,
+)
 from calibration.models import MODELS, KannalaBrandtModel
 from rig.depth import depth_to_png_mm, latlon_range
 from rig.sim import get_preset
+from tests.conftest import shared_file
+from tests.helpers.ring import RING_DIR
 
 
 def _written(path: Path, doc: dict) -> dict:
@@ -204,3 +217,16 @@ def test_hostile_bench_runs_its_attacks(bench_env: Path, tmp_path: Path) -> None
     assert patch["same_field_last_wins"] is True
     assert doc["headers"]["lines"]["status"] == doc["headers"]["giant"]["status"] == 431
     assert doc["headers"]["lines"]["health"]["failures"] == 0
+
+
+def test_ring_consistency_bench_measures_the_real_ring(bench_env: Path, tmp_path: Path) -> None:
+    data = shared_file(RING_DIR)
+    path = tmp_path / "ring.json"
+    doc = _written(path, ring_consistency.main(["--quick", "--data", str(data), "--json", str(path)]))
+    assert doc["pairs"] == ["cam1|cam2", "cam2|cam3", "cam3|cam4", "cam4|cam1"] and doc["frames"] == 1
+    assert all(row["matches"] >= 80 and row["p50_px"] < 2.5 for row in doc["loader"])  # 121-243, 1.0-1.7 px
+    couples = doc["today"]["couples"]
+    assert len(couples) == 4
+    for figures in couples.values():
+        assert 0.0 < figures["median_abs"] < 1.0 and 0.0 < figures["both_share"] < 1.0
+    assert all(0.0 < p["mean_coverage"] < 1.0 for p in doc["today"]["pairs"].values())

@@ -5,6 +5,8 @@
   an exact timestamp grid) and the file-camera configs that replay them;
 - :mod:`~tests.helpers.shots`: rendered stereo shots with their ground truth (plane and room);
 - :mod:`~tests.helpers.boards`: rendered calibration boards through known lenses;
+- :mod:`~tests.helpers.ring`: the real ring of four fisheyes in the shared data, read into a
+  ``Rig`` and its frames (also used by ``bench.ring_consistency``);
 - :mod:`~tests.helpers.service`: service settings for a replayed recording and ``create_app``
   under a real uvicorn server in a thread;
 - :mod:`~tests.helpers.offline`: noisy recordings of a rendered plane for the offline-processing
