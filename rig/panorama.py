@@ -2,8 +2,8 @@
 
 The panorama is an equirectangular image (:class:`calibration.models.EquirectModel`: 360° of
 azimuth across, 180° of elevation down) about the rig's **origin** (the mean of the cameras'
-optical centres) in the panorama frame ``R_rig_pano``: y is the rig's down (the normal of the
-plane the optical axes span, pointing to the rig frame's +y side), z the mean optical axis made
+optical centres) in the panorama frame ``R_rig_pano``: y is the rig's down (the opposite of
+:func:`rig.ring.rig_up`: the normal of the plane the optical axes span), z the mean optical axis made
 horizontal (the first camera's when the axes cancel, as on a ring), x = y × z. Each pixel holds
 the range from the origin along its ray, metres.
 
@@ -38,6 +38,7 @@ from calibration.rig import Rig
 from rig.errors import ConfigError
 from rig.rectified import RectifiedPair
 from rig.resample import sample_surface
+from rig.ring import rig_up
 
 __all__ = [
     "DEFAULT_PANORAMA_PX_PER_DEG",
@@ -77,7 +78,7 @@ class PanoramaSpec:
         if not (math.isfinite(px_per_deg) and 0.25 <= px_per_deg <= 20.0):
             raise ConfigError(f"panorama: px_per_deg must be in [0.25, 20], got {px_per_deg!r}")
         axes = np.array([rig.axis(n) for n in rig.names])
-        down = _down(rig, axes)
+        down = -rig_up(rig)
         forward = axes.mean(axis=0)
         forward -= np.dot(forward, down) * down
         if np.linalg.norm(forward) < 0.1:  # a ring: the axes cancel out
@@ -115,16 +116,6 @@ class PanoramaSpec:
             "flags": {str(FUSED): "fused from several pairs that agree", str(DISAGREE): "pairs disagree"},
             "pairs": list(pairs),
         }
-
-
-def _down(rig: Rig, axes: F64) -> F64:
-    """The normal of the plane the optical axes span, on the side of the rig frame's +y."""
-    # Two axes span a plane; more: the direction they vary least along.
-    normal = np.cross(axes[0], axes[1]) if len(axes) == 2 else np.linalg.svd(axes)[2][-1]
-    if np.linalg.norm(normal) < 1e-6:
-        raise ConfigError("panorama: the cameras' optical axes are parallel; the rig has no up axis")
-    down: F64 = normal / np.linalg.norm(normal)
-    return down if down[1] >= 0.0 else -down
 
 
 @dataclass(frozen=True)
