@@ -44,7 +44,7 @@ __all__ = [
     "DEFAULT_PANORAMA_PX_PER_DEG",
     "DISAGREE",
     "FUSED",
-    "PairRange",
+    "PairOutput",
     "PanoramaFrame",
     "PanoramaSpec",
     "fuse_panorama",
@@ -119,7 +119,7 @@ class PanoramaSpec:
 
 
 @dataclass(frozen=True)
-class PairRange:
+class PairOutput:
     """One pair's output as the fusion takes it: its name (``"A-B"``), its rectified pair, and
     its range, disparity (px) and confidence (or None) on the left view (H, W), NaN invalid."""
 
@@ -146,7 +146,7 @@ class PanoramaFrame:
 
 
 def _pull(
-    spec: PanoramaSpec, rays: F64, p: PairRange, default_sigma_px: float, iterations: int
+    spec: PanoramaSpec, rays: F64, p: PairOutput, default_sigma_px: float, iterations: int
 ) -> tuple[F64, F64]:
     """Pair ``p``'s range along the panorama ``rays`` (N, 3, rig frame, from the origin) and its
     relative predicted error: the point ``origin + r·ray`` that the pair ranges, found by a few
@@ -183,7 +183,7 @@ def _pull(
 
 def fuse_panorama(
     spec: PanoramaSpec,
-    pairs: Sequence[PairRange],
+    pairs: Sequence[PairOutput],
     *,
     agree_sigmas: float = 3.0,
     default_sigma_px: float = 0.25,

@@ -13,7 +13,7 @@ import pytest
 
 from calibration.geometry import make_transform
 from rig.field import pixel_solid_angles
-from rig.panorama import DISAGREE, FUSED, PairRange, PanoramaSpec, fuse_panorama, lenses_seeing
+from rig.panorama import DISAGREE, FUSED, PairOutput, PanoramaSpec, fuse_panorama, lenses_seeing
 from rig.pipeline import DepthFrame, DepthPipeline
 from rig.rectified import RectifiedPairConfig
 from rig.sim import room_scene
@@ -43,8 +43,8 @@ def room(tmp_path_factory: pytest.TempPathFactory) -> tuple[DepthPipeline, Depth
     return _room(str(tmp_path_factory.mktemp("lut")))
 
 
-def _pair_range(pipe: DepthPipeline, frame: DepthFrame, name: str = "left-right") -> PairRange:
-    return PairRange(
+def _pair_range(pipe: DepthPipeline, frame: DepthFrame, name: str = "left-right") -> PairOutput:
+    return PairOutput(
         name, pipe.pair, frame.range, frame.disparity, frame.confidence, pipe.stereo.confidence_sigma
     )
 
