@@ -66,8 +66,9 @@ from bench.worker import floor_match, floor_matcher
 from calibration import load_rig
 from calibration.models import LatLonModel
 from rig.pipeline import DepthPipeline
-from rig.process import ProcessOptions, RecordingJob, RecordingSource, process_recordings
+from rig.process import process_recordings
 from rig.recording import Recording, RecordingWriter
+from rig.recording_jobs import ProcessOptions, RecordingJob, RecordingSource
 from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ import cv2
 import numpy as np
 
 from bench.common import bench_cache_dir, console
+from calibration.atomic import atomic_directory
 from rig.recording import Recording, RecordingWriter
 from rig.sim import get_preset, simulate_recording
 
@@ -90,19 +90,9 @@ def ensure_mjpeg_recording(spec: MjpegSpec | None = None, cache_dir: Path | None
     if (final / "loop" / "frames.csv").is_file():
         return final / "loop"
     cache.mkdir(parents=True, exist_ok=True)
-    tmp = cache / f".{spec.key()}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
-    try:
+    with atomic_directory(final, complete=lambda built: (built / "loop" / "frames.csv").is_file()) as tmp:
         console.print(f"building the benchmark recording {spec} (once; cached under {cache})")
         _build(spec, tmp)
-        try:
-            os.rename(tmp, final)
-        except OSError:
-            if not (final / "loop" / "frames.csv").is_file():  # not a concurrent build that won
-                raise
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return final / "loop"
 
 

@@ -2,7 +2,9 @@
 docs/ros.md): raw frames, camera infos, rectified views, depth, range, confidence, point cloud and
 the static transforms, in ROS 2's MCAP profile, written atomically.
 
-REC is a recording directory or a ROS bag (``--left-topic``/``--right-topic``). A pair whose
+REC is a recording directory or a ROS bag (``--left-topic``/``--right-topic``). The depth is
+``rig process``'s: the same options, the same calibration check before any pair (an error stops
+the command in one line; ``--no-calibration-check`` skips it) and the same executor. A pair whose
 frame does not read is reported on stderr and skipped. Exit status 0 when at least one pair was
 exported, 2 for bad input (then no file is left behind).
 """
@@ -10,13 +12,13 @@ exported, 2 for bad input (then no file is left behind).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import typer
 from pydantic import ValidationError
 from rich.progress import TimeRemainingColumn
 
-from cli.console import console, one_line, progress_bar
+from cli.console import RateColumn, console, one_line, progress_bar
 from cli.pair_options import (
     CacheDirOption,
     CalibrationOption,
@@ -29,12 +31,20 @@ from cli.pair_options import (
     YawOption,
     make_pair_config,
 )
-from cli.process import StereoOption, build_pipeline
+from cli.pipeline_options import (
+    NoCheckOption,
+    StereoOption,
+    build_pipeline,
+    check_against_frames,
+    describe_pipeline,
+)
 from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption, open_source
 from rig.errors import ConfigError
-from rig.recording import PairRecord
 from rig.ros.mcap_export import export_mcap
 from rig.ros.names import DepthEncoding, RosNames
+
+if TYPE_CHECKING:
+    from rig.recording_depth import PairFailure
 
 __all__ = ["register"]
 
@@ -106,6 +116,7 @@ def register(app: typer.Typer) -> None:
             ),
         ] = "zstd",
         cache_dir: CacheDirOption = None,
+        no_check: NoCheckOption = False,
     ) -> None:
         """Depth and everything around it for every pair of REC, as a ROS 2 MCAP file."""
         names = _names(namespace, frame_prefix, depth_encoding)
@@ -114,13 +125,15 @@ def register(app: typer.Typer) -> None:
             vpc_size, vpc_hfov, yaw, pitch, projection=projection, px_per_deg=px_per_deg, field=field
         )
         pipeline, cal_path = build_pipeline(calibration, rec.calibration_path, config, stereo, cache_dir)
-        with progress_bar(TimeRemainingColumn()) as progress:
+        if not no_check:
+            check_against_frames(pipeline, rec)
+        with progress_bar(RateColumn("pairs"), TimeRemainingColumn()) as progress:
             task = progress.add_task("export", total=len(rec.pairs))
 
-            def on_pair(pair: PairRecord, error: str | None) -> None:
-                if error is not None:
+            def on_pair(seq: int, failure: PairFailure | None) -> None:
+                if failure is not None:
                     progress.console.print(
-                        f"[yellow]skipped seq {pair.seq}:[/yellow] {one_line(error)}",
+                        f"[yellow]skipped seq {seq}:[/yellow] {one_line(failure.reason)}",
                         highlight=False,
                         soft_wrap=True,
                     )
@@ -139,8 +152,7 @@ def register(app: typer.Typer) -> None:
         note = f", [yellow]{len(result.skipped)} skipped[/yellow]" if result.skipped else ""
         console.print(
             f"exported {result.pairs} of {len(rec.pairs)} pairs{note} -> {result.path} "
-            f"({result.messages} messages; calibration {cal_path}, VPC {config.width}x{config.height}, "
-            f"B {pipeline.baseline_m:.4f} m)",
+            f"({result.messages} messages; {describe_pipeline(pipeline, cal_path)})",
             highlight=False,
             soft_wrap=True,
         )

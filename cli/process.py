@@ -30,15 +30,13 @@ from __future__ import annotations
 import glob
 import hashlib
 import json
-import logging
-import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from cli.console import RateColumn, console, err_console, one_line, progress_bar, warn
+from cli.console import RateColumn, console, err_console, one_line, progress_bar
 from cli.errors import fail
 from cli.pair_options import (
     CacheDirOption,
@@ -50,80 +48,28 @@ from cli.pair_options import (
     ProjectionOption,
     PxPerDegOption,
     YawOption,
-    load_calibration,
     make_pair_config,
+)
+from cli.pipeline_options import (
+    NoCheckOption,
+    StereoOption,
+    build_pipeline,
+    check_against_frames,
+    describe_pipeline,
 )
 from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption
 from rig.errors import ConfigError
 
 if TYPE_CHECKING:
-    from numpy.typing import NDArray
-
-    from rig.capture.recorded import RecordedPairs
     from rig.pipeline import DepthPipeline
-    from rig.process import PairFailure, ProcessOptions, RecordingJob, RecordingSource, RecordingSummary
-    from rig.recording import PairRecord
+    from rig.recording_depth import PairFailure
+    from rig.recording_jobs import ProcessOptions, RecordingJob, RecordingSource, RecordingSummary
     from rig.rectified import RectifiedPairConfig
-    from rig.stereo import StereoParams
 
-__all__ = ["StereoOption", "build_pipeline", "load_stereo_params", "register"]
+__all__ = ["register"]
 
 #: Failures listed per recording in the closing summary (all of them go to --summary FILE).
 SUMMARY_LINES = 20
-
-
-def load_stereo_params(path: Path) -> StereoParams:
-    """StereoParams from a YAML/JSON mapping file; ConfigError naming file and field."""
-    import yaml
-    from pydantic import ValidationError
-
-    from rig.settings_model import describe_field_errors, field_errors
-    from rig.stereo import StereoParams
-
-    try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        raise ConfigError(f"{path}: unreadable stereo configuration ({err})") from err
-    if doc is None:
-        doc = {}
-    if not isinstance(doc, dict):
-        raise ConfigError(f"{path}: stereo configuration must be a mapping of parameter names")
-    try:
-        return StereoParams(**doc)
-    except ValidationError as err:
-        raise ConfigError(f"{path}: {describe_field_errors(field_errors(err))}") from None
-
-
-StereoOption = Annotated[
-    Path | None, typer.Option("--stereo", metavar="FILE", help="YAML of stereo parameters (ROS names).")
-]
-
-
-def build_pipeline(
-    calibration: Path | None,
-    fallback: Path | None,
-    config: RectifiedPairConfig,
-    stereo: Path | None,
-    cache_dir: Path | None,
-) -> tuple[DepthPipeline, Path]:
-    """The depth pipeline of the options (calibration, rectified pair, stereo file, cache), with a
-    warning line when a pinhole VPC leaves a camera's field or a lat-lon field was clipped to the
-    lenses' overlap; and the calibration file used."""
-    from rig.lut import percent_valid
-    from rig.pipeline import DepthPipeline
-
-    rig, cal_path = load_calibration(calibration, fallback)
-    params = load_stereo_params(stereo) if stereo is not None else None
-    # The pipeline logs the same for the service's log: here it is one warning line, below.
-    logging.getLogger("rig.pipeline").setLevel(logging.ERROR)
-    pipeline = DepthPipeline(rig, config, params, cache_dir=cache_dir)
-    if pipeline.pair.field_note:
-        warn(pipeline.pair.field_note)
-    if pipeline.pair.projection == "pinhole":  # a lat-lon field spans the overlap by design
-        for name, frac in pipeline.valid_fraction.items():
-            if frac < 1.0:
-                warn(f"the VPC leaves camera '{name}''s field: {percent_valid(frac)} of its pixels are valid")
-    return pipeline, cal_path
 
 
 def expand_recordings(arguments: Sequence[Path]) -> tuple[list[Path], bool]:
@@ -179,15 +125,6 @@ class _Pipelines:
         return self._built[key], chosen  # the file this recording names, not the first alike
 
 
-def _describe(pipeline: DepthPipeline, cal_path: Path) -> str:
-    cam = pipeline.pair.camera
-    if pipeline.pair.projection == "pinhole":
-        view = f"VPC {cam.width}x{cam.height} fx {cam.fx:.1f}"
-    else:
-        view = f"lat-lon {cam.width}x{cam.height} {math.radians(cam.fx):.3f} px/deg"
-    return f"calibration {cal_path}, {view}, B {pipeline.baseline_m:.4f} m"
-
-
 def _report(summary: RecordingSummary, described: str) -> None:
     processed = summary.written + summary.resumed
     notes = f", {summary.resumed} already complete" if summary.resumed else ""
@@ -206,7 +143,7 @@ def _report(summary: RecordingSummary, described: str) -> None:
 
 
 def _write_summary(path: Path, summaries: Sequence[RecordingSummary]) -> None:
-    from rig.atomic import write_atomic
+    from calibration.atomic import write_atomic
 
     doc = [
         {
@@ -263,45 +200,6 @@ def _run(
             on_plan=on_plan,
             on_progress=on_progress,
         )
-
-
-# Pairs tried for the calibration check before giving up on finding a readable one.
-_CHECK_TRIES = 10
-
-
-def _first_readable(rec: RecordedPairs) -> tuple[PairRecord, NDArray[Any], NDArray[Any]] | None:
-    from rig.errors import RecordingError
-
-    for pair in rec.pairs[:_CHECK_TRIES]:
-        try:
-            left = rec.read_frame(pair, "left").pipeline_image()
-            right = rec.read_frame(pair, "right").pipeline_image()
-        except RecordingError:
-            continue
-        return pair, left, right
-    return None
-
-
-def check_against_frames(pipeline: DepthPipeline, rec: RecordedPairs) -> None:
-    """The calibration against the recording's first readable pair: an error stops the command
-    (one line, exit status 2), each warning is printed once."""
-    from rig.calibration_check import check_calibration, check_frame_sizes
-
-    first = _first_readable(rec)
-    if first is None:
-        return  # the loop reports every unreadable pair
-    pair, left, right = first
-    sizes = {
-        pipeline.pair.left: (int(left.shape[1]), int(left.shape[0])),
-        pipeline.pair.right: (int(right.shape[1]), int(right.shape[0])),
-    }
-    for problem in check_frame_sizes(pipeline.rig, sizes, f"frames of {rec.root}"):
-        fail(problem.message)
-    result = check_calibration(pipeline, left, right)
-    for problem in result.errors:
-        fail(f"calibration check on pair {pair.seq}: {problem.message}")
-    for problem in result.warnings:
-        warn(f"calibration check on pair {pair.seq}: {problem.message}")
 
 
 def register(app: typer.Typer) -> None:
@@ -372,16 +270,11 @@ def register(app: typer.Typer) -> None:
             Path | None,
             typer.Option("--summary", metavar="FILE", help="Also write the summary (every failure) as JSON."),
         ] = None,
-        no_check: Annotated[
-            bool,
-            typer.Option(
-                "--no-calibration-check", help="Skip the check of the calibration against the frames."
-            ),
-        ] = False,
+        no_check: NoCheckOption = False,
     ) -> None:
         """Range (and the pinhole pair's depth) for every pair of each RECORDING into --out: range/,
         depth/, left/, right/, vpc.json, run.json."""
-        from rig.process import ProcessOptions, RecordingSource
+        from rig.recording_jobs import ProcessOptions, RecordingSource
 
         paths, per_recording = expand_recordings(recordings)
         config = make_pair_config(
@@ -414,7 +307,7 @@ def _jobs(
     """One job per recording (each opened, and its calibration checked against its frames,
     first: a bad one stops the command before any work), and the line describing its
     calibration and rectified pair."""
-    from rig.process import RecordingJob
+    from rig.recording_jobs import RecordingJob
 
     opened = [source.open() for source in sources]
     jobs, described = [], []
@@ -423,7 +316,7 @@ def _jobs(
         if check:
             check_against_frames(pipeline, recording)
         jobs.append(RecordingJob(source, recording, pipeline, out_dir))
-        described.append(_describe(pipeline, cal_path))
+        described.append(describe_pipeline(pipeline, cal_path))
     return jobs, described
 
 

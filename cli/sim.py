@@ -29,7 +29,7 @@ from cli.pair_options import (
     PxPerDegOption,
     make_pair_config,
 )
-from cli.process import load_stereo_params
+from cli.pipeline_options import load_stereo_params
 from rig.sim.presets import PRESETS, get_preset
 from rig.sim.simulate import DEFAULT_DISTANCES, DEFAULT_ROOM_FRAMES, SCENES, simulate_recording
 from rig.sim.textures import TEXTURES, texture_name

@@ -16,8 +16,9 @@ likely cause named:
 * **valid fraction** — the share of the VPC with depth on the first pair.
 
 :func:`check_calibration` returns :class:`Finding` s (``error``: stop; ``warning``: say once)
-and the figures; ``rig process`` runs it on the first pair, ``rig serve`` on the first pair it
-processes, ``rig check`` on a sample pair (see docs/calibration.md).
+and the figures; ``rig process`` and ``rig export mcap`` run it on a recording's first readable
+pair (:func:`check_recording`), ``rig serve`` on the first pair it processes, ``rig check`` on a
+sample pair (see docs/calibration.md).
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calibration.rig import Rig
-from rig.errors import RigError
+from rig.capture.recorded import RecordedPairs
+from rig.errors import RecordingError, RigError
 from rig.pipeline import DepthFrame, DepthPipeline
 
 __all__ = [
@@ -39,6 +41,7 @@ __all__ = [
     "Finding",
     "check_calibration",
     "check_frame_sizes",
+    "check_recording",
     "matched_disparities",
 ]
 
@@ -61,6 +64,8 @@ SWAPPED_SHARE = 0.6
 LOW_VALID = 0.25
 #: A camera whose table covers less than this share of the VPC barely overlaps the other.
 LOW_OVERLAP = 0.5
+#: Pairs of a recording tried for its check before giving up on finding a readable one.
+CHECK_TRIES = 10
 
 
 @dataclass(frozen=True)
@@ -255,3 +260,29 @@ def check_calibration(
         valid_fraction=valid,
         overlap=overlap,
     )
+
+
+def check_recording(pipeline: DepthPipeline, recording: RecordedPairs) -> list[Finding]:
+    """The calibration of ``pipeline`` against ``recording``'s first readable pair (of its first
+    :data:`CHECK_TRIES`; none readable: no finding, the run reports every pair that is not): the
+    frame sizes (:func:`check_frame_sizes`; frames of another size end the check), then
+    :func:`check_calibration`, each of its messages naming the pair. What ``rig process`` and
+    ``rig export mcap`` check before processing."""
+    for pair in recording.pairs[:CHECK_TRIES]:
+        try:
+            left = recording.read_frame(pair, "left").pipeline_image()
+            right = recording.read_frame(pair, "right").pipeline_image()
+        except RecordingError:
+            continue
+        sizes = {
+            pipeline.pair.left: (int(left.shape[1]), int(left.shape[0])),
+            pipeline.pair.right: (int(right.shape[1]), int(right.shape[0])),
+        }
+        wrong_size = check_frame_sizes(pipeline.rig, sizes, f"frames of {recording.root}")
+        if wrong_size:
+            return wrong_size
+        check = check_calibration(pipeline, left, right)
+        return [
+            Finding(f.severity, f"calibration check on pair {pair.seq}: {f.message}") for f in check.findings
+        ]
+    return []

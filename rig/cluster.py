@@ -1,8 +1,8 @@
 """``rig process`` on a Dask distributed cluster: chunks of pairs as tasks.
 
-Each recording's pairs to compute (:func:`rig.process.plan_recording`) are cut into chunks of
-consecutive pairs; each chunk is one task, :func:`run_chunk`, which runs
-:func:`rig.process.process_pairs` on a worker and writes its pairs' files straight into the
+Each recording's pairs to compute (:func:`rig.recording_jobs.plan_recording`) are cut into chunks
+of consecutive pairs; each chunk is one task, :func:`run_chunk`, which runs
+:func:`rig.recording_depth.process_pairs` on a worker and writes its pairs' files straight into the
 recording's output directory (atomically: a task that dies mid-write leaves only a temporary,
 removed when the recording is done). The client plans, submits and collects; it reads no frame.
 
@@ -52,16 +52,9 @@ from rig.errors import ClusterError, OutputError
 from rig.lut_cache import CachedLut
 from rig.outputs import OutputLayout
 from rig.pipeline import DepthPipeline
-from rig.process import (
-    OnProgress,
-    PairFailure,
-    ProcessOptions,
-    RecordingJob,
-    RecordingSource,
-    RecordingSummary,
-    process_pairs,
-)
 from rig.recording import PairRecord
+from rig.recording_depth import PairFailure, process_pairs
+from rig.recording_jobs import OnProgress, ProcessOptions, RecordingJob, RecordingSource, RecordingSummary
 from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
 
@@ -186,15 +179,18 @@ def run_chunk(spec: PipelineSpec, chunk: Chunk, previous: ChunkResult | None = N
     layout = OutputLayout(chunk.out, chunk.products, fsync=chunk.fsync)
     state = previous.temporal_state if previous is not None else None
     with _borrowed_pipeline(spec) as pipeline:
-        result = process_pairs(
-            pipeline,
-            _open(chunk.source),
-            chunk.pairs,
-            layout,
-            write=chunk.write,
-            temporal_state=state,
-            readahead=chunk.readahead,
-        )
+        try:
+            result = process_pairs(
+                pipeline,
+                _open(chunk.source),
+                chunk.pairs,
+                layout.sink(pipeline),
+                write=chunk.write,
+                temporal_state=state,
+                readahead=chunk.readahead,
+            )
+        finally:
+            layout.sync()
     return ChunkResult(
         chunk.source.name,
         chunk.index,
@@ -377,7 +373,5 @@ def process_on_cluster(
         assert job.layout is not None
         job.layout.close()  # no task writes there any more: remove what a killed one left
         tally = tallies.get(id(job), _Tally())
-        failures = sorted(tally.failures, key=lambda f: f.seq)
-        total = len(job.recording.pairs)
-        summaries.append(RecordingSummary(job.name, job.out, total, tally.written, job.resumed, failures))
+        summaries.append(job.summary(tally.written, tally.failures))
     return summaries

@@ -28,15 +28,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from calibration.atomic import write_atomic
 from calibration.models import CameraModel, LatLonModel, PinholeModel
-from rig.atomic import write_atomic
 from rig.errors import PipelineError
 from rig.filters import fill_where
 
 __all__ = [
+    "MM",
     "XYZRGB_DTYPE",
     "depth_from_png_mm",
     "depth_points",
+    "depth_to_png16",
     "depth_to_png_mm",
     "depth_to_range",
     "disparity_to_depth",
@@ -47,10 +49,13 @@ __all__ = [
     "ply_bytes",
     "range_points",
     "read_ply",
+    "to_units16",
     "write_ply",
 ]
 
 F32 = NDArray[np.float32]
+#: The unit of the 16-bit PNGs of ``rig process`` and of ROS's 16UC1 depth: one millimetre.
+MM = 0.001
 
 
 def disparity_to_depth(disparity: F32, fx: float, baseline_m: float, *, out: F32 | None = None) -> F32:
@@ -99,17 +104,40 @@ def disparity_to_range(
     raise PipelineError(f"no disparity-to-range formula for a {camera.name} view")
 
 
+def to_units16(values: NDArray[Any], unit: np.floating[Any]) -> NDArray[np.uint16]:
+    """uint16 of ``rint(values / unit)`` computed in ``unit``'s precision, 0 where that is not
+    in 1…65535 (NaN, ±inf, ≤ 0, or too large: not saturated). Same shape as ``values``. The one
+    quantisation of every 16-bit image of depth, range and disparity (files, HTTP, ROS).
+
+    In place on one float temporary, casting only the valid values. On the 640×480 depth map
+    0.39 ms CPU where ``np.where(ok, rint(x / unit), 0).astype`` took 1.0 ms, or 3.5 ms when its
+    four float64 temporaries page-faulted back in after malloc had returned them to the OS."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        units = np.divide(values, unit, dtype=unit.dtype)
+        np.rint(units, out=units)
+        ok = units > 0  # False for NaN too
+        ok &= units <= 65535  # and for +inf
+        out = np.zeros(units.shape, np.uint16)
+        np.copyto(out, units, casting="unsafe", where=ok)
+    return out
+
+
+def depth_to_png16(depth: F32, scale_m: float) -> NDArray[np.uint16]:
+    """Depth or range (H, W) float32 m → uint16 units of ``scale_m`` (0.001 = mm), 0 where invalid
+    (NaN, ≤ 0) or beyond 65535 units (not saturated: a clipped depth would be a wrong depth).
+    Divides in float64: in float32, dividing by a ``scale_m`` like 0.001 moves some values across
+    a half unit (0.0065 m would give 6 mm instead of 7)."""
+    return to_units16(depth, np.float64(scale_m))
+
+
 def depth_to_png_mm(depth: F32) -> NDArray[np.uint16]:
-    """uint16 millimetres, 0 where invalid (NaN, ≤ 0) or beyond 65.535 m."""
-    with np.errstate(invalid="ignore"):
-        mm = np.rint(np.asarray(depth, dtype=np.float64) * 1000.0)
-        ok = np.isfinite(mm) & (mm > 0) & (mm <= 65535)
-    return np.where(ok, mm, 0).astype(np.uint16)
+    """:func:`depth_to_png16` in millimetres: 0 where invalid (NaN, ≤ 0) or beyond 65.535 m."""
+    return depth_to_png16(depth, MM)
 
 
 def depth_from_png_mm(png: NDArray[np.uint16]) -> F32:
     """Inverse of :func:`depth_to_png_mm`: float32 m, NaN where 0."""
-    out = np.asarray(png, dtype=np.float32) * np.float32(1e-3)
+    out = np.asarray(png, dtype=np.float32) * np.float32(MM)
     out[png == 0] = np.nan
     return out
 

@@ -18,9 +18,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from calibration.models import LatLonModel
 from calibration.rig import Rig
 from rig.errors import ConfigError
-from rig.lut import Lut
+from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
 from rig.rectified import RectifiedCamera, RectifiedPair, RectifiedPairConfig, design_rectified_pair
 from rig.stereo import SeenColumns, StereoMatcher, StereoParams
@@ -127,6 +128,24 @@ class PairInEffect:
     @property
     def names(self) -> tuple[str, str]:
         return self.geometry.pair.left, self.geometry.pair.right
+
+    @property
+    def field_warnings(self) -> list[str]:
+        """What the rectified view leaves out, one line each: for the pinhole pair the share of its
+        pixels a lens does not see (an unusual view); the lat-lon field is the lenses' overlap by
+        design, an explicit field wider than it is clipped (:attr:`RectifiedPair.field_note`)."""
+        pair, c, v = self.pair, self.camera, self.config
+        lines = [pair.field_note] if pair.field_note else []
+        if isinstance(c, LatLonModel):
+            return lines
+        for name, info in self.geometry.lut_info.items():
+            if info.lut.valid_fraction < 1.0:
+                lines.append(
+                    f"pinhole pair ({c.width}x{c.height}, hfov {v.hfov_deg:.1f}°, yaw {v.yaw_deg:.1f}°, "
+                    f"pitch {v.pitch_deg:.1f}°) leaves camera '{name}''s field: only "
+                    f"{percent_valid(info.lut.valid_fraction)} of its pixels are valid"
+                )
+        return lines
 
     def redesigned(self, rig: Rig) -> RectifiedPair:
         """The pair this configuration gives with ``rig`` (a corrected calibration of the same

@@ -28,8 +28,9 @@ and rebuilt around the same way. What the payload holds cannot harm the remap: O
 fixed-point fractions (``map2``) to its table and maps coordinates outside the image to the
 constant border.
 
-Files are written to a temporary name in the cache directory, flushed and fsynced, then renamed
-over the final name, so a crash mid-write never leaves a truncated ``.lut`` behind.
+Files are written through :func:`calibration.atomic.atomic_file` (a temporary name in the cache
+directory, flushed and fsynced, then renamed over the final name), so a crash mid-write never
+leaves a truncated ``.lut`` behind.
 
 Loading is one read of the payload into an aligned buffer, a CRC-32 over the payload (zlib: ~6 GB/s, against
 ~1.8 GB/s for sha256; it catches every burst error up to 32 bits and all but 2⁻³² of random
@@ -47,7 +48,6 @@ import math
 import os
 import stat
 import struct
-import tempfile
 import time
 import zlib
 from dataclasses import dataclass
@@ -58,6 +58,7 @@ import numpy as np
 import platformdirs
 from numpy.typing import ArrayLike, NDArray
 
+from calibration.atomic import atomic_file, is_temporary
 from calibration.models import CameraModel, PinholeModel
 from rig.errors import LutError
 from rig.lut import Lut, build_rectified_lut
@@ -291,20 +292,12 @@ class LutCache:
         head += b" " * (-(len(MAGIC) + _LEN.size + len(head)) % _ALIGN)
         self.directory.mkdir(parents=True, exist_ok=True)
         final = self.path(key)
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{key[:16]}.", suffix=".tmp", dir=self.directory)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                f.write(MAGIC)
-                f.write(_LEN.pack(len(head)))
-                f.write(head)
-                for part in parts:
-                    f.write(part.data.cast("B"))
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp_name, final)
-        except BaseException:
-            Path(tmp_name).unlink(missing_ok=True)
-            raise
+        with atomic_file(final) as f:
+            f.write(MAGIC)
+            f.write(_LEN.pack(len(head)))
+            f.write(head)
+            for part in parts:
+                f.write(part.data.cast("B"))
         return final
 
     # ----- listing -----------------------------------------------------------------------------
@@ -347,8 +340,8 @@ class LutCache:
                 if _removable(path):
                     path.unlink(missing_ok=True)
                     n += 1
-            for path in self.directory.glob(".*.tmp"):
-                if _removable(path):
+            for path in self.directory.iterdir():
+                if is_temporary(path.name) and _removable(path):
                     path.unlink(missing_ok=True)
         except OSError as err:
             raise LutError(f"{self.directory}: cannot clear the LUT cache ({err.strerror or err})") from err

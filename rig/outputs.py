@@ -13,7 +13,7 @@ Layout of an output directory::
     cloud/NNNNNN.ply      with ``ply``: the points in the rig frame, coloured from the left view
     preview/NNNNNN.png    with ``preview``: the left view beside colour depth (lat-lon: range)
 
-Every file is written atomically (:func:`rig.atomic.write_atomic`: a temporary, fsynced, renamed
+Every file is written atomically (:func:`calibration.atomic.write_atomic`: a temporary, fsynced, renamed
 into place), so a file that exists is complete, and a pair is complete when every product of it
 exists. ``--resume`` (:meth:`OutputLayout.prepare` with ``resume``) trusts those files only when
 ``run.json`` names the same settings; a run without it first removes what an earlier run wrote
@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from rig.atomic import fsync_directory, is_temporary, sweep_temporaries, write_atomic
+from calibration.atomic import fsync_directory, is_temporary, sweep_temporaries, write_atomic
 from rig.depth import depth_to_png_mm, ply_bytes
 from rig.errors import ConfigError, OutputError, PipelineError
 from rig.pipeline import DepthFrame, DepthPipeline
@@ -216,6 +216,11 @@ class OutputLayout:
                 write_atomic(path, data, fsync=self.fsync)
             except OSError as err:
                 raise self.write_error(err, path) from err
+
+    def sink(self, pipeline: DepthPipeline) -> Callable[[object, DepthFrame], None]:
+        """This directory as a sink of the staged executor (:data:`rig.staged.Sink`): each pair's
+        products, made with ``pipeline``'s geometry, written by :meth:`write`."""
+        return lambda _pair, frame: self.write(pipeline, frame)
 
     def sync(self) -> None:
         """Make the renames of the files written so far durable (once per batch of pairs)."""

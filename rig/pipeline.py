@@ -71,8 +71,14 @@ class DepthFrame:
     z in the left VPC frame for the pinhole pair, the range itself (the same array) for the
     lat-lon pair, whose rays reach past 90° off its z axis; ``disparity`` float32 px, NaN
     invalid; ``valid`` bool; ``confidence`` float32 in [0, 1] (0 where invalid) or None;
-    ``left_rect``/``right_rect`` uint8, gray or BGR like the input; ``timings_ms`` per stage
-    (remap, match, refine, filters, depth, total).
+    ``left_rect``/``right_rect`` uint8, gray or BGR like the input; ``timings_ms`` per stage, in
+    one convention for every driver (:meth:`DepthPipeline.process`, the staged executor of the
+    service, ``rig process``, ``rig export mcap`` and the cluster): **processing time**, each
+    stage's own work in ms. ``remap`` (and ``decode``, which the staged executor adds: it decodes
+    the frames) is the **sum** of the two cameras' times, whether they ran one after the other
+    or on two threads at once; ``match``, ``refine``, ``filters``, ``depth`` the stage's; ``total``
+    the sum of the stages. It is not a latency: stages of consecutive pairs overlap and wait for
+    each other, and the wall time from capture to result is the frame's age (``X-Age-Ms``).
     """
 
     seq: int
@@ -90,8 +96,9 @@ class DepthFrame:
 @dataclass
 class RectifiedImages:
     """Output of :meth:`DepthPipeline.rectify`: the VPC images (H, W[, 3]) uint8, their gray
-    versions (H, W) uint8 (the same arrays for gray input), the stage's time and the geometry
-    that made them (None: the pipeline's current one)."""
+    versions (H, W) uint8 (the same arrays for gray input), the two cameras' remap times summed
+    (:class:`DepthFrame`'s convention) and the geometry that made them (None: the pipeline's
+    current one)."""
 
     left_rect: U8
     right_rect: U8
@@ -132,7 +139,8 @@ class DepthPipeline:
     cameras (default: ``left`` and ``right``, the lat-lon pair), matched with ``stereo``.
     ``tune_malloc`` calls :func:`tune_allocator` (process-wide; the pipeline is what the
     process is for); ``luts``: the tables handed in instead of the cache's (a cluster's
-    workers)."""
+    workers); ``log_field_warnings``: log :attr:`PairInEffect.field_warnings` at WARNING (False:
+    the caller says them itself, and they are logged at DEBUG)."""
 
     def __init__(
         self,
@@ -143,7 +151,9 @@ class DepthPipeline:
         *,
         tune_malloc: bool = True,
         luts: Mapping[str, CachedLut] | None = None,
+        log_field_warnings: bool = True,
     ) -> None:
+        self._field_log_level = logging.WARNING if log_field_warnings else logging.DEBUG
         if tune_malloc:
             tune_allocator()
         config = config or RectifiedPairConfig()
@@ -206,14 +216,12 @@ class DepthPipeline:
         return {n: lut.valid_fraction for n, lut in self.luts.items()}
 
     def _report_field(self, in_effect: PairInEffect) -> None:
-        """Log what the rectified view leaves out: for the pinhole pair the share of its pixels a
-        lens does not see (an unusual view); the lat-lon field is the lenses' overlap by design,
-        an explicit field wider than it is clipped (:attr:`RectifiedPair.field_note`)."""
-        pair = in_effect.pair
-        c = pair.camera
-        fractions = {n: info.lut.valid_fraction for n, info in in_effect.geometry.lut_info.items()}
-        if pair.field_note:
-            log.warning("%s", pair.field_note)
+        """Log :attr:`PairInEffect.field_warnings` (at WARNING; at DEBUG for a caller that says
+        them itself: ``log_field_warnings=False``, the command line) and the lat-lon pair's shape
+        (INFO)."""
+        for line in in_effect.field_warnings:
+            log.log(self._field_log_level, "%s", line)
+        pair, c = in_effect.pair, in_effect.pair.camera
         if isinstance(c, LatLonModel):
             log.info(
                 "lat-lon pair %dx%d, %.3f px/deg, %d unmatched columns on the left; the lenses see "
@@ -222,17 +230,11 @@ class DepthPipeline:
                 c.height,
                 np.radians(c.fx),
                 in_effect.field_reserve_px,
-                *(percent_valid(fractions[n]) for n in (pair.left, pair.right)),
+                *(
+                    percent_valid(in_effect.geometry.lut_info[n].lut.valid_fraction)
+                    for n in (pair.left, pair.right)
+                ),
             )
-            return
-        v = in_effect.config
-        for name, frac in fractions.items():
-            if frac < 1.0:
-                log.warning(
-                    "pinhole pair (%dx%d, hfov %.1f°, yaw %.1f°, pitch %.1f°) leaves camera '%s''s field: "
-                    "only %s of its pixels are valid",
-                    c.width, c.height, v.hfov_deg, v.yaw_deg, v.pitch_deg, name, percent_valid(frac),
-                )  # fmt: skip
 
     def apply(self, *, stereo: StereoParams | None = None, rig: Rig | None = None) -> PairInEffect:
         """The one way the pair in effect changes: new stereo parameters (the next pair to reach

@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from rig.atomic import write_atomic as _atomic_write
+from calibration.atomic import write_atomic as _atomic_write
 from rig.errors import DiskFullError, RecordingError, ResourceExhausted
 
 __all__ = [

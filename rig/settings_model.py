@@ -1,4 +1,7 @@
-"""The base of the configuration models (VPC, stereo, cameras, faults, server settings).
+"""The base of the configuration models (VPC, stereo, cameras, faults, server settings), and the
+one reader of the YAML config file they come from (:func:`read_config_file`: ``rig serve``'s
+settings and the ``cameras:`` section ``rig record`` and ``rig devices`` take from the same file),
+whose relative paths are relative to the file (:func:`path_in_config`).
 
 Numbers in a configuration are numbers and finite: YAML's ``true`` and JSON's ``true`` equal 1 in
 Python, and ``.nan``, ``.inf`` or ``1e400`` parse as floats, but none of them is a port, a
@@ -11,12 +14,23 @@ from __future__ import annotations
 
 import types
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any, Literal, Union, get_args, get_origin
 
+import yaml
 from pydantic import BaseModel, ConfigDict, ModelWrapValidatorHandler, ValidationError, model_validator
 from pydantic_core import ErrorDetails, InitErrorDetails, PydanticCustomError
 
-__all__ = ["SettingsModel", "describe_field_errors", "expects_number", "field_errors"]
+from rig.errors import ConfigError
+
+__all__ = [
+    "SettingsModel",
+    "describe_field_errors",
+    "expects_number",
+    "field_errors",
+    "path_in_config",
+    "read_config_file",
+]
 
 _BOOLEAN = PydanticCustomError("boolean_number", "must be a number, not a boolean")
 
@@ -88,3 +102,31 @@ def field_errors(
 def describe_field_errors(errors: list[tuple[str, str]]) -> str:
     """``field 'a': message; field 'b': message`` (one line for any number of mistakes)."""
     return "; ".join(f"field '{path or '<root>'}': {msg}" for path, msg in errors)
+
+
+def read_config_file(path: Path) -> dict[str, Any]:
+    """The mapping a YAML config file holds (``{}`` for an empty file); ConfigError naming the
+    file when it is missing, unreadable, not YAML or not a mapping."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{path}: config file unreadable ({err})") from err
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{path}: not valid YAML ({' '.join(str(err).split())})") from err
+    if doc is None:
+        return {}
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{path}: the config file must hold a mapping (server, cameras, ...)")
+    return doc
+
+
+def path_in_config(value: Any, base: Path) -> Any:
+    """A path value of a config file in directory ``base``: a relative one is relative to the
+    file, as most tools read them; anything else is returned as it is (validation names it)."""
+    if isinstance(value, str) and value and not Path(value).expanduser().is_absolute():
+        return str(base / value)
+    return value

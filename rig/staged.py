@@ -1,17 +1,21 @@
 """Staged depth: the pipeline's stages on their own threads, so that consecutive pairs overlap on
-a multi-core CPU (OpenCV and numpy release the GIL). The service's worker and ``rig process`` both
-run depth through :class:`StagedExecutor`::
+a multi-core CPU (OpenCV and numpy release the GIL). :class:`StagedExecutor` is the one executor
+of depth: the service's worker, ``rig process`` (here or as cluster tasks) and ``rig export mcap``
+all run it, each with its own source of pairs and its own :data:`Sink`::
 
-    take → prepare → [slot] → match → [slot] → postprocess (→ [slot] → deliver)
+    take → prepare → [slot] → match → [slot] → postprocess (→ [slot] → sink)
 
 1. ``<prefix>-prepare``: take a pair (:data:`Take`), load both images (decode) and remap them to
-   the VPC pair, one camera per thread (:meth:`DepthPipeline.rectify_camera`);
+   the rectified pair, one camera per thread (:meth:`DepthPipeline.rectify_camera`);
 2. ``<prefix>-match``: the stereo matcher (:meth:`DepthPipeline.match`);
 3. ``<prefix>-worker``: speckles, refinement, filters, depth (:meth:`DepthPipeline.postprocess`), in the
-   order the pairs were taken (the temporal filter's history), then ``deliver`` on this thread
-   (the service publishes: a reference swap), or
-4. ``<prefix>-write`` with ``deliver_thread=True``: ``deliver`` on a fourth thread (``rig process``
-   encodes and writes files while the next pair is post-processed).
+   order the pairs were taken (the temporal filter's history), then the sink on this thread
+   (the service publishes into its result store: a reference swap), or
+4. ``<prefix>-write`` with ``deliver_thread=True``: the sink on a fourth thread (files and MCAP
+   messages are encoded and written while the next pair is post-processed).
+
+Each frame's ``timings_ms`` follow one convention whoever runs it (:class:`~rig.pipeline.DepthFrame`):
+processing time per stage, the two cameras' decode and remap times summed.
 
 Stages hand over through one-item slots: at most one pair waits between two stages, and pairs
 leave in the order they were taken. How pairs are taken is the caller's:
@@ -19,8 +23,8 @@ leave in the order they were taken. How pairs are taken is the caller's:
 * **just in time** (:class:`JustInTime`, the service): the prepare stage takes a pair only when the
   match stage is expected to be free by the time the pair is remapped, so a slow pipeline leaves
   older pairs to the capture (which keeps the newest) instead of holding a stale one;
-* **in order** (no pacing, ``rig process``): the next pair as soon as the match slot has room;
-  the source reads ahead on its own thread.
+* **in order** (no pacing: a recording's pairs, :mod:`rig.recording_depth`): the next pair as
+  soon as the match slot has room; the source reads ahead on its own thread.
 
 A pair that fails in any stage is reported to ``on_error(key, err)`` and the stages go on; a
 source that returns :data:`END` ends the run once every pair before it is delivered.
@@ -45,12 +49,12 @@ from rig.priority import apply_to_current_thread
 
 __all__ = [
     "END",
-    "Deliver",
     "Ema",
     "EndOfPairs",
     "JustInTime",
     "OnError",
     "PairJob",
+    "Sink",
     "Slot",
     "StagedExecutor",
     "Take",
@@ -92,8 +96,12 @@ class PairJob(Generic[K]):
 
 Take = Callable[[float], "PairJob[Any] | EndOfPairs | None"]
 """``take(timeout_s)``: the next pair, None when none came within the timeout, or :data:`END`."""
-Deliver = Callable[[Any, DepthFrame, dict[str, float]], None]
-"""``deliver(key, frame, timings_ms)``: a finished pair with its stage times (decode included)."""
+Sink = Callable[[Any, DepthFrame], None]
+"""``sink(key, frame)``: where finished pairs go, one at a time in the order they were taken,
+with their stage times in ``frame.timings_ms`` (decode included; the convention is
+:class:`~rig.pipeline.DepthFrame`'s). The service's result store (``DepthWorker`` publishes),
+an output directory (:meth:`rig.outputs.OutputLayout.sink`) and an MCAP file
+(:class:`rig.ros.mcap_export.McapDepthSink`) are the sinks of this one executor."""
 OnError = Callable[[Any, BaseException], None]
 """``on_error(key, err)``: a pair failed (``key`` None: the failure was the source's)."""
 
@@ -206,7 +214,6 @@ class _Matched(Generic[K]):
 class _Finished(Generic[K]):
     job: PairJob[K]
     frame: DepthFrame
-    timings: dict[str, float]
 
 
 _Item = Any  # a stage's item or END
@@ -221,7 +228,7 @@ class StagedExecutor:
         self,
         pipeline: DepthPipeline,
         take: Take,
-        deliver: Deliver,
+        sink: Sink,
         *,
         on_error: OnError,
         pacing: JustInTime | None = None,
@@ -231,7 +238,7 @@ class StagedExecutor:
     ) -> None:
         self.pipeline = pipeline
         self.take = take
-        self._deliver = deliver
+        self._sink = sink
         self._on_error = on_error
         self._pacing = pacing
         self._poll_s = poll_s
@@ -345,10 +352,11 @@ class StagedExecutor:
                 left = future.result()  # also when the right failed: no thread left on this pair
         right_rect, right_gray, right_decode, right_remap = right
         left_rect, left_gray, left_decode, left_remap = left
+        # Processing time, summed over the cameras however they ran (DepthFrame's convention).
         rect = RectifiedImages(
-            left_rect, right_rect, left_gray, right_gray, max(left_remap, right_remap), geometry
+            left_rect, right_rect, left_gray, right_gray, left_remap + right_remap, geometry
         )
-        return rect, max(left_decode, right_decode)
+        return rect, left_decode + right_decode
 
     def _load_rectify(
         self, name: str, load: Callable[[], NDArray[Any]], geometry: PairGeometry
@@ -410,10 +418,11 @@ class StagedExecutor:
             return True
         timings = {"decode": item.decode_ms, **frame.timings_ms}
         timings["total"] = frame.timings_ms.get("total", 0.0) + item.decode_ms
+        frame.timings_ms = timings
         if self._to_deliver is not None:
-            self._to_deliver.put(_Finished(job, frame, timings))
+            self._to_deliver.put(_Finished(job, frame))
         else:
-            self._deliver_one(job, frame, timings)
+            self._deliver_one(job, frame)
         return True
 
     def _deliver_step(self) -> bool:
@@ -424,11 +433,11 @@ class StagedExecutor:
         if item is END:
             self._ended.set()
             return False
-        self._deliver_one(item.job, item.frame, item.timings)
+        self._deliver_one(item.job, item.frame)
         return True
 
-    def _deliver_one(self, job: PairJob[Any], frame: DepthFrame, timings: dict[str, float]) -> None:
+    def _deliver_one(self, job: PairJob[Any], frame: DepthFrame) -> None:
         try:
-            self._deliver(job.key, frame, timings)
+            self._sink(job.key, frame)
         except Exception as err:
             self._on_error(job.key, err)

@@ -81,7 +81,8 @@ class StereoParams(SettingsModel):
     disparity_range: int = Field(
         96, ge=16, le=4096, description="disparities searched (multiple of 16); nearest depth fx·B/range"
     )
-    # OpenCV 5.0 SGBM_3WAY divides by zero (SIGFPE, the process dies) at a ratio of 100.
+    # OpenCV 5.0 SGBM_3WAY divides by zero (SIGFPE, the process dies) at a ratio of 100 (rounded):
+    # this bound is the only guard against it, for the settings, the command line and PATCH /config.
     uniqueness_ratio: float = Field(10.0, ge=0.0, lt=99.5, description="best must beat 2nd by this %")
     texture_threshold: int = Field(10, ge=0, le=10000, description="BM: minimum window texture")
     speckle_size: int = Field(100, ge=0, le=10000, description="remove blobs smaller than this (0 = off)")

@@ -6,14 +6,14 @@ The first run renders the demo room once with the virtual environment (:mod:`rig
 keyed by a hash of everything that determines it, then adds fresh sensor noise to each of
 ``frames`` copies of that view: a static scene whose depth visibly lives, looping seamlessly at
 30 fps. The render goes into a temporary directory that is renamed into place only when
-complete, so an interrupted render is never used (its leftovers are removed next time).
+complete (:func:`calibration.atomic.atomic_directory`), so an interrupted render is never used
+(its leftovers are removed next time).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import platformdirs
 
+from calibration.atomic import atomic_directory
 from rig.recording import RECORDING_VERSION, Recording, RecordingWriter
 from rig.rectified import RectifiedPairConfig
 from rig.sim import get_preset, simulate_recording
@@ -126,27 +127,6 @@ def render_demo(spec: DemoSpec, out: Path, progress: StepProgress | None = None)
     return loop_dir
 
 
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-def _remove_leftovers(cache: Path, key: str) -> None:
-    """Temporary directories of interrupted renders (their process is gone)."""
-    for tmp in cache.glob(f".{key}.tmp-*"):
-        try:
-            pid = int(tmp.name.rsplit("-", 1)[1])
-        except ValueError:
-            pid = -1
-        if pid != os.getpid() and not _pid_alive(pid):
-            shutil.rmtree(tmp, ignore_errors=True)
-
-
 def cached_demo_recording(spec: DemoSpec | None = None, cache_dir: Path | None = None) -> Path | None:
     """The demo's loop recording if it has been rendered already, else None."""
     loop = (cache_dir or demo_cache_dir()) / demo_key(spec or DemoSpec()) / "loop"
@@ -162,24 +142,16 @@ def ensure_demo_recording(
     cached = cached_demo_recording(spec, cache)
     if cached is not None:
         return cached
-    key = demo_key(spec)
-    final = cache / key
+    final = cache / demo_key(spec)
     cache.mkdir(parents=True, exist_ok=True)
-    _remove_leftovers(cache, key)
-    tmp = cache / f".{key}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
-    try:
+    with atomic_directory(final, complete=_rendered) as tmp:
         render_demo(spec, tmp, progress)
         (tmp / "demo.json").write_text(json.dumps(spec.as_json(), indent=2) + "\n")
-        try:
-            os.rename(tmp, final)
-        except OSError:
-            if not (final / "loop" / "frames.csv").is_file():  # not a concurrent render that won
-                raise
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return final / "loop"
+
+
+def _rendered(directory: Path) -> bool:
+    return (directory / "loop" / "frames.csv").is_file()
 
 
 def replay_overrides(

@@ -13,23 +13,37 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import Literal, Protocol
 
+from rig.calibration_check import CalibrationCheck
+from rig.capture.capture import StereoCapture
 from rig.capture.health import CaptureHealth
-from rig.rectification.monitor import RectificationStatus
+from rig.rectification.monitor import RectificationMonitor, RectificationStatus
 from service.host import HostInfo, host_info
-from service.recordings import RecordingStatus
-from service.worker import WorkerStats
+from service.recordings import RecordingManager, RecordingStatus
+from service.settings import Settings
+from service.worker import DepthWorker, WorkerStats
 
-if TYPE_CHECKING:
-    from service.runtime import Runtime
-
-__all__ = ["HealthReport", "HealthSnapshot", "HealthStatus", "health_report"]
+__all__ = ["HealthReport", "HealthSnapshot", "HealthSources", "HealthStatus", "health_report"]
 
 HealthStatus = Literal["ok", "degraded", "down"]
 HealthSnapshot = tuple[bytes, int]
 """A rendered health report, shared by the callers of :meth:`Runtime.health_snapshot`: the
 ``/health`` body and its HTTP status."""
+
+
+class HealthSources(Protocol):
+    """What the report reads: the parts of a running service (service.runtime.Runtime)."""
+
+    settings: Settings
+    capture: StereoCapture
+    worker: DepthWorker
+    recordings: RecordingManager
+    rectification: RectificationMonitor | None
+    calibration_check: CalibrationCheck | None
+    started_ns: int
+
+    def depth_collapse(self) -> str | None: ...
 
 
 @dataclass(frozen=True)
@@ -68,7 +82,7 @@ def _worker_reasons(worker: WorkerStats, stale_after_s: float) -> list[str]:
     return reasons
 
 
-def _depth_reasons(runtime: Runtime) -> list[str]:
+def _depth_reasons(runtime: HealthSources) -> list[str]:
     check = runtime.calibration_check
     reasons = [] if check is None else [f"calibration check: {f.message}" for f in check.errors]
     collapse = runtime.depth_collapse()
@@ -77,7 +91,7 @@ def _depth_reasons(runtime: Runtime) -> list[str]:
     return reasons
 
 
-def health_report(runtime: Runtime) -> HealthReport:
+def health_report(runtime: HealthSources) -> HealthReport:
     """The health of ``runtime`` now (see the module doc)."""
     cap = runtime.capture.health()
     worker = runtime.worker.stats()

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from calibration import save_rig
+from calibration.atomic import write_atomic
 from calibration.rig import Rig
 from rig.capture.frame import FramePair
 from rig.errors import DiskFullError, RecordingError, RigError
@@ -269,9 +270,7 @@ class RecordingManager:
                 dropped=active.dropped,
                 error=active.error,
             )
-            tmp = meta_path.with_name(meta_path.name + ".tmp")
-            tmp.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-            os.replace(tmp, meta_path)
+            write_atomic(meta_path, (json.dumps(doc, indent=2) + "\n").encode())
         except (OSError, ValueError) as err:
             log.warning("recording %s: could not note the stop in recording.json: %s", active.name, err)
         log.info(

@@ -37,7 +37,6 @@ from pathlib import Path
 from typing import Any
 
 import platformdirs
-import yaml
 from pydantic import (
     ConfigDict,
     Field,
@@ -50,12 +49,19 @@ from pydantic.fields import FieldInfo
 from pydantic_core import ErrorDetails
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
-from rig.capture.config import CAMERA_KINDS, CaptureConfig
+from rig.capture.config import CAMERA_KINDS, CaptureConfig, resolve_camera_paths
+from rig.errors import ConfigError
 from rig.pinhole_depth import PinholeDepthConfig
 from rig.rectification.monitor import RectificationConfig
 from rig.rectified import RectifiedPairConfig
 from rig.ros.names import RosNames
-from rig.settings_model import SettingsModel, describe_field_errors, field_errors
+from rig.settings_model import (
+    SettingsModel,
+    describe_field_errors,
+    field_errors,
+    path_in_config,
+    read_config_file,
+)
 from rig.stereo import StereoParams
 from service.errors import SettingsError
 
@@ -353,43 +359,25 @@ _PATH_FIELDS = (
 
 def _resolve_relative(doc: dict[str, Any], base: Path) -> dict[str, Any]:
     """Paths in a config file are relative to the file (a copy; the input is not changed)."""
-
-    def fix(value: Any) -> Any:
-        if isinstance(value, str) and value and not Path(value).expanduser().is_absolute():
-            return str(base / value)
-        return value
-
     out = {k: (dict(v) if isinstance(v, Mapping) else v) for k, v in doc.items()}
     for path in _PATH_FIELDS:
         holder: Any = out
         for key in path[:-1]:
             holder = holder.get(key) if isinstance(holder, dict) else None
         if isinstance(holder, dict) and path[-1] in holder:
-            holder[path[-1]] = fix(holder[path[-1]])
-    cams = out.get("cameras")
-    if isinstance(cams, dict):
-        for name in ("left", "right"):
-            cam = cams.get(name)
-            if isinstance(cam, Mapping) and cam.get("kind") == "file" and "recording" in cam:
-                cams[name] = {**cam, "recording": fix(cam["recording"])}
+            holder[path[-1]] = path_in_config(holder[path[-1]], base)
+    if "cameras" in out:
+        out["cameras"] = resolve_camera_paths(out["cameras"], base)
     return out
 
 
 def _read_config(path: Path) -> dict[str, Any]:
+    """The config file (:func:`rig.settings_model.read_config_file`, the one reader) with its
+    relative paths resolved."""
     try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SettingsError(f"{path}: config file not found") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise SettingsError(f"{path}: config file unreadable ({err})") from err
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise SettingsError(f"{path}: not valid YAML ({' '.join(str(err).split())})") from err
-    if doc is None:
-        return {}
-    if not isinstance(doc, dict):
-        raise SettingsError(f"{path}: the config file must hold a mapping (server, cameras, ...)")
+        doc = read_config_file(path)
+    except ConfigError as err:
+        raise SettingsError(str(err)) from err
     return _resolve_relative(doc, path.parent)
 
 

@@ -1,9 +1,10 @@
 """The depth worker: takes the newest pair from the capture, runs the pipeline and publishes the
-result, on the staged executor of :mod:`rig.staged` (the stages on three threads, so that
-consecutive frames overlap on a multi-core CPU):
+result, on the staged executor of :mod:`rig.staged` (the one executor ``rig process`` and ``rig
+export mcap`` run too; the stages on three threads, so that consecutive frames overlap on a
+multi-core CPU), with the result store as its sink:
 
 1. ``rig-depth-prepare``: take the newest pair, decode both frames' luma (unless the capture did)
-   and remap them to the VPC pair, one frame per thread;
+   and remap them to the rectified pair, one frame per thread;
 2. ``rig-depth-match``: the stereo matcher;
 3. ``rig-depth-worker``: refinement, filters, depth and publishing.
 
@@ -170,7 +171,9 @@ class DepthWorker:
         log.error("depth worker: unexpected error", exc_info=err)
         self._failed(f"{type(err).__name__}: {err}")
 
-    def _publish(self, pair: FramePair, frame: DepthFrame, timings: dict[str, float]) -> None:
+    def _publish(self, pair: FramePair, frame: DepthFrame) -> None:
+        """The executor's sink: ``frame`` into the result store (see the module doc)."""
+        timings = frame.timings_ms
         arrived = max(pair.left.host_ns, pair.right.host_ns)
         with self._lock:
             self._counters.add("frames_processed")

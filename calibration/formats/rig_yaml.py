@@ -6,8 +6,6 @@ Floats are written with ``repr`` precision so a save/load round trip is exact.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -15,6 +13,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from calibration.atomic import write_atomic
 from calibration.errors import CalibrationFileError
 from calibration.formats.content import CalibrationContent, build_model
 from calibration.formats.document import Document, Field
@@ -24,7 +23,6 @@ from calibration.rig import Rig
 __all__ = [
     "RIG_YAML_VERSION",
     "atomic_write_bytes",
-    "atomic_write_text",
     "dump_rig_yaml",
     "is_rig_yaml",
     "read_rig_yaml",
@@ -110,36 +108,18 @@ _Dumper.add_representer(dict, _represent_dict)
 
 
 def write_rig_yaml(rig: Rig, path: str | Path) -> None:
-    """Write ``rig`` to ``path`` atomically (temp file in the same folder, fsync, os.replace)."""
-    atomic_write_text(Path(path), dump_rig_yaml(rig))
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Replace ``path`` with ``text`` so readers see the old or the new file, never a part."""
-    atomic_write_bytes(path, text.encode("utf-8"))
+    """Write ``rig`` to ``path`` atomically (:func:`atomic_write_bytes`)."""
+    atomic_write_bytes(Path(path), dump_rig_yaml(rig).encode("utf-8"))
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Replace ``path`` with ``data`` (temp file in the same folder, fsync, os.replace), keeping
-    the old file's permissions; CalibrationFileError naming ``path`` if it cannot be written."""
+    """Replace ``path`` with ``data`` through :func:`calibration.atomic.write_atomic` (readers see
+    the old or the new file, never a part; the old file's permissions are kept);
+    CalibrationFileError naming ``path`` if it cannot be written."""
     try:
-        mode = path.stat().st_mode & 0o777 if path.exists() else 0o644
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        write_atomic(path, data)
     except OSError as err:
         raise CalibrationFileError(path, f"cannot write: {err.strerror or err}") from err
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, path)
-    except OSError as err:
-        Path(tmp).unlink(missing_ok=True)
-        raise CalibrationFileError(path, f"cannot write: {err.strerror or err}") from err
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _plain(obj: Any) -> Any:

@@ -23,12 +23,17 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-import yaml
 from pydantic import ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from rig.capture.faults import Fault
 from rig.errors import ConfigError
-from rig.settings_model import SettingsModel, describe_field_errors, field_errors
+from rig.settings_model import (
+    SettingsModel,
+    describe_field_errors,
+    field_errors,
+    path_in_config,
+    read_config_file,
+)
 
 __all__ = [
     "CAMERA_KINDS",
@@ -40,6 +45,7 @@ __all__ = [
     "V4L2CameraConfig",
     "capture_config_from_mapping",
     "load_capture_config",
+    "resolve_camera_paths",
 ]
 
 
@@ -202,39 +208,38 @@ class CaptureConfig(SettingsModel):
 CAMERA_KINDS = ("file", "v4l2")
 
 
+def resolve_camera_paths(cameras: Any, base: Path) -> Any:
+    """A config file's raw ``cameras:`` section (the file in directory ``base``) with each file
+    camera's ``recording`` relative to the file (:func:`rig.settings_model.path_in_config`);
+    anything else as it is. The service's settings read the section through this too."""
+    if not isinstance(cameras, Mapping):
+        return cameras
+    out = dict(cameras)
+    for name in ("left", "right"):
+        cam = out.get(name)
+        if isinstance(cam, Mapping) and cam.get("kind") == "file" and "recording" in cam:
+            out[name] = {**cam, "recording": path_in_config(cam["recording"], base)}
+    return out
+
+
 def capture_config_from_mapping(doc: Mapping[str, Any], source: str = "<config>") -> CaptureConfig:
-    """Validate a ``cameras:`` mapping; ConfigError names the source and the field."""
+    """Validate a ``cameras:`` mapping (of the config file ``source``, whose directory relative
+    recording paths are relative to); ConfigError names the source and the field."""
     if not isinstance(doc, Mapping):
         raise ConfigError(f"{source}: field 'cameras' must be a mapping with 'left' and 'right'")
+    if source != "<config>":
+        doc = resolve_camera_paths(doc, Path(source).parent)
     try:
-        cfg = CaptureConfig.model_validate(dict(doc))
+        return CaptureConfig.model_validate(dict(doc))
     except ValidationError as err:
         errors = field_errors(err, prefix=("cameras",), hide=CAMERA_KINDS)
         raise ConfigError(f"{source}: {describe_field_errors(errors)}") from err
-    base = Path(source).parent if source != "<config>" else None
-    if base is not None:
-        # Relative recording paths are relative to the config file, like most tools read them.
-        updates = {}
-        for name in ("left", "right"):
-            cam = cfg.camera(name)
-            if isinstance(cam, FileCameraConfig) and not cam.recording.is_absolute():
-                updates[name] = cam.model_copy(update={"recording": base / cam.recording})
-        if updates:
-            cfg = cfg.model_copy(update=updates)
-    return cfg
 
 
 def load_capture_config(path: str | Path) -> CaptureConfig:
-    """Read the ``cameras:`` section of a YAML config file."""
+    """Read the ``cameras:`` section of a YAML config file (:func:`rig.settings_model.read_config_file`)."""
     p = Path(path)
-    try:
-        doc = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: config file not found") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise ConfigError(f"{p}: unreadable ({err})") from err
-    except yaml.YAMLError as err:
-        raise ConfigError(f"{p}: not valid YAML ({' '.join(str(err).split())})") from err
-    if not isinstance(doc, dict) or "cameras" not in doc:
+    doc = read_config_file(p)
+    if "cameras" not in doc:
         raise ConfigError(f"{p}: field 'cameras' missing (the capture section with 'left' and 'right')")
     return capture_config_from_mapping(doc["cameras"], str(p))

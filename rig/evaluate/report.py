@@ -21,6 +21,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from calibration.atomic import write_atomic
 from rig.errors import EvaluationError
 from rig.evaluate.agreement import check_claims, mean_ratio
 from rig.evaluate.depth_quality import REFERENCE, THEORY, CurvePoint
@@ -336,9 +337,7 @@ def write_outputs(run: EvaluationRun, out: str | Path) -> Path:
         )
         report = root / "report.md"
         report.write_text(render_markdown(run, doc, claims))
-        tmp = root / "results.json.tmp"
-        tmp.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n")
-        os.replace(tmp, root / "results.json")
+        write_atomic(root / "results.json", (json.dumps(doc, indent=2, allow_nan=False) + "\n").encode())
     except OSError as err:
         raise EvaluationError(f"{root}: cannot write the evaluation output ({err.strerror or err})") from err
     return report

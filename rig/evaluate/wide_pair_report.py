@@ -12,7 +12,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +19,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import ScalarFormatter
 
+from calibration.atomic import write_atomic
 from rig.evaluate.wide_pair import REFERENCE_VARIANT, VariantResult, WideStudy
 
 __all__ = ["WIDE_OUTPUT_FILES", "wide_document", "write_wide_outputs"]
@@ -186,7 +186,5 @@ def write_wide_outputs(study: WideStudy, out: str | Path) -> Path:
     _plot(study, root / "wide_pair.png")
     report = root / "wide_pair.md"
     report.write_text(_markdown(study, doc), encoding="utf-8")
-    tmp = root / "wide_pair.json.tmp"
-    tmp.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    os.replace(tmp, root / "wide_pair.json")
+    write_atomic(root / "wide_pair.json", (json.dumps(doc, indent=2, allow_nan=False) + "\n").encode())
     return report

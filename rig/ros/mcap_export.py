@@ -1,10 +1,12 @@
 """MCAP files for ROS 2 and Foxglove: a recording's depth exported (``rig export mcap``), and new
 recordings written straight to MCAP (``rig record --format mcap``).
 
-:func:`export_mcap` runs the depth pipeline over every pair of a recording (a directory or a
-bag) and writes, per pair, everything :class:`~rig.ros.messages.MessageBuilder` makes (raw
-frames, camera infos, rectified views, depth, range, confidence, point cloud), after the static
-transform tree; header stamps and log times are the frames' timestamps. A pair whose frame
+:func:`export_mcap` runs depth over every pair of a recording (a directory or a bag) the way
+``rig process`` does, on the same executor (:func:`rig.recording_depth.process_pairs`: the same
+depth, bit for bit, the same failures, the same stage times), with an MCAP file as the sink
+(:class:`McapDepthSink`): per pair, everything :class:`~rig.ros.messages.MessageBuilder` makes
+(raw frames, camera infos, rectified views, depth, range, confidence, point cloud), after the
+static transform tree; header stamps and log times are the frames' timestamps. A pair whose frame
 cannot be read or processed is skipped and reported; the file appears under its name only when
 complete.
 
@@ -22,14 +24,15 @@ from typing import Any
 from numpy.typing import NDArray
 
 from rig.capture.recorded import RecordedPairs
-from rig.errors import PipelineError, RecordingError
-from rig.pipeline import DepthPipeline
-from rig.recording import PairRecord, StoredFrame
+from rig.errors import OutputError, RecordingError
+from rig.pipeline import DepthFrame, DepthPipeline
+from rig.recording import StoredFrame
+from rig.recording_depth import PairFailure, RecordedPair, process_pairs
 from rig.ros.mcap_writer import Compression, McapRosWriter
 from rig.ros.messages import MessageBuilder, raw_image_message
 from rig.ros.names import RosNames
 
-__all__ = ["ExportResult", "McapRecordingWriter", "export_mcap"]
+__all__ = ["ExportResult", "McapDepthSink", "McapRecordingWriter", "export_mcap"]
 
 
 @dataclass
@@ -37,7 +40,32 @@ class ExportResult:
     path: Path
     pairs: int = 0
     messages: int = 0
-    skipped: list[tuple[int, str]] = field(default_factory=list)
+    skipped: list[PairFailure] = field(default_factory=list)
+
+
+class McapDepthSink:
+    """An MCAP file as a sink of the staged executor (:data:`rig.recording_depth.PairSink`):
+    the static transforms before the first pair, then per pair its two raw frames and everything
+    ``builder`` makes of its depth, stamped with the pair's capture times. The writer's failures
+    (a full disk) stop the run as :class:`~rig.errors.OutputError`."""
+
+    def __init__(self, writer: McapRosWriter, builder: MessageBuilder) -> None:
+        self.writer = writer
+        self.builder = builder
+        self.pairs = 0
+
+    def __call__(self, pair: RecordedPair, frame: DepthFrame) -> None:
+        record, builder = pair.record, self.builder
+        assert pair.left is not None and pair.right is not None  # a pair without them has no depth
+        try:
+            if not self.pairs:
+                self.writer.write_all(builder.static(record.left_ts_ns))
+            self.writer.write_all(builder.raw_frame("left", pair.left, record.left_ts_ns))
+            self.writer.write_all(builder.raw_frame("right", pair.right, record.right_ts_ns))
+            self.writer.write_all(builder.depth_outputs(frame, record.left_ts_ns))
+        except RecordingError as err:
+            raise OutputError(str(err)) from err
+        self.pairs += 1
 
 
 def export_mcap(
@@ -49,42 +77,25 @@ def export_mcap(
     cloud_stride: int = 1,
     rectified_images: bool = True,
     compression: Compression = "zstd",
-    on_pair: Callable[[PairRecord, str | None], None] | None = None,
+    readahead: int = 4,
+    on_pair: Callable[[int, PairFailure | None], None] | None = None,
 ) -> ExportResult:
     """Depth and everything around it for every pair of ``recording`` into ``out`` (see the
-    module docstring). ``on_pair(pair, error)`` follows progress (error: why it was skipped).
-    RecordingError when no pair could be processed (then no file is left behind)."""
+    module docstring). ``on_pair(seq, failure)`` follows progress (failure: why it was skipped).
+    RecordingError when no pair could be processed, OutputError when the file cannot be
+    written (then no file is left behind)."""
     builder = MessageBuilder(pipeline, names or RosNames(), cloud_stride, rectified_images)
-    result = ExportResult(Path(out))
     with McapRosWriter(out, compression=compression) as writer:
-        for pair in recording.pairs:
-            try:
-                left = recording.read_frame(pair, "left")
-                right = recording.read_frame(pair, "right")
-                frame = pipeline.process(
-                    left.pipeline_image(), right.pipeline_image(), pair.seq, pair.left_ts_ns
-                )
-            except (RecordingError, PipelineError) as err:
-                reason = " ".join(str(err).split())
-                result.skipped.append((pair.seq, reason))
-                if on_pair is not None:
-                    on_pair(pair, reason)
-                continue
-            if not result.pairs:
-                writer.write_all(builder.static(pair.left_ts_ns))
-            writer.write_all(builder.raw_frame("left", left, pair.left_ts_ns))
-            writer.write_all(builder.raw_frame("right", right, pair.right_ts_ns))
-            writer.write_all(builder.depth_outputs(frame, pair.left_ts_ns))
-            result.pairs += 1
-            if on_pair is not None:
-                on_pair(pair, None)
-        if recording.pairs and not result.pairs:
+        sink = McapDepthSink(writer, builder)
+        run = process_pairs(pipeline, recording, recording.pairs, sink, readahead=readahead, on_pair=on_pair)
+        if recording.pairs and not run.written:
+            first = run.failures[0]
             raise RecordingError(
                 f"{recording.root}: no pair of {len(recording.pairs)} could be processed "
-                f"(first: seq {result.skipped[0][0]}: {result.skipped[0][1]})"
+                f"(first: seq {first.seq}: {first.reason})"
             )
-        result.messages = writer.messages
-    return result
+        messages = writer.messages
+    return ExportResult(Path(out), run.written, messages, run.failures)
 
 
 class McapRecordingWriter:

@@ -9,7 +9,11 @@ record ``ros2 bag`` writes (the bag's ``metadata.yaml`` content), so ``ros2 bag 
 
 ``durable=True`` (recordings) makes every chunk reach the kernel as soon as it is written and
 closes the chunk in progress every ``flush_interval_s``: a killed process loses at most that
-chunk. What the ``.partial`` file holds is read back by :func:`recover_mcap`.
+chunk. What the ``.partial`` file holds is read back by :func:`recover_mcap`, which writes the
+recovered file through :func:`calibration.atomic.atomic_file`. The ``.partial`` file itself is
+not one of that function's temporaries: it is written for the whole of a recording, has a name
+the user is told (to recover it, or to refuse a second recording over it) and is kept, not
+removed, when the writer dies.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from mcap.writer import CompressionType, Writer
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2.metadata import dump_qos_v8
 
+from calibration.atomic import atomic_file, fsync_directory
 from rig.errors import DiskFullError, RecordingError
 from rig.ros import cdr
 from rig.ros.messages import Message as RigMessage
@@ -258,9 +263,9 @@ class McapRosWriter:
             file.close()
         try:
             os.replace(self.partial, self.path)
-            _fsync_dir(self.path.parent)
         except OSError as err:
             raise _translate(err, self.path) from err
+        fsync_directory(self.path.parent)
         return self.path
 
     def abort(self, *, keep: bool = False) -> None:
@@ -277,14 +282,6 @@ class McapRosWriter:
 def _call(method: Callable[[], object]) -> None:
     """Call one of mcap's unannotated methods (typed here, for mypy's strict mode)."""
     method()
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 @dataclass(frozen=True)
@@ -304,23 +301,14 @@ def recover_mcap(partial: str | Path, out: str | Path | None = None) -> RecoverR
         raise RecordingError(f"{src}: give an output name (the input does not end in .partial)")
     if dst.exists():
         raise RecordingError(f"{dst}: already exists; give another output name")
-    tmp = dst.with_name(dst.name + ".recovering")
     try:
-        with open(src, "rb") as f_in, open(tmp, "wb") as f_out:
+        with open(src, "rb") as f_in, atomic_file(dst) as f_out:
             kept, complete = _copy_records(f_in, Writer(f_out))
-            f_out.flush()
-            os.fsync(f_out.fileno())
     except OSError as err:
-        tmp.unlink(missing_ok=True)
         raise _translate(err, dst) from err
     except RecordingError as err:
-        tmp.unlink(missing_ok=True)
         raise RecordingError(f"{src}: {err}") from None
-    try:
-        os.replace(tmp, dst)
-        _fsync_dir(dst.parent)
-    except OSError as err:
-        raise _translate(err, dst) from err
+    fsync_directory(dst.parent)
     src.unlink(missing_ok=True)
     return RecoverResult(dst, kept, complete)
 

@@ -30,7 +30,6 @@ import errno
 import io
 import json
 import math
-import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +39,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from calibration.atomic import write_atomic
 from calibration.formats import save_rig
 from calibration.geometry import make_transform, rot_y
 from rig.errors import ConfigError, DiskFullError, RecordingError, SimulationError
@@ -122,11 +122,7 @@ def _shots(
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-    os.replace(tmp, path)
+    write_atomic(path, data, fsync=False)
 
 
 def _write_error(root: Path, err: OSError) -> RecordingError:

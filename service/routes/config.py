@@ -62,17 +62,8 @@ def config_model(runtime: Runtime, in_effect: PairInEffect) -> ConfigModel:
 def dry_run(pipeline: DepthPipeline, params: StereoParams) -> None:
     """Run a matcher with ``params`` once on a blank pair of the rectified size: OpenCV checks some
     limits (window vs. disparity range vs. image width) only when it matches, and a refused
-    configuration must be refused here, not fail every frame in the worker. Combinations that
-    crash OpenCV itself (a native crash takes the whole service down) are refused unrun."""
-    if (
-        params.stereo_algorithm == 1
-        and params.effective_mode == "3way"
-        and round(params.uniqueness_ratio) >= 100
-    ):
-        # OpenCV 5.0's SGBM_3WAY divides by (100 - uniquenessRatio): SIGFPE, the process dies.
-        raise ValueError(
-            "uniqueness_ratio 100 with sgbm_mode 3way crashes OpenCV (division by zero); use <= 99"
-        )
+    configuration must be refused here, not fail every frame in the worker. Values that would
+    crash OpenCV itself never get here: :class:`StereoParams`' bounds refuse them."""
     cam = pipeline.pair.camera
     blank = np.zeros((cam.height, cam.width), dtype=np.uint8)
     StereoMatcher(params).match(blank, blank)

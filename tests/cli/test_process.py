@@ -232,6 +232,14 @@ def test_a_swapped_calibration_stops_with_one_line_naming_it(tmp_path: Path, sho
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "calibration check on pair 0: cameras left and right are swapped" in lines[0]
     assert not (tmp_path / "out" / "depth" / "000000.png").exists()
+    # rig export mcap makes the same check, with the same line, and writes nothing.
+    exported = run(
+        "export", "mcap", rec, "-c", tmp_path / "swapped.yaml", "--out", tmp_path / "x.mcap", *small(rec),
+        tmp=tmp_path,
+    )  # fmt: skip
+    assert exported.returncode == 2, (exported.stdout, exported.stderr)
+    assert [ln for ln in exported.stderr.splitlines() if ln.strip()] == lines
+    assert not list(tmp_path.glob("x.mcap*"))
     # The check can be skipped (then the wrong depth is the user's choice).
     forced = run(
         "process", rec, "-c", tmp_path / "swapped.yaml", "-o", tmp_path / "out2", *small(rec),

@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import pytest
 
-from rig.atomic import is_temporary
+from calibration.atomic import is_temporary
 from tests.helpers.command import assert_one_line_error, clean_env, run_rig
 from tests.helpers.disks import tmpfs_disk
 from tests.helpers.offline import VPC_ARGS, files_of, noisy_recording

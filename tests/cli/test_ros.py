@@ -58,12 +58,20 @@ def one_error_line(res: subprocess.CompletedProcess[str], *fragments: str) -> st
     return lines[0]
 
 
-def test_export_mcap_depth_equals_rig_process(tmp_path: Path) -> None:
+def png(path: Path) -> np.ndarray:
+    return np.asarray(cv2.imread(str(path), cv2.IMREAD_UNCHANGED))
+
+
+def test_export_mcap_depth_is_rig_process_byte_for_byte(tmp_path: Path) -> None:
+    """One executor: with the temporal filter on (history across pairs), the exported 16UC1 depth
+    is ``rig process``'s depth PNGs byte for byte, its range and rectified views those files'."""
     rec, opts = prepared(tmp_path)
+    (tmp_path / "stereo.yaml").write_text("disparity_range: 32\ntemporal_alpha: 0.5\n")
     cache = tmp_path / "cache"
     res = run("process", rec.root, "--out", tmp_path / "out", *opts, cache=cache)
     assert res.returncode == 0, res.stderr
-    res = run("export", "mcap", rec.root, "--out", tmp_path / "run.mcap", *opts, cache=cache)
+    export = ["export", "mcap", rec.root, "--out", tmp_path / "run.mcap", "--depth-encoding", "16UC1"]
+    res = run(*export, *opts, cache=cache)
     assert res.returncode == 0, res.stderr
     assert f"exported {PAIRS} of {PAIRS} pairs" in res.stdout
     assert sorted(p.name for p in tmp_path.iterdir()) == [
@@ -75,14 +83,30 @@ def test_export_mcap_depth_equals_rig_process(tmp_path: Path) -> None:
         "stereo.yaml",
     ]
     msgs = messages(tmp_path / "run.mcap")
+    assert len(msgs[N.depth_image]) == PAIRS
     for k, img in enumerate(msgs[N.depth_image]):
-        depth = np.frombuffer(img.data, "<f4").reshape(img.height, img.width)
-        png = cv2.imread(str(tmp_path / "out" / "depth" / f"{k:06d}.png"), cv2.IMREAD_UNCHANGED)
-        assert np.array_equal(depth_to_png_mm(depth), png)
-        left = cv2.imread(str(tmp_path / "out" / "left" / f"{k:06d}.png"), cv2.IMREAD_UNCHANGED)
+        stem = f"{k:06d}.png"
+        depth = png(tmp_path / "out" / "depth" / stem)
+        assert img.encoding == "16UC1" and bytes(img.data) == depth.astype("<u2").tobytes()
+        rng_msg = msgs[N.range_image][k]
+        rng = np.frombuffer(rng_msg.data, "<f4").reshape(rng_msg.height, rng_msg.width)
+        assert np.array_equal(depth_to_png_mm(rng), png(tmp_path / "out" / "range" / stem))
         rect = msgs[N.rect_image("left")][k]
-        assert np.array_equal(np.asarray(rect.data).reshape(rect.height, rect.width), left)
+        assert np.array_equal(
+            np.asarray(rect.data).reshape(rect.height, rect.width), png(tmp_path / "out" / "left" / stem)
+        )
         assert bytes(msgs[N.raw_image("left", compressed=True)][k].data) == rec.jpegs[k][0]
+    # The filter's history mattered: without it the later pairs' depth differs.
+    (tmp_path / "stereo.yaml").write_text("disparity_range: 32\n")
+    res = run("process", rec.root, "--out", tmp_path / "plain", *opts, cache=cache)
+    assert res.returncode == 0, res.stderr
+    stems = [f"{k:06d}.png" for k in range(PAIRS)]
+    differ = [
+        s
+        for s in stems
+        if not np.array_equal(png(tmp_path / "plain" / "depth" / s), png(tmp_path / "out" / "depth" / s))
+    ]
+    assert differ and stems[0] not in differ  # the first pair has no history either way
 
 
 def test_process_and_export_a_ros_bag(tmp_path: Path) -> None:

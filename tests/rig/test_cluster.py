@@ -15,9 +15,10 @@ from typing import Any
 
 import pytest
 
-from rig.atomic import is_temporary
-from rig.process import ProcessOptions, RecordingJob, RecordingSource, RecordingSummary, process_recordings
+from calibration.atomic import is_temporary
+from rig.process import process_recordings
 from rig.recording import Recording
+from rig.recording_jobs import ProcessOptions, RecordingJob, RecordingSource, RecordingSummary
 from rig.stereo import StereoParams
 from tests.helpers.offline import STEREO, TEMPORAL, files_of, make_pipeline, noisy_recording
 

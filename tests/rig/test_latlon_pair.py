@@ -150,8 +150,12 @@ def test_config_keeps_each_projection_to_its_own_settings() -> None:
     assert RectifiedPairConfig().projection == DEFAULT_PROJECTION == "latlon"
     assert RectifiedPairConfig(width=320, height=240).projection == "pinhole"
     assert RectifiedPairConfig(hfov_deg=100).projection == "pinhole"
-    with pytest.raises(ValueError, match="yaw_deg and pitch_deg centre an explicit lat-lon field"):
+    with pytest.raises(ValueError, match="yaw_deg centre an explicit lat-lon field"):
         RectifiedPairConfig(yaw_deg=10.0)
+    with pytest.raises(ValueError, match="yaw_deg and pitch_deg centre an explicit lat-lon field"):
+        RectifiedPairConfig(yaw_deg=10.0, pitch_deg=-5.0)
+    # A lat-lon configuration has no pinhole size; a pinhole one gets its defaults.
+    assert RectifiedPairConfig().width is None and RectifiedPairConfig(projection="pinhole").width == 640
     assert RectifiedPairConfig(yaw_deg=10.0, az_span_deg=40.0).yaw_deg == 10.0
     with pytest.raises(ValueError, match="projection"):
         RectifiedPairConfig(projection="fisheye")  # type: ignore[arg-type]

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 import rig.lut_cache as lut_cache
+from calibration.atomic import TEMP_MARK
 from calibration.geometry import rot_x, rot_y
 from calibration.models import CameraModel, PinholeModel, create
 from rig.lut_cache import MAGIC, LutCache, default_cache_dir, lut_key
@@ -190,6 +191,7 @@ def test_entries_and_clear(tmp_path: Path) -> None:
     assert entries[a.path.name].valid_fraction == pytest.approx(a.lut.valid_fraction)
     assert "kannala_brandt 320x240 -> vpc 160x120" in entries[a.path.name].summary
     assert not entries["0" * 64 + ".lut"].ok and entries["0" * 64 + ".lut"].problem
+    (tmp_path / "c" / f".{a.path.name}{TEMP_MARK}1-2-3").write_bytes(b"half a table")  # a killed writer's
     assert cache.clear() == 3
     assert cache.entries() == []
     assert os.listdir(tmp_path / "c") == []
@@ -336,7 +338,7 @@ def _read_only(directory: Path) -> Iterator[str]:
         def refuse(*args: Any, **kw: Any) -> Any:
             raise OSError(errno.EROFS, "Read-only file system")
 
-        mp.setattr(lut_cache.tempfile, "mkstemp", refuse)
+        mp.setattr(lut_cache, "atomic_file", refuse)
         mp.setattr(Path, "unlink", refuse)
         yield "injected EROFS"
 

@@ -10,19 +10,14 @@ import cv2
 import numpy as np
 import pytest
 
-from rig.atomic import TEMP_MARK
+from calibration.atomic import TEMP_MARK
 from rig.depth import depth_to_png_mm
 from rig.errors import ConfigError
 from rig.outputs import OutputLayout
-from rig.process import (
-    ProcessOptions,
-    RecordingJob,
-    RecordingSource,
-    plan_recording,
-    process_pairs,
-    process_recordings,
-)
+from rig.process import process_recordings
 from rig.recording import Recording
+from rig.recording_depth import process_pairs
+from rig.recording_jobs import ProcessOptions, RecordingJob, RecordingSource, plan_recording
 from rig.stereo import StereoParams
 from tests.helpers.offline import STEREO, TEMPORAL, files_of, make_pipeline, noisy_recording
 
@@ -71,16 +66,16 @@ def test_chunks_carrying_the_temporal_history_equal_one_run(rec: Path, tmp_path:
         for sub in ("range", "left", "right"):
             (layout.root / sub).mkdir(parents=True)
     pipeline = make_pipeline(TEMPORAL, tmp_path / "c")
-    process_pairs(pipeline, recording, pairs, whole)
+    process_pairs(pipeline, recording, pairs, whole.sink(pipeline))
     state = None
     for part in (pairs[:2], pairs[2:5], pairs[5:]):
         # A fresh pipeline per chunk, as on another worker: only the history carries over.
-        result = process_pairs(
-            make_pipeline(TEMPORAL, tmp_path / "c"), recording, part, carried, temporal_state=state
-        )
+        chunk = make_pipeline(TEMPORAL, tmp_path / "c")
+        result = process_pairs(chunk, recording, part, carried.sink(chunk), temporal_state=state)
         assert result.temporal_state is not None
         state = result.temporal_state
-        process_pairs(make_pipeline(TEMPORAL, tmp_path / "c"), recording, part, dropped)
+        alone = make_pipeline(TEMPORAL, tmp_path / "c")
+        process_pairs(alone, recording, part, dropped.sink(alone))
     assert files_of(carried.root) == files_of(whole.root)
     # Without the history the chunks' first pairs come out otherwise: the carry is what matters.
     differ = [k for k, v in files_of(dropped.root).items() if files_of(whole.root)[k] != v]

@@ -91,4 +91,4 @@ def test_recover_refuses_what_holds_nothing(tmp_path: Path) -> None:
     with pytest.raises(RecordingError, match="holds no complete MCAP chunk"):
         recover_mcap(empty)
     assert empty.exists() and not (tmp_path / "x.mcap").exists()
-    assert not (tmp_path / "x.mcap.recovering").exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["x.mcap.partial"]  # no temporary left either

@@ -1,18 +1,21 @@
 """The staged executor (rig.staged) against the pipeline's own one-call ``process``: the same
-frames bit for bit, in order, with failing pairs reported by key and the stages going on."""
+frames bit for bit, in order, with failing pairs reported by key and the stages going on, and
+the stage times in the one convention (the two cameras' decode and remap summed)."""
 
 from __future__ import annotations
 
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import pytest
 from numpy.typing import NDArray
 
 from rig.errors import PipelineError, RecordingError
-from rig.pipeline import DepthFrame
+from rig.pipeline import DepthFrame, DepthPipeline
 from rig.recording import Recording
 from rig.staged import END, EndOfPairs, PairJob, StagedExecutor
 from rig.stereo import StereoParams
@@ -32,9 +35,9 @@ def _raise(err: Exception) -> NDArray[Any]:
 
 
 def _run(
-    stages_of: StereoParams, jobs: list[PairJob[int]], cache: Path, *, deliver_thread: bool
+    stages_of: StereoParams | DepthPipeline, jobs: list[PairJob[int]], cache: Path, *, deliver_thread: bool
 ) -> tuple[list[DepthFrame], dict[int, BaseException]]:
-    pipeline = make_pipeline(stages_of, cache)
+    pipeline = stages_of if isinstance(stages_of, DepthPipeline) else make_pipeline(stages_of, cache)
     todo: list[PairJob[int] | EndOfPairs] = [*jobs, END]
     delivered: list[DepthFrame] = []
     errors: dict[int, BaseException] = {}
@@ -44,7 +47,8 @@ def _run(
         with lock:
             return todo.pop(0) if todo else None
 
-    def deliver(key: int, frame: DepthFrame, timings: dict[str, float]) -> None:
+    def deliver(key: int, frame: DepthFrame) -> None:
+        timings = frame.timings_ms
         assert key == frame.seq and timings["total"] >= timings["match"] > 0.0
         delivered.append(frame)
 
@@ -101,3 +105,47 @@ def test_failing_pairs_are_reported_by_key_and_the_rest_keep_their_order(
     assert sorted(errors) == [1, 3]
     assert isinstance(errors[1], RecordingError) and "frame 1 unreadable" in str(errors[1])
     assert isinstance(errors[3], PipelineError) and "calibration" in str(errors[3])
+
+
+def test_decode_and_remap_times_are_both_cameras_summed(
+    images: list[tuple[NDArray[Any], NDArray[Any]]], tmp_path: Path
+) -> None:
+    """DepthFrame's convention: the executor decodes and remaps the two cameras on two threads
+    at once and still reports the sum of their times, as DepthPipeline.process does for the two
+    remaps it runs one after the other (a maximum would be about half)."""
+    pipeline = make_pipeline(STEREO, tmp_path)
+    own: dict[str, list[float]] = {"decode": [], "remap": []}  # each camera's, timed inside the call
+    rectify = pipeline.rectify_camera
+
+    def timed_rectify(name: str, image: Any, geometry: Any = None) -> Any:
+        t0 = time.perf_counter()
+        try:
+            return rectify(name, image, geometry)
+        finally:
+            own["remap"].append((time.perf_counter() - t0) * 1e3)
+
+    def timed_load(image: NDArray[Any]) -> NDArray[Any]:
+        t0 = time.perf_counter()
+        ok, png = cv2.imencode(".png", image)
+        assert ok
+        try:
+            return np.asarray(cv2.imdecode(png, cv2.IMREAD_UNCHANGED))
+        finally:
+            own["decode"].append((time.perf_counter() - t0) * 1e3)
+
+    pipeline.rectify_camera = timed_rectify  # type: ignore[method-assign]
+    left, right = images[0]
+    job = PairJob(0, 0, 0, lambda: timed_load(left), lambda: timed_load(right))
+    (frame,), errors = _run(pipeline, [job], tmp_path, deliver_thread=False)
+    assert not errors and len(own["remap"]) == 2 and len(own["decode"]) == 2
+    timings = frame.timings_ms
+    cameras = " + ".join(f"{ms:.2f}" for ms in own["remap"])
+    print(f"\nstaged: remap {timings['remap']:.2f} ms, the cameras' own {cameras} ms")
+    assert timings["remap"] >= sum(own["remap"]) and timings["decode"] >= sum(own["decode"])
+    assert set(timings) == {"decode", "remap", "match", "refine", "filters", "depth", "total"}
+    assert timings["total"] == pytest.approx(sum(v for k, v in timings.items() if k != "total"))
+    # The one-call pipeline: the same keys but decode (it is handed decoded images), the same sum.
+    own["remap"].clear()
+    alone = pipeline.process(left, right).timings_ms
+    assert alone["remap"] >= sum(own["remap"]) and len(own["remap"]) == 2
+    assert set(alone) == set(timings) - {"decode"}

@@ -20,9 +20,9 @@ import pytest
 from calibration import load_rig, save_rig
 from calibration.rig import Rig
 from rig.capture.faults import DisconnectFault
+from rig.depth import depth_to_png16
 from rig.recording import Recording
 from service.client import RigClient
-from service.encoders import depth_to_png16
 from service.errors import ApiError
 from service.settings import load_settings
 from tests.helpers.service import (

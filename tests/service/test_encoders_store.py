@@ -10,9 +10,9 @@ import cv2
 import numpy as np
 import pytest
 
-from rig.depth import read_ply
+from rig.depth import depth_to_png16, read_ply
 from service.client import parse_ply
-from service.encoders import colorize_depth, depth_to_png16, disparity_to_png16, encode_png, ply_bytes
+from service.encoders import colorize_depth, disparity_to_png16, encode_png, ply_bytes
 from service.store import EncodeCache, EncodeCounter
 
 

@@ -13,11 +13,11 @@ import cv2
 import numpy as np
 import pytest
 
+from rig.depth import depth_to_png16
 from service import encoders
 from service.encoders import (
     DISPARITY_PNG_SCALE,
     depth_png,
-    depth_to_png16,
     disparity_png,
     disparity_to_png16,
     encode_png,

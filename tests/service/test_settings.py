@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from rig.capture.config import FileCameraConfig, V4L2CameraConfig
+from rig.capture.config import FileCameraConfig, V4L2CameraConfig, load_capture_config
+from rig.errors import ConfigError
 from service.errors import SettingsError
 from service.settings import Settings, is_loopback, load_settings, settings_summary
 
@@ -69,6 +70,32 @@ cache_dir: lut
     assert isinstance(s.cameras.right, V4L2CameraConfig) and s.cameras.right.device == "/dev/rig/right"
     assert s.rectified.hfov_deg == 80  # read from the section's first name, vpc:
     assert s.stereo.sgbm_mode == "3way"  # ROS numbering 2 = SGBM_3WAY
+
+
+def test_rig_record_reads_the_cameras_rig_serve_reads(tmp_path: Path) -> None:
+    """One reader of the config file (rig.settings_model.read_config_file) and one rule for its
+    relative recording paths: ``rig record --config`` gets the cameras ``rig serve`` gets, and
+    the same line for a file neither can read."""
+    cfg = tmp_path / "conf"
+    cfg.mkdir()
+    path = write(
+        cfg / "rig.yaml",
+        "cameras:\n  left: {kind: file, recording: ../rec, camera: left}\n"
+        "  right: {kind: file, recording: /abs/rec, camera: right}\nserver: {port: 9123}\n",
+    )
+    served = load_settings(path).cameras
+    assert served is not None and served == load_capture_config(path)
+    assert isinstance(served.left, FileCameraConfig) and served.left.recording == cfg / ".." / "rec"
+    assert isinstance(served.right, FileCameraConfig) and served.right.recording == Path("/abs/rec")
+    for name, text in (("yaml", "cameras: [1, 2\n"), ("list", "- a\n"), ("missing", None)):
+        bad = tmp_path / f"{name}.yaml"
+        if text is not None:
+            write(bad, text)
+        with pytest.raises(SettingsError) as by_serve:
+            load_settings(bad)
+        with pytest.raises(ConfigError) as by_record:
+            load_capture_config(bad)
+        assert str(by_serve.value) == str(by_record.value) and str(bad) in str(by_record.value)
 
 
 def test_environment_overrides_file_and_overrides_beat_environment(

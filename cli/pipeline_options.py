@@ -1,0 +1,108 @@
+"""The depth pipeline of the command line's options, shared by the commands that run depth over a
+recording (``rig process``, ``rig export mcap``) and those that take a stereo file (``rig sim``):
+the stereo file (:func:`load_stereo_params`), the pipeline with its one warning line per thing the
+rectified view leaves out (:func:`build_pipeline`), and the calibration checked against a
+recording's frames before any pair is processed (:func:`check_against_frames`)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from cli.console import warn
+from cli.errors import fail
+from cli.pair_options import load_calibration
+from rig.errors import ConfigError
+
+if TYPE_CHECKING:  # the libraries load when an option is used, not for --help
+    from rig.capture.recorded import RecordedPairs
+    from rig.pipeline import DepthPipeline
+    from rig.rectified import RectifiedPairConfig
+    from rig.stereo import StereoParams
+
+__all__ = [
+    "NoCheckOption",
+    "StereoOption",
+    "build_pipeline",
+    "check_against_frames",
+    "describe_pipeline",
+    "load_stereo_params",
+]
+
+StereoOption = Annotated[
+    Path | None, typer.Option("--stereo", metavar="FILE", help="YAML of stereo parameters (ROS names).")
+]
+NoCheckOption = Annotated[
+    bool,
+    typer.Option("--no-calibration-check", help="Skip the check of the calibration against the frames."),
+]
+
+
+def load_stereo_params(path: Path) -> StereoParams:
+    """StereoParams from a YAML/JSON mapping file; ConfigError naming file and field."""
+    import yaml
+    from pydantic import ValidationError
+
+    from rig.settings_model import describe_field_errors, field_errors
+    from rig.stereo import StereoParams
+
+    try:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+        raise ConfigError(f"{path}: unreadable stereo configuration ({err})") from err
+    if doc is None:
+        doc = {}
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{path}: stereo configuration must be a mapping of parameter names")
+    try:
+        return StereoParams(**doc)
+    except ValidationError as err:
+        raise ConfigError(f"{path}: {describe_field_errors(field_errors(err))}") from None
+
+
+def build_pipeline(
+    calibration: Path | None,
+    fallback: Path | None,
+    config: RectifiedPairConfig,
+    stereo: Path | None,
+    cache_dir: Path | None,
+) -> tuple[DepthPipeline, Path]:
+    """The depth pipeline of the options (calibration, rectified pair, stereo file, cache) and the
+    calibration file used, with a warning line for each thing the rectified view leaves out (a
+    pinhole view leaving a lens's field, a lat-lon field clipped to the lenses' overlap): said
+    here once, so the pipeline logs it only at DEBUG."""
+    from rig.pipeline import DepthPipeline
+
+    rig, cal_path = load_calibration(calibration, fallback)
+    params = load_stereo_params(stereo) if stereo is not None else None
+    pipeline = DepthPipeline(rig, config, params, cache_dir=cache_dir, log_field_warnings=False)
+    for line in pipeline.in_effect.field_warnings:
+        warn(line)
+    return pipeline, cal_path
+
+
+def describe_pipeline(pipeline: DepthPipeline, cal_path: Path) -> str:
+    """One line naming the calibration file, the rectified pair and the baseline."""
+    cam = pipeline.pair.camera
+    if pipeline.pair.projection == "pinhole":
+        view = f"VPC {cam.width}x{cam.height} fx {cam.fx:.1f}"
+    else:
+        view = f"lat-lon {cam.width}x{cam.height} {math.radians(cam.fx):.3f} px/deg"
+    return f"calibration {cal_path}, {view}, B {pipeline.baseline_m:.4f} m"
+
+
+def check_against_frames(pipeline: DepthPipeline, recording: RecordedPairs) -> None:
+    """The calibration against the recording's first readable pair
+    (:func:`rig.calibration_check.check_recording`): an error stops the command (one line, exit
+    status 2), each warning is printed once."""
+    from rig.calibration_check import check_recording
+
+    findings = check_recording(pipeline, recording)
+    for finding in findings:
+        if finding.severity == "error":
+            fail(finding.message)
+    for finding in findings:
+        warn(finding.message)
