@@ -62,7 +62,9 @@ class EpipolarViews:
     """The lat-lon views of cameras ``left`` and ``right`` of ``rig`` (see module doc).
 
     ``scale`` multiplies the lenses' angular resolution on their axes (0.5: a quarter of the
-    pixels), ``max_px_per_deg`` caps it (a cheap check on any camera). ``luts[name]`` maps each
+    pixels), ``max_px_per_deg`` caps it (a cheap check on any camera). ``lon_deg`` / ``lat_deg``:
+    the half extents of the field about the rectified axis (clipped to the lenses' overlap; None:
+    the whole overlap), which keeps the matches off the lenses' rims. ``luts[name]`` maps each
     view pixel to its fisheye pixel; ``mask`` (H, W) uint8 is 255 where both cameras see, shrunk
     by a margin: where features are looked for. ``cache_dir``: the LUT cache (default: the
     pipeline's).
@@ -76,6 +78,8 @@ class EpipolarViews:
         *,
         scale: float = 1.0,
         max_px_per_deg: float | None = None,
+        lon_deg: float | None = 60.0,
+        lat_deg: float | None = 80.0,
         cache_dir: str | Path | None = None,
     ) -> None:
         if not (math.isfinite(scale) and 0.05 <= scale <= 4.0):
@@ -87,6 +91,8 @@ class EpipolarViews:
         config = RectifiedPairConfig(
             projection="latlon",
             px_per_deg=max(0.5, round(math.radians(px_per_rad), 6)),
+            az_span_deg=None if lon_deg is None else 2.0 * lon_deg,
+            el_span_deg=None if lat_deg is None else 2.0 * lat_deg,
             left=left,
             right=right,
         )
