@@ -73,16 +73,22 @@ class DepthWatch:
         self._lock = threading.Lock()
         self._latched: tuple[float, str] | None = None  # the reference before a collapse, and its text
         self._history: deque[Coverage] = deque()
-        self._mask: tuple[object, NDArray[np.bool_]] | None = None
+        self._mask: tuple[object, int, NDArray[np.bool_]] | None = None
 
     def coverage(self, valid: NDArray[np.bool_], in_effect: PairInEffect) -> float:
         """The share of ``in_effect``'s overlap (:func:`overlap_mask`) that ``valid`` covers."""
-        key = (in_effect.geometry, in_effect.stereo.blind_band_px)
+        band = in_effect.stereo.blind_band_px
         held = self._mask
-        if held is None or held[0] != key or held[1].shape != valid.shape:
-            held = (key, overlap_mask(in_effect))
+        # The geometry by identity (a correction brings a new one), the band by value.
+        if (
+            held is None
+            or held[0] is not in_effect.geometry
+            or held[1] != band
+            or held[2].shape != valid.shape
+        ):
+            held = (in_effect.geometry, band, overlap_mask(in_effect))
             self._mask = held
-        mask = held[1]
+        mask = held[2]
         total = int(np.count_nonzero(mask))
         return float(np.count_nonzero(valid & mask)) / total if total else 0.0
 
