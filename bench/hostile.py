@@ -24,6 +24,8 @@ file descriptors (``/proc``), and per attack:
 - ``poll``: 32 clients (16 on ``/depth``, 16 on ``/health``, 10 requests/s each) for
   ``--poll-s``: peak RSS against the service's memory budget (``rig_memory_budget_bytes`` in
   ``/metrics``, where it has one);
+- ``listing``: ``GET /recordings`` (``--listings`` times) beside a recording a crash left with
+  ``--files`` frame files and one with a malformed recording.json: status and latency;
 - ``fox_stalled``, ``fox_idle``, ``fox_flood``, ``fox_reset``: the same against the Foxglove port
   (``server.foxglove`` turned on for these), :mod:`bench.hostile_foxglove`.
 
@@ -37,12 +39,9 @@ import argparse
 import asyncio
 import contextlib
 import json
-import os
-import shutil
 import socket
 import time
 from collections.abc import Callable, Coroutine
-from pathlib import Path
 from typing import Any
 
 import httpx
@@ -60,12 +59,11 @@ from bench.hostile_clients import (
     read_stream_slowly,
 )
 from bench.hostile_foxglove import FOXGLOVE_ATTACKS, foxglove_env
+from bench.hostile_recordings import AUTH, TOKEN, attack_listing, attack_recording
 from bench.service_proc import ServiceProcess, free_port, quick_serve_args
 
 __all__ = ["ATTACKS", "FIELD_CHANGES", "main"]
 
-TOKEN = "hostile-bench-token-0123456789"
-AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 # Stereo fields and values a writer may set, each valid with any combination of the others.
 FIELD_CHANGES: tuple[tuple[str, Any], ...] = (
@@ -216,35 +214,6 @@ async def attack_idle(svc: ServiceProcess, args: argparse.Namespace) -> dict[str
     return {"connections": args.idle, "after_s": args.idle_s, "closed_by_server": closed}
 
 
-async def attack_recording(svc: ServiceProcess, args: argparse.Namespace) -> dict[str, Any]:
-    host, port = _host_port(svc)
-    name = f"hostile-{os.getpid()}-{int(time.time())}"
-    async with httpx.AsyncClient(timeout=60.0, headers=AUTH) as c:
-        r = await c.post(svc.url + "/recordings", json={"name": name})
-        r.raise_for_status()
-        path = Path(r.json()["path"])
-        try:
-            extra = path / "extra"
-            extra.mkdir()
-            for k in range(args.files):
-                (extra / f"{k:06d}.bin").touch()
-            probes = [HealthProbe(host, port, period_s=0.0).start() for _ in range(4)]
-            await asyncio.sleep(args.recording_s)
-            results = [await p.stop() for p in probes]
-            await c.post(svc.url + f"/recordings/{name}/stop")
-        finally:
-            shutil.rmtree(path, ignore_errors=True)
-    lat = sorted(x for p in probes for x in p.latencies_s)
-    s = stats_of([x * 1e3 for x in lat])
-    return {
-        "files": args.files,
-        "health_p50_ms": s["p50"],
-        "health_p95_ms": s["p95"],
-        "requests": s["n"],
-        "failures": sum(r["failures"] for r in results),
-    }
-
-
 async def attack_poll(svc: ServiceProcess, args: argparse.Namespace) -> dict[str, Any]:
     until = time.monotonic() + args.poll_s
     errors = 0
@@ -300,6 +269,7 @@ ATTACKS: dict[str, Attack] = {
     "idle": attack_idle,
     "recording": attack_recording,
     "poll": attack_poll,
+    "listing": attack_listing,
     **FOXGLOVE_ATTACKS,
 }
 
@@ -341,6 +311,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--idle", type=int, default=50)
     parser.add_argument("--idle-s", type=float, default=30.0)
     parser.add_argument("--files", type=int, default=3000)
+    parser.add_argument("--listings", type=int, default=10, help="GET /recordings (listing)")
     parser.add_argument("--recording-s", type=float, default=8.0)
     parser.add_argument("--poll-s", type=float, default=20.0)
     parser.add_argument("--viewers", type=int, default=25, help="Foxglove viewers (fox_stalled, fox_reset)")
