@@ -34,7 +34,7 @@ import logging
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -57,12 +57,10 @@ from cli.vpc_options import (
 from rig.errors import ConfigError
 
 if TYPE_CHECKING:
-    from numpy.typing import NDArray
-
     from rig.capture.recorded import RecordedPairs
     from rig.pipeline import DepthPipeline
     from rig.process import PairFailure, ProcessOptions, RecordingJob, RecordingSource, RecordingSummary
-    from rig.recording import PairRecord
+    from rig.recording import PairRecord, StoredFrame
     from rig.stereo import StereoParams
     from rig.vpc import VpcConfig
 
@@ -267,13 +265,14 @@ def _run(
 _CHECK_TRIES = 10
 
 
-def _first_readable(rec: RecordedPairs) -> tuple[PairRecord, NDArray[Any], NDArray[Any]] | None:
+def _first_readable(rec: RecordedPairs) -> tuple[PairRecord, StoredFrame, StoredFrame] | None:
+    """The first of the first pairs whose frames' headers can be read (nothing decoded yet)."""
     from rig.errors import RecordingError
 
     for pair in rec.pairs[:_CHECK_TRIES]:
         try:
-            left = rec.read_frame(pair, "left").pipeline_image()
-            right = rec.read_frame(pair, "right").pipeline_image()
+            left, right = rec.read_frame(pair, "left"), rec.read_frame(pair, "right")
+            left.declared_size(), right.declared_size()
         except RecordingError:
             continue
         return pair, left, right
@@ -282,20 +281,25 @@ def _first_readable(rec: RecordedPairs) -> tuple[PairRecord, NDArray[Any], NDArr
 
 def check_against_frames(pipeline: DepthPipeline, rec: RecordedPairs) -> None:
     """The calibration against the recording's first readable pair: an error stops the command
-    (one line, exit status 2), each warning is printed once."""
+    (one line, exit status 2), each warning is printed once. The frames' sizes are read from
+    their headers and checked before anything is decoded."""
     from rig.calibration_check import check_calibration, check_frame_sizes
+    from rig.errors import RecordingError
+    from rig.process import frame_sizes
 
     first = _first_readable(rec)
     if first is None:
         return  # the loop reports every unreadable pair
     pair, left, right = first
-    sizes = {
-        pipeline.pair.left: (int(left.shape[1]), int(left.shape[0])),
-        pipeline.pair.right: (int(right.shape[1]), int(right.shape[0])),
-    }
+    sizes = {pipeline.pair.left: left.declared_size(), pipeline.pair.right: right.declared_size()}
     for problem in check_frame_sizes(pipeline.rig, sizes, f"frames of {rec.root}"):
         fail(problem.message)
-    result = check_calibration(pipeline, left, right)
+    expected = frame_sizes(pipeline)
+    try:
+        images = left.pipeline_image(expected["left"]), right.pipeline_image(expected["right"])
+    except RecordingError:
+        return  # the loop reports it
+    result = check_calibration(pipeline, *images)
     for problem in result.errors:
         fail(f"calibration check on pair {pair.seq}: {problem.message}")
     for problem in result.warnings:

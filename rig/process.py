@@ -22,6 +22,7 @@ output directory that cannot be written (a full disk) stops the run with
 
 from __future__ import annotations
 
+import functools
 import queue
 import threading
 from collections.abc import Callable, Container, Sequence
@@ -48,6 +49,7 @@ __all__ = [
     "RecordingReader",
     "RecordingSource",
     "RecordingSummary",
+    "frame_sizes",
     "plan_recording",
     "plan_recordings",
     "process_pairs",
@@ -151,8 +153,15 @@ class RecordingReader:
     ahead of the pipeline; :meth:`take` is the staged executor's source. A pair whose frame
     cannot be read becomes a job whose loader raises that error (reported in order)."""
 
-    def __init__(self, recording: RecordedPairs, pairs: Sequence[PairRecord], readahead: int = 4) -> None:
+    def __init__(
+        self,
+        recording: RecordedPairs,
+        pairs: Sequence[PairRecord],
+        readahead: int = 4,
+        sizes: dict[str, tuple[int, int]] | None = None,
+    ) -> None:
         self._recording = recording
+        self._sizes = sizes or {}  # camera -> (width, height) its frames must declare
         self._pairs = list(pairs)
         self._queue: queue.Queue[PairJob[PairRecord] | EndOfPairs] = queue.Queue(maxsize=max(1, readahead))
         self._stop = threading.Event()
@@ -187,14 +196,23 @@ class RecordingReader:
         self._put(END)
 
     def _read(self, pair: PairRecord) -> PairJob[PairRecord]:
-        loaders = []
+        loaders: list[Callable[[], NDArray[Any]]] = []
         for camera in ("left", "right"):
             try:
                 stored: StoredFrame = self._recording.read_frame(pair, camera)
-                loaders.append(stored.pipeline_image)
+                loaders.append(functools.partial(stored.pipeline_image, self._sizes.get(camera)))
             except Exception as err:
                 loaders.append(_raiser(err))
         return PairJob(pair, pair.seq, pair.left_ts_ns, loaders[0], loaders[1])
+
+
+def frame_sizes(pipeline: DepthPipeline) -> dict[str, tuple[int, int]]:
+    """The (width, height) the calibration gives the left and right camera's frames."""
+    cameras = pipeline.rig.cameras
+    return {
+        side: (cameras[name].width, cameras[name].height)
+        for side, name in (("left", pipeline.pair.left), ("right", pipeline.pair.right))
+    }
 
 
 def _raiser(err: Exception) -> Callable[[], NDArray[Any]]:
@@ -252,7 +270,7 @@ def process_pairs(
             on_pair(pair.seq, failure)
 
     pipeline.restore_temporal_state(temporal_state)
-    reader = RecordingReader(recording, pairs, readahead)
+    reader = RecordingReader(recording, pairs, readahead, frame_sizes(pipeline))
     stages = StagedExecutor(
         pipeline, reader.take, deliver, on_error=on_error, deliver_thread=True, prefix="rig-process"
     )

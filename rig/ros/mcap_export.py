@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from rig.capture.recorded import RecordedPairs
 from rig.errors import PipelineError, RecordingError
 from rig.pipeline import DepthPipeline
+from rig.process import frame_sizes
 from rig.recording import PairRecord, StoredFrame
 from rig.ros.mcap_writer import Compression, McapRosWriter
 from rig.ros.messages import MessageBuilder, raw_image_message
@@ -56,14 +57,14 @@ def export_mcap(
     RecordingError when no pair could be processed (then no file is left behind)."""
     builder = MessageBuilder(pipeline, names or RosNames(), cloud_stride, rectified_images)
     result = ExportResult(Path(out))
+    sizes = frame_sizes(pipeline)
     with McapRosWriter(out, compression=compression) as writer:
         for pair in recording.pairs:
             try:
                 left = recording.read_frame(pair, "left")
                 right = recording.read_frame(pair, "right")
-                frame = pipeline.process(
-                    left.pipeline_image(), right.pipeline_image(), pair.seq, pair.left_ts_ns
-                )
+                images = left.pipeline_image(sizes["left"]), right.pipeline_image(sizes["right"])
+                frame = pipeline.process(*images, pair.seq, pair.left_ts_ns)
             except (RecordingError, PipelineError) as err:
                 reason = " ".join(str(err).split())
                 result.skipped.append((pair.seq, reason))
