@@ -16,11 +16,8 @@ Run: ``.venv/bin/python -m bench.image_bombs`` (``--format png`` for PNG bombs).
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
 import struct
-import subprocess
-import sys
 import tempfile
 import time
 import zlib
@@ -34,7 +31,7 @@ from rich.table import Table
 
 from bench.common import add_common_arguments, bench_cache_dir, console, finish, machine_info, print_machine
 from bench.recordings import MjpegSpec, ensure_mjpeg_recording
-from bench.service_proc import REPO, ServiceProcess
+from bench.service_proc import ServiceProcess, run_rig
 
 __all__ = ["bomb", "bomb_recording", "main"]
 
@@ -77,19 +74,12 @@ def bomb_recording(source: Path, root: Path, fmt: str, every: int, size: tuple[i
 
 
 def _process(rec: Path, out: Path, env: dict[str, str]) -> dict[str, Any]:
-    cmd = [sys.executable, "-m", "cli", "process", str(rec), "--out", str(out)]
-    log = out.with_suffix(".log")
-    t0 = time.monotonic()
-    with open(log, "w") as sink:
-        proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=sink, stderr=subprocess.STDOUT)
-        _, status, usage = os.wait4(proc.pid, 0)  # the child's own peak RSS
-        proc.returncode = os.waitstatus_to_exitcode(status)
-    lines = [ln for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
+    run = run_rig(["process", str(rec), "--out", str(out)], env)
     return {
-        "exit_status": proc.returncode,
-        "peak_rss_mb": usage.ru_maxrss / 1024,
-        "seconds": time.monotonic() - t0,
-        "output": [ln[:160] for ln in lines[-4:]],
+        "exit_status": run.exit_status,
+        "peak_rss_mb": run.peak_rss_mb,
+        "seconds": run.seconds,
+        "output": [ln[:160] for ln in run.lines[-4:]],
     }
 
 
@@ -134,8 +124,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     info = machine_info()
     print_machine(info, "Image bombs through rig process and rig serve")
     source = ensure_mjpeg_recording(MjpegSpec())
-    env = {**os.environ, "RIG_CACHE_DIR": str(bench_cache_dir() / "lut")}
-    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
+    env = {"RIG_CACHE_DIR": str(bench_cache_dir() / "lut")}
     with tempfile.TemporaryDirectory(prefix="rig-bombs-") as tmp:
         rec, bombs = bomb_recording(source, Path(tmp), args.format, args.every, tuple(args.size))
         sizes = sorted({p.stat().st_size for p in (rec / "right").iterdir()})
@@ -143,7 +132,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         results: dict[str, Any] = {"format": args.format, "bombs": bombs, "size": list(args.size)}
         results["process"] = _process(rec, Path(tmp) / "out", env)
         console.print("rig process done")
-        results["serve"] = _serve(rec, args.seconds, {k: v for k, v in env.items() if k.startswith("RIG_")})
+        results["serve"] = _serve(rec, args.seconds, env)
     table = Table(title=f"{args.format} bombs declaring {args.size[0]}x{args.size[1]}")
     table.add_column("command")
     table.add_column("figures")
