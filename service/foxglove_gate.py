@@ -193,7 +193,7 @@ class FoxgloveGate:
         self._server: asyncio.Server | None = None
         self._conns: set[_Connection] = set()
         self._sweeper: asyncio.Task[None] | None = None
-        self._refused = self._dropped = 0
+        self._viewers = self._refused = self._dropped = 0
 
     # ----- lifecycle (any thread) --------------------------------------------------------------
     def start(self) -> None:
@@ -219,7 +219,8 @@ class FoxgloveGate:
             self._loop.close()
 
     def stats(self) -> GateStats:
-        return GateStats(sum(c.viewer for c in set(self._conns)), self._refused, self._dropped)
+        """The counts (ints the gate's loop updates: read from any thread without a lock)."""
+        return GateStats(self._viewers, self._refused, self._dropped)
 
     # ----- on the gate's loop ------------------------------------------------------------------
     async def _listen(self) -> None:
@@ -330,6 +331,7 @@ class FoxgloveGate:
         conn.viewer, conn.last_active = True, time.monotonic()
         peer = writer.get_extra_info("peername")
         log.info("Foxglove viewer %s connected", peer)
+        self._viewers += 1
         try:
             up_writer.write(head)
             why = await self._relay(conn, reader, writer, up_reader, up_writer)
@@ -338,6 +340,8 @@ class FoxgloveGate:
             task = asyncio.current_task()
             if task is not None:
                 task.uncancel()  # ended by the gate: still end the SDK's side below
+        finally:
+            self._viewers -= 1
         if conn.ended is not None and conn.ended != "server stopped":
             self._dropped += 1
             log.warning("Foxglove viewer %s dropped: %s", peer, why)
