@@ -41,18 +41,18 @@ import typer
 from cli.console import RateColumn, console, err_console, one_line, progress_bar, warn
 from cli.errors import fail
 from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption
-from cli.vpc_options import (
+from cli.pair_options import (
     CacheDirOption,
     CalibrationOption,
     FieldOption,
     PitchOption,
     ProjectionOption,
     PxPerDegOption,
-    VpcHfovOption,
-    VpcSizeOption,
+    PinholeHfovOption,
+    PinholeSizeOption,
     YawOption,
     load_calibration,
-    make_vpc_config,
+    make_pair_config,
 )
 from rig.errors import ConfigError
 
@@ -62,7 +62,7 @@ if TYPE_CHECKING:
     from rig.process import PairFailure, ProcessOptions, RecordingJob, RecordingSource, RecordingSummary
     from rig.recording import PairRecord, StoredFrame
     from rig.stereo import StereoParams
-    from rig.vpc import VpcConfig
+    from rig.rectified import RectifiedPairConfig
 
 __all__ = ["StereoOption", "build_pipeline", "load_stereo_params", "register"]
 
@@ -100,7 +100,7 @@ StereoOption = Annotated[
 def build_pipeline(
     calibration: Path | None,
     fallback: Path | None,
-    config: VpcConfig,
+    config: RectifiedPairConfig,
     stereo: Path | None,
     cache_dir: Path | None,
 ) -> tuple[DepthPipeline, Path]:
@@ -157,7 +157,7 @@ class _Pipelines:
     """One pipeline per calibration (by its file's content): recordings with the same
     calibration share its lookup tables."""
 
-    def __init__(self, calibration: Path | None, config: VpcConfig, stereo: Path | None, cache: Path | None):
+    def __init__(self, calibration: Path | None, config: RectifiedPairConfig, stereo: Path | None, cache: Path | None):
         self._options = (calibration, config, stereo, cache)
         self._built: dict[str, DepthPipeline] = {}
 
@@ -320,8 +320,8 @@ def register(app: typer.Typer) -> None:
         out: Annotated[Path, typer.Option("--out", "-o", metavar="DIR", help="Output directory.")],
         calibration: CalibrationOption = None,
         projection: ProjectionOption = None,
-        vpc_hfov: VpcHfovOption = None,
-        vpc_size: VpcSizeOption = None,
+        vpc_hfov: PinholeHfovOption = None,
+        vpc_size: PinholeSizeOption = None,
         px_per_deg: PxPerDegOption = None,
         field: FieldOption = None,
         yaw: YawOption = None,
@@ -386,7 +386,7 @@ def register(app: typer.Typer) -> None:
         from rig.process import ProcessOptions, RecordingSource
 
         paths, per_recording = expand_recordings(recordings)
-        config = make_vpc_config(
+        config = make_pair_config(
             vpc_size, vpc_hfov, yaw, pitch, projection=projection, px_per_deg=px_per_deg, field=field
         )
         sources = [RecordingSource(p, left_topic, right_topic, max_skew_ms) for p in paths]

@@ -233,7 +233,7 @@ def check_calibration(
     seen = left_lut.valid & right_lut.valid
     if overlap and min(overlap.values()) < 1.0:
         mask = (seen * 255).astype(np.uint8)
-    dx, dy = matched_disparities(_gray(frame.left_vpc), _gray(frame.right_vpc), mask)
+    dx, dy = matched_disparities(_gray(frame.left_rect), _gray(frame.right_rect), mask)
     if _fits(dx, dy):
         problems = []
     else:

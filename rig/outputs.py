@@ -3,7 +3,7 @@
 Layout of an output directory::
 
     vpc.json              the rectified pair: projection, width, height, fx, fy, cx, cy,
-                          baseline_m, R_rig_vpc
+                          baseline_m, R_rig_rect
     run.json              what made the files: the recording, the lookup tables' content keys,
                           the rectified pair's and stereo settings and the products written
     range/NNNNNN.png      uint16 range in mm along each left pixel's ray, 0 = invalid
@@ -90,10 +90,10 @@ PRODUCTS: dict[str, Product] = {
     for p in (
         Product("range", ".png", lambda _, f: _png(depth_to_png_mm(f.range))),
         Product("depth", ".png", lambda _, f: _png(depth_to_png_mm(f.depth))),
-        Product("left", ".png", lambda _, f: _png(f.left_vpc)),
-        Product("right", ".png", lambda _, f: _png(f.right_vpc)),
+        Product("left", ".png", lambda _, f: _png(f.left_rect)),
+        Product("right", ".png", lambda _, f: _png(f.right_rect)),
         Product("cloud", ".ply", _cloud),
-        Product("preview", ".png", lambda _, f: _png(depth_preview(f.left_vpc, f.depth))),
+        Product("preview", ".png", lambda _, f: _png(depth_preview(f.left_rect, f.depth))),
     )
 }
 BASE_PRODUCTS = ("range", "left", "right")
@@ -105,7 +105,7 @@ def run_settings(pipeline: DepthPipeline, products: Sequence[str]) -> dict[str, 
     return {
         "format": RUN_FORMAT,
         "luts": {name: pipeline.lut_info[name].key for name in pipeline.names},
-        "vpc": pipeline.vpc_config.model_dump(mode="json"),
+        "vpc": pipeline.pair_config.model_dump(mode="json"),
         "stereo": pipeline.stereo.model_dump(mode="json"),
         "products": list(products),
     }
@@ -280,7 +280,7 @@ class OutputLayout:
         return OutputError(f"{where}: cannot write output ({err.strerror or err})")
 
 
-def depth_preview(left_vpc: NDArray[Any], depth: NDArray[Any]) -> NDArray[np.uint8]:
+def depth_preview(left_rect: NDArray[Any], depth: NDArray[Any]) -> NDArray[np.uint8]:
     """Left VPC image beside its depth in colour (turbo on log depth between the 2nd and 98th
     percentiles: near is red, far blue; black = invalid), with that range written on it.
     (H, 2W, 3) uint8 BGR."""
@@ -296,7 +296,7 @@ def depth_preview(left_vpc: NDArray[Any], depth: NDArray[Any]) -> NDArray[np.uin
         vis = np.asarray(cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO), dtype=np.uint8)
         vis[~ok] = 0
         label = f"{near:.2f}-{far:.2f} m"
-    left = left_vpc if left_vpc.ndim == 3 else cv2.cvtColor(left_vpc, cv2.COLOR_GRAY2BGR)
+    left = left_rect if left_rect.ndim == 3 else cv2.cvtColor(left_rect, cv2.COLOR_GRAY2BGR)
     out = np.hstack([left, vis])
     cv2.putText(out, label, (left.shape[1] + 8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 2)
     return out

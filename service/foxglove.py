@@ -291,7 +291,7 @@ class FoxgloveLive:
             pixels = want(self.names.raw_image(cam, compressed=compressed))
             messages += b.raw_frame(cam, _stored(frame, pixels), frame.ts_ns, want=want)
         messages += b.depth_outputs(
-            result.frame, stamp, left_image=lambda: result.vpc_image("left"), want=want
+            result.frame, stamp, left_image=lambda: result.rect_image("left"), want=want
         )
         self._log(messages, stamp)
         self._last_stamp = stamp

@@ -10,7 +10,7 @@ from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, create_model
 from rig.capture.faults import Fault
 from rig.counters import CounterSpec, CounterValue, Group, Kind, counters_of
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 from service.recordings import NAME_PATTERN, validate_name
 
 __all__ = [
@@ -36,7 +36,7 @@ __all__ = [
     "RectificationHealthModel",
     "ServerPublicModel",
     "StereoPatch",
-    "VpcModel",
+    "RectifiedPairModel",
     "WorkerHealthBase",
     "WorkerHealthModel",
 ]
@@ -256,7 +256,7 @@ class HealthModel(BaseModel):
     )
 
 
-class VpcModel(BaseModel):
+class RectifiedPairModel(BaseModel):
     projection: Literal["pinhole", "latlon"] = Field(
         description="pinhole: u = cx + fx·x/z, v = cy + fy·y/z; latlon: u = cx + fx·asin(x/|p|), "
         "v = cy + fy·atan2(y, z) (fx, fy in px per radian), in the left rectified frame"
@@ -272,8 +272,8 @@ class VpcModel(BaseModel):
     px_per_deg: float | None = Field(description="the lat-lon pair's resolution (None: pinhole)")
     yaw_deg: float
     pitch_deg: float
-    R_rig_vpc: list[list[float]] = Field(description="the left rectified frame's axes in the rig frame")
-    T_rig_vpc: dict[str, list[list[float]]]
+    R_rig_rect: list[list[float]] = Field(description="the left rectified frame's axes in the rig frame")
+    T_rig_rect: dict[str, list[list[float]]]
 
 
 class CameraCalibrationModel(BaseModel):
@@ -289,7 +289,7 @@ class CameraCalibrationModel(BaseModel):
 
 class CalibrationModel(BaseModel):
     cameras: dict[str, CameraCalibrationModel]
-    vpc: VpcModel
+    vpc: RectifiedPairModel
     baseline_m: float
     depth_scale_m: float
     source: str | None
@@ -309,7 +309,7 @@ class ServerPublicModel(BaseModel):
 
 class ConfigModel(BaseModel):
     stereo: StereoParams
-    vpc: VpcConfig
+    vpc: RectifiedPairConfig
     server: ServerPublicModel
     cameras: dict[str, Any] | None
 

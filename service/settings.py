@@ -52,7 +52,7 @@ from rig.rectification.monitor import RectificationConfig
 from rig.ros.names import RosNames
 from rig.settings_model import SettingsModel, describe_field_errors, field_errors
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 from service.errors import SettingsError
 
 __all__ = [
@@ -300,7 +300,7 @@ class Settings(BaseSettings):
     server: ServerSettings = Field(default_factory=ServerSettings)
     cameras: CaptureConfig | None = Field(None, description="the capture section; None = none configured")
     calibration: CalibrationSettings = Field(default_factory=CalibrationSettings)
-    vpc: VpcConfig = Field(default_factory=VpcConfig)
+    vpc: RectifiedPairConfig = Field(default_factory=RectifiedPairConfig)
     stereo: StereoParams = Field(default_factory=StereoParams)
     ros: RosNames = Field(default_factory=RosNames)
     cache_dir: Path | None = Field(None, description="LUT cache directory (env RIG_CACHE_DIR)")

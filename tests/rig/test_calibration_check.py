@@ -13,10 +13,10 @@ from calibration.rig import Rig
 from rig.calibration_check import check_calibration, check_frame_sizes, matched_disparities
 from rig.pipeline import DepthPipeline
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 from tests.helpers.shots import StereoShot, prototype_rig, room_shot
 
-VPC = VpcConfig(width=320, height=240)
+VPC = RectifiedPairConfig(width=320, height=240)
 STEREO = StereoParams(disparity_range=64)
 
 
@@ -82,7 +82,7 @@ def test_the_valid_fraction_counts_what_both_cameras_see(cache: Path, blank: flo
     is counted over the directions both lookup tables cover (about 50 % of this pair's image, the
     rest cannot have depth), so 60 % blank is no warning (it was: "only 19 % of the VPC has depth");
     85 % blank still is."""
-    latlon = VpcConfig(projection="latlon", px_per_deg=5.585 / 2)
+    latlon = RectifiedPairConfig(projection="latlon", px_per_deg=5.585 / 2)
     shot = room_shot(0, scale=0.5, vpc=latlon)
     pipe = DepthPipeline(shot.rig, latlon, StereoParams(), cache_dir=cache)
     left, right = shot.left.copy(), shot.right.copy()

@@ -60,8 +60,8 @@ def test_files_equal_a_sequential_loop_bit_for_bit(rec: Path, stereo: StereoPara
         stem = f"{pair.seq:06d}.png"
         assert (tmp_path / "out" / "range" / stem).read_bytes() == _png(depth_to_png_mm(frame.range))
         assert (tmp_path / "out" / "depth" / stem).read_bytes() == _png(depth_to_png_mm(frame.depth))
-        assert (tmp_path / "out" / "left" / stem).read_bytes() == _png(frame.left_vpc)
-        assert (tmp_path / "out" / "right" / stem).read_bytes() == _png(frame.right_vpc)
+        assert (tmp_path / "out" / "left" / stem).read_bytes() == _png(frame.left_rect)
+        assert (tmp_path / "out" / "right" / stem).read_bytes() == _png(frame.right_rect)
 
 
 def test_chunks_carrying_the_temporal_history_equal_one_run(rec: Path, tmp_path: Path) -> None:

@@ -18,7 +18,7 @@ from rig.capture.frame import encoded_problem
 from rig.pipeline import DepthPipeline
 from rig.recording import RecordingWriter
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 from service.store import ResultStore
 from service.worker import DepthWorker
 from tests.helpers.recordings import FAST_SUPERVISOR, PERIOD_NS, T0_NS, encode, replay_config
@@ -27,7 +27,7 @@ from tests.helpers.waiting import wait_for
 
 PAIRS = 6
 BAD_SEQ = 3
-VPC = VpcConfig(width=320, height=240)
+VPC = RectifiedPairConfig(width=320, height=240)
 
 
 def _declaring(data: bytes, width: int, height: int) -> bytes:
