@@ -229,11 +229,17 @@ class RecordingInfo(BaseModel):
     path: str
     active: bool
     pairs: int
-    bytes: int
+    bytes: int | None = Field(
+        description="bytes on disk; null for a recording that was not stopped cleanly (the listing "
+        "reads what recordings noted, it does not walk their files)"
+    )
     dropped: int = Field(description="pairs the writer could not keep up with (queue full)")
     started_at: str | None
     stopped_at: str | None
-    error: str | None
+    error: str | None = Field(
+        description="what went wrong: the writer's error, or why the recording's recording.json "
+        "cannot be read (a field of the wrong kind is left out)"
+    )
 
 
 class HealthModel(BaseModel):
@@ -268,8 +274,8 @@ class RectifiedPairModel(BaseModel):
     px_per_deg: float | None = Field(description="the lat-lon pair's resolution (None: pinhole)")
     yaw_deg: float
     pitch_deg: float
-    R_rig_vpc: list[list[float]] = Field(description="the left rectified frame's axes in the rig frame")
-    T_rig_vpc: dict[str, list[list[float]]]
+    R_rig_rect: list[list[float]] = Field(description="the left rectified frame's axes in the rig frame")
+    T_rig_rect: dict[str, list[list[float]]]
 
 
 class CameraCalibrationModel(BaseModel):
