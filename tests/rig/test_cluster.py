@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import distributed
 import pytest
 
 from rig.atomic import is_temporary
@@ -20,8 +21,6 @@ from rig.process import ProcessOptions, RecordingJob, RecordingSource, Recording
 from rig.recording import Recording
 from rig.stereo import StereoParams
 from tests.helpers.offline import STEREO, TEMPORAL, files_of, make_pipeline, noisy_recording
-
-distributed = pytest.importorskip("distributed", reason="rig process --scheduler needs dask.distributed")
 
 
 @pytest.fixture(scope="module")
