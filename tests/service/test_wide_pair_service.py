@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import io
 import json
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -19,7 +19,7 @@ from rig.sim.render import render_range
 from service.client import RigClient
 from service.settings import load_settings
 from tests.helpers.browser import CHROMIUM, CHROMIUM_ARGS, needs_chromium
-from tests.helpers.service import LiveServer, SmallRecording, service_overrides
+from tests.helpers.service import LiveServer, SmallRecording, StartApp, service_overrides
 from tests.helpers.waiting import wait_for
 
 WIDE = {"projection": "latlon", "px_per_deg": 2.0}
@@ -109,9 +109,9 @@ def test_lat_lon_calibration_point_cloud_client_and_openapi(wide_server: LiveSer
     assert "lat-lon pair" in paths["/depth"]["get"]["responses"]["200"]["description"]
 
 
-def test_pinhole_range_is_depth_along_the_ray(start_server: Callable[..., LiveServer]) -> None:
-    live = start_server()
-    r = httpx.get(live.base_url + "/range?format=npy")
+def test_pinhole_range_is_depth_along_the_ray(start_app: StartApp) -> None:
+    live = start_app()
+    r = live.client.get("/range?format=npy")
     assert r.status_code == 200 and r.headers["X-Range-Scale"] == "1"
     result = live.runtime.store.latest
     assert result is not None
