@@ -8,6 +8,7 @@ give ``client`` (an ``httpx.Client`` on the service) and ``rig_client()``."""
 from __future__ import annotations
 
 import contextlib
+import re
 import socket
 import threading
 from collections.abc import Callable
@@ -35,6 +36,7 @@ from tests.helpers.waiting import wait_for
 
 __all__ = [
     "AUTH",
+    "LOAD_REASONS",
     "QUICK_MJPEG",
     "REPLAY_FPS",
     "SMALL_SPEC",
@@ -57,6 +59,9 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 #: Small and quick: 640x480 fisheyes (prototype rig at half size), 320x240 VPCs, 3 noisy frames.
 SMALL_SPEC = DemoSpec(scale=0.5, frames=3, supersample=1, vpc=VpcConfig(width=320, height=240))
 REPLAY_FPS = 10.0  # keeps the worker's CPU share low on a shared 2-core machine
+#: What a loaded machine may turn /health degraded for (a camera thread or the worker starved of
+#: CPU): frames dropped, no depth frame for a while. Anything else is a fault.
+LOAD_REASONS = re.compile(r"camera (left|right): \d+ % of frames dropped .*|no depth frame for [\d.]+ s")
 #: The quick benchmarks' colour MJPEG recording (bench.recordings): 4 pairs of the prototype rig at
 #: quarter size (320x240 fisheyes), JPEG 4:2:2.
 QUICK_MJPEG = MjpegSpec(frames=4, views=1, scale=0.25)

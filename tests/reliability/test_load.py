@@ -27,7 +27,7 @@ import httpx
 import pytest
 
 from tests.helpers.command import Served, clean_env, start_serve, wait_healthy
-from tests.helpers.service import write_serve_config
+from tests.helpers.service import LOAD_REASONS, write_serve_config
 from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
@@ -40,11 +40,6 @@ STREAM_CLIENTS = 8  # half read a few parts and hang up, half let the server end
 MAX_RSS_GROWTH_MB = 50.0
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 BOUNDARY = b"--frame\r\n"
-
-
-#: What a loaded machine may turn /health degraded for (a camera thread or the worker starved of
-#: CPU): frames dropped, no depth frame for a while. Any other reason is an error under load.
-LOAD_REASONS = re.compile(r"camera (left|right): \d+ % of frames dropped .*|no depth frame for [\d.]+ s")
 
 
 @dataclass
