@@ -24,7 +24,7 @@ from anyio.from_thread import BlockingPortal, start_blocking_portal
 from prometheus_client.parser import text_string_to_metric_families
 
 from bench.recordings import MjpegSpec
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 from service.app import create_app
 from service.client import RigClient
 from service.demo import DemoSpec, render_demo
@@ -57,7 +57,7 @@ __all__ = [
 TOKEN = "test-token-0123456789abcdef"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 #: Small and quick: 640x480 fisheyes (prototype rig at half size), 320x240 VPCs, 3 noisy frames.
-SMALL_SPEC = DemoSpec(scale=0.5, frames=3, supersample=1, vpc=VpcConfig(width=320, height=240))
+SMALL_SPEC = DemoSpec(scale=0.5, frames=3, supersample=1, vpc=RectifiedPairConfig(width=320, height=240))
 REPLAY_FPS = 10.0  # keeps the worker's CPU share low on a shared 2-core machine
 #: What a loaded machine may turn /health degraded for (a camera thread or the worker starved of
 #: CPU): frames dropped, no depth frame for a while. Anything else is a fault.

@@ -23,7 +23,7 @@ from calibration.geometry import invert_transform, make_transform, rot_x, rot_y
 from calibration.models import LatLonModel, create
 from calibration.rig import Rig
 from rig.depth import latlon_range
-from rig.vpc import VpcConfig, design_vpc_pair
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from tests.helpers.inputs import missing_input
 
 _PYTHON = os.environ.get("RIG_MRCAL_PYTHON", "/usr/bin/python3")
@@ -84,8 +84,8 @@ def _tilted_rig() -> Rig:
 def test_rectified_system_and_stereo_range_are_mrcals(tmp_path: Path) -> None:
     rig = _tilted_rig()
     ppd, az_span, el_span = 4.0, 44.0, 50.0
-    pair = design_vpc_pair(
-        rig, VpcConfig(projection="latlon", px_per_deg=ppd, az_span_deg=az_span, el_span_deg=el_span)
+    pair = design_rectified_pair(
+        rig, RectifiedPairConfig(projection="latlon", px_per_deg=ppd, az_span_deg=az_span, el_span_deg=el_span)
     )
     assert pair.field_note is None
     cam = pair.camera
@@ -125,8 +125,8 @@ O['range'] = mrcal.stereo_range(I['d'], rect)
             "d": disparity,
         },
     )
-    assert np.abs(out["R_rect_ref"].T - pair.R_rig_vpc).max() < 1e-12
-    assert np.allclose(-out["R_rect_ref"].T @ out["t_rect_ref"], pair.T_rig_vpc["left"][:3, 3], atol=1e-12)
+    assert np.abs(out["R_rect_ref"].T - pair.R_rig_rect).max() < 1e-12
+    assert np.allclose(-out["R_rect_ref"].T @ out["t_rect_ref"], pair.T_rig_rect["left"][:3, 3], atol=1e-12)
     assert tuple(out["size"]) == (cam.width, cam.height)
     assert np.allclose(out["k_rect"], [cam.fx, cam.fy, cam.cx, cam.cy], rtol=0, atol=1e-9)
     assert float(out["baseline"]) == pytest.approx(pair.baseline_m, rel=1e-12)

@@ -13,7 +13,7 @@ from prometheus_client.parser import text_string_to_metric_families
 
 from calibration import load_rig
 from calibration.geometry import invert_transform, transform_points
-from rig.vpc import design_vpc_pair
+from rig.rectified import design_rectified_pair
 from service.client import parse_ply
 from tests.helpers.service import SMALL_SPEC, InProcessServer, SmallRecording, same_frame
 from tests.helpers.waiting import wait_for
@@ -131,8 +131,8 @@ def test_pointcloud_geometry(shared_app: InProcessServer) -> None:
     pts, cols = parse_ply(r.content)
     assert cols is not None and pts.shape[1] == 3
     # Back into the left VPC frame: every point projects onto the stride grid with z = depth there.
-    T_rig_vpc = np.array(cal.vpc.T_rig_vpc["left"])
-    p = transform_points(invert_transform(T_rig_vpc), cloud.points.astype(np.float64))
+    T_rig_rect = np.array(cal.vpc.T_rig_rect["left"])
+    p = transform_points(invert_transform(T_rig_rect), cloud.points.astype(np.float64))
     u = cal.vpc.fx * p[:, 0] / p[:, 2] + cal.vpc.cx
     v = cal.vpc.fy * p[:, 1] / p[:, 2] + cal.vpc.cy
     ui, vi = np.rint(u).astype(int), np.rint(v).astype(int)
@@ -147,7 +147,7 @@ def test_calibration_matches_the_rig_file(
     shared_app: InProcessServer, small_recording: SmallRecording
 ) -> None:
     rig = load_rig(small_recording.loop / "calibration.yaml")
-    pair = design_vpc_pair(rig, SMALL_SPEC.vpc)
+    pair = design_rectified_pair(rig, SMALL_SPEC.vpc)
     with shared_app.rig_client() as c:
         cal = c.calibration()
     assert cal.baseline_m == pytest.approx(rig.baseline())

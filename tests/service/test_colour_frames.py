@@ -52,7 +52,7 @@ def test_depth_is_computed_from_luma_and_colour_is_made_once_on_request(
     result = runtime.store.latest
     assert result is not None
     for cam, name, vpc in zip(
-        ("left", "right"), pipeline.names, (result.frame.left_vpc, result.frame.right_vpc), strict=True
+        ("left", "right"), pipeline.names, (result.frame.left_rect, result.frame.right_rect), strict=True
     ):
         raw = result.raw_frame(cam).raw
         assert raw is not None
@@ -60,9 +60,9 @@ def test_depth_is_computed_from_luma_and_colour_is_made_once_on_request(
         assert vpc.ndim == 2
         luma = decode(raw, cv2.IMREAD_GRAYSCALE)
         np.testing.assert_array_equal(vpc, pipeline.rectify_camera(name, luma)[0])
-        colour = result.vpc_image(cam)
+        colour = result.rect_image(cam)
         assert colour.shape == (*vpc.shape, 3) and not colour.flags.writeable
-        assert result.vpc_image(cam) is colour  # made once per result
+        assert result.rect_image(cam) is colour  # made once per result
         np.testing.assert_array_equal(colour, pipeline.rectify_camera(name, decode(raw, cv2.IMREAD_COLOR))[0])
         # A colour scene: the channels differ (a gray camera would give equal ones).
         assert np.abs(colour[..., 0].astype(int) - colour[..., 2].astype(int)).mean() > 3.0

@@ -54,7 +54,7 @@ def test_the_estimate_grows_with_what_it_estimates(
     rig = Runtime.build(base).rig
     small = service_estimate(base, rig)
     wide = base.model_copy(update={"vpc": base.vpc.model_copy(update={"width": 640, "height": 480})})
-    assert service_estimate(wide, rig).parts["vpc_frames"] == 4 * small.parts["vpc_frames"]
+    assert service_estimate(wide, rig).parts["rect_frames"] == 4 * small.parts["rect_frames"]
     full = base.model_copy(
         update={"stereo": base.stereo.model_copy(update={"full_dp": True, "sgbm_mode": "hh"})}
     )

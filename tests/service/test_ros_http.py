@@ -34,7 +34,7 @@ def test_camera_info_in_ros_layout(shared_app: InProcessServer, small_recording:
         assert (doc["width"], doc["height"]) == (rig.cameras[cam].width, rig.cameras[cam].height)
         assert doc["header"]["frame_id"] == f"rig_{cam}_optical_frame" and doc["header"]["stamp"]["sec"] > 0
         R = np.array(doc["r"]).reshape(3, 3)
-        np.testing.assert_allclose(R, vpc.R_cam_vpc[cam].T, atol=1e-12)  # camera → rectified
+        np.testing.assert_allclose(R, vpc.R_cam_rect[cam].T, atol=1e-12)  # camera → rectified
         np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
     fx, B = vpc.camera.fx, vpc.baseline_m
     assert docs["left"]["p"][3] == 0.0 and docs["right"]["p"][3] == pytest.approx(-fx * B, rel=1e-12)

@@ -43,7 +43,7 @@ def _truth(small_recording: SmallRecording, live: LiveServer) -> np.ndarray:
     pair = live.runtime.pipeline.pair
     T_world_rig = np.array(scene_doc["frames"][0]["T_world_rig"])
     truth, _ = render_range(
-        room_scene(scene_doc["frames"][0]["seed"]), pair.camera, T_world_rig @ pair.T_rig_vpc["left"]
+        room_scene(scene_doc["frames"][0]["seed"]), pair.camera, T_world_rig @ pair.T_rig_rect["left"]
     )
     return truth
 
@@ -83,7 +83,7 @@ def test_lat_lon_calibration_point_cloud_client_and_openapi(wide_server: LiveSer
     pair = wide_server.runtime.pipeline.pair
     assert vpc["projection"] == "latlon" and vpc["px_per_deg"] == 2.0 and vpc["hfov_deg"] is None
     assert (vpc["width"], vpc["height"]) == (pair.camera.width, pair.camera.height)
-    assert np.allclose(vpc["R_rig_vpc"], pair.R_rig_vpc)
+    assert np.allclose(vpc["R_rig_vpc"], pair.R_rig_rect)
     for name in ("left", "right"):
         assert len(cal["cameras"][name]["footprint"]) > 100  # the overlap outlined in each fisheye
     # ROS's CameraInfo of the rectified view names the projection (no pinhole tool misprojects it).
@@ -101,7 +101,7 @@ def test_lat_lon_calibration_point_cloud_client_and_openapi(wide_server: LiveSer
     )
     # Every point at its pixel's range from the left centre (of the cloud's own frame: its seq).
     assert cloud.points.shape[0] > 0.3 * r.range.size
-    dist = np.linalg.norm(cloud.points - pair.T_rig_vpc["left"][:3, 3], axis=1)
+    dist = np.linalg.norm(cloud.points - pair.T_rig_rect["left"][:3, 3], axis=1)
     assert 0.3 < np.median(dist) < 10.0  # inside the room
     paths = httpx.get(base + "/openapi.json").json()["paths"]
     doc = paths["/range"]["get"]["responses"]["200"]
