@@ -274,8 +274,8 @@ class RectifiedPairModel(BaseModel):
     px_per_deg: float | None = Field(description="the lat-lon pair's resolution (None: pinhole)")
     yaw_deg: float
     pitch_deg: float
-    R_rig_rect: list[list[float]] = Field(description="the left rectified frame's axes in the rig frame")
-    T_rig_rect: dict[str, list[list[float]]]
+    R_rig_vpc: list[list[float]] = Field(description="the left rectified frame's axes in the rig frame")
+    T_rig_vpc: dict[str, list[list[float]]]
 
 
 class CameraCalibrationModel(BaseModel):
