@@ -34,7 +34,7 @@ from rig.evaluate.consistency import (
 from rig.field import pixel_solid_angles
 from rig.pipeline import DepthPipeline
 from rig.rectified import RectifiedPairConfig
-from rig.ring import PairNames, adjacent_pairs
+from rig.ring import PairNames, adjacent_pairs, stereo_pairs
 from rig.stereo import StereoParams
 
 __all__ = [
@@ -170,7 +170,7 @@ def consistency_study(
     compared points for analysis."""
     if not frames:
         raise EvaluationError("the consistency study needs at least one frame")
-    chosen = adjacent_pairs(rig, pairs)
+    chosen = adjacent_pairs(rig, pairs) if pairs is not None else stereo_pairs(rig)
     pipelines = pair_pipelines(rig, chosen, vpc=vpc, stereo=stereo, cache_dir=cache_dir, rigs=rigs)
     solid = {p: pixel_solid_angles(pipe.pair.camera) for p, pipe in pipelines.items()}
     ranges: dict[PairNames, list[PairRange]] = {p: [] for p in chosen}
