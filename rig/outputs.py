@@ -112,14 +112,14 @@ def run_settings(pipeline: DepthPipeline, products: Sequence[str]) -> dict[str, 
 
 
 def recording_identity(recording: RecordedPairs) -> str:
-    """What tells a recording from another, wherever it lies: a SHA-256 of its pair index (each
-    pair's seq and both capture times) and of the bytes of its first and last pairs' frames (two
+    """What tells a recording from another, wherever it lies: a SHA-256 of its index (each
+    set's seq and every camera's capture time) and of the bytes of its first and last pairs' frames (two
     renders of one scene can share the index)."""
     digest = hashlib.sha256()
     for pair in recording.pairs:
-        digest.update(struct.pack("<qqq", pair.seq, pair.left_ts_ns, pair.right_ts_ns))
+        digest.update(struct.pack(f"<q{len(pair.stamps)}q", pair.seq, *pair.stamps))
     for pair in {id(p): p for p in (recording.pairs[:1] + recording.pairs[-1:])}.values():
-        for camera in ("left", "right"):
+        for camera in recording.cameras:
             try:
                 stored = recording.read_frame(pair, camera)
             except RigError:

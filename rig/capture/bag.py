@@ -186,7 +186,7 @@ class BagRecording:
             kept["left"].append(left[i])
             kept["right"].append(right[j])
             pairs.append(
-                PairRecord(
+                PairRecord.pair(
                     seq,
                     ls[i],
                     rs[j],

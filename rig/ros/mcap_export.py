@@ -16,7 +16,7 @@ camera's JPEG bytes untouched, flushed chunk by chunk (see :mod:`rig.ros.mcap_wr
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -111,6 +111,7 @@ class McapRecordingWriter:
         path: str | Path,
         *,
         names: RosNames | None = None,
+        cameras: Sequence[str] = ("left", "right"),
         fsync: bool = False,
         compression: Compression = "none",
         chunk_size: int = 1024 * 1024,
@@ -118,6 +119,7 @@ class McapRecordingWriter:
     ) -> None:
         self.root = Path(path)
         self.names = names or RosNames()
+        self.cameras = list(cameras)
         self.count = 0
         self._seqs: set[int] = set()
         self._writer = McapRosWriter(
@@ -136,27 +138,35 @@ class McapRecordingWriter:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def write_set(self, seq: int, stamps: Sequence[int], frames: Sequence[bytes], ext: str = ".jpg") -> None:
+        """One encoded frame per camera (``ext`` .jpg: kept as bytes; .png: written as pixels)."""
+        fmt = "png" if ext.lower() == ".png" else "jpeg"
+        self._write(seq, stamps, [StoredFrame(fmt, raw=data) for data in frames])
+
+    def write_set_images(self, seq: int, stamps: Sequence[int], images: Sequence[NDArray[Any]]) -> None:
+        """One decoded frame per camera (YUYV cameras), as its pixels."""
+        self._write(seq, stamps, [StoredFrame("bgr", image=image) for image in images])
+
     def write_pair(
         self, seq: int, left_ts_ns: int, right_ts_ns: int, left: bytes, right: bytes, ext: str = ".jpg"
     ) -> None:
-        """Two encoded frames (``ext`` .jpg: kept as bytes; .png: written as pixels)."""
-        fmt = "png" if ext.lower() == ".png" else "jpeg"
-        self._write(seq, left_ts_ns, right_ts_ns, StoredFrame(fmt, raw=left), StoredFrame(fmt, raw=right))
+        """Two encoded frames: :meth:`write_set`."""
+        self.write_set(seq, (left_ts_ns, right_ts_ns), (left, right), ext)
 
     def write_images(
         self, seq: int, left_ts_ns: int, right_ts_ns: int, left: NDArray[Any], right: NDArray[Any]
     ) -> None:
-        """Two decoded frames (YUYV cameras), as their pixels."""
-        self._write(
-            seq, left_ts_ns, right_ts_ns, StoredFrame("bgr", image=left), StoredFrame("bgr", image=right)
-        )
+        """Two decoded frames: :meth:`write_set_images`."""
+        self.write_set_images(seq, (left_ts_ns, right_ts_ns), (left, right))
 
-    def _write(self, seq: int, lts: int, rts: int, left: StoredFrame, right: StoredFrame) -> None:
+    def _write(self, seq: int, stamps: Sequence[int], frames: Sequence[StoredFrame]) -> None:
         if seq in self._seqs or seq < 0:
             raise RecordingError(f"{self.root}: seq {seq} already written or negative")
+        if len(stamps) != len(self.cameras) or len(frames) != len(self.cameras):
+            raise RecordingError(f"{self.root}: a set holds {len(self.cameras)} frames, got {len(frames)}")
         messages = [
-            raw_image_message(self.names, "left", left, int(lts)),
-            raw_image_message(self.names, "right", right, int(rts)),
+            raw_image_message(self.names, camera, frame, int(ts))
+            for camera, frame, ts in zip(self.cameras, frames, stamps, strict=True)
         ]
         self._writer.write_all(messages, sequence=seq)
         self._seqs.add(seq)
