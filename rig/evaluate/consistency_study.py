@@ -34,6 +34,7 @@ from rig.evaluate.consistency import (
 from rig.field import pixel_solid_angles
 from rig.pipeline import DepthPipeline
 from rig.rectified import RectifiedPairConfig
+from rig.rig_pipeline import pair_config
 from rig.ring import PairNames, adjacent_pairs, stereo_pairs
 from rig.stereo import StereoParams
 
@@ -111,12 +112,6 @@ class ConsistencyStudy:
         }
 
 
-def _pair_config(vpc: RectifiedPairConfig, names: PairNames) -> RectifiedPairConfig:
-    return RectifiedPairConfig.model_validate(
-        {**vpc.model_dump(exclude_defaults=True), "left": names[0], "right": names[1]}
-    )
-
-
 def pair_pipelines(
     rig: Rig,
     pairs: Sequence[PairNames],
@@ -128,10 +123,9 @@ def pair_pipelines(
 ) -> dict[PairNames, DepthPipeline]:
     """A depth pipeline per pair: ``vpc``'s projection and field settings (default today's) with
     the pair's cameras, on ``rigs[pair]`` where given, else ``rig``."""
-    base = vpc or RectifiedPairConfig()
     own = rigs or {}
     return {
-        p: DepthPipeline(own.get(p, rig), _pair_config(base, p), stereo, cache_dir, tune_malloc=False)
+        p: DepthPipeline(own.get(p, rig), pair_config(vpc, p), stereo, cache_dir, tune_malloc=False)
         for p in pairs
     }
 
