@@ -18,7 +18,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Container, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, overload
 
 from numpy.typing import NDArray
 
@@ -33,7 +33,14 @@ from rig.rig_pipeline import RigFrame, RigPipeline
 from rig.staged import PairJob
 from rig.stored_frame import StoredFrame
 
-__all__ = ["RecordedSet", "RigSink", "check_recording_cameras", "process_sets", "read_set_images"]
+__all__ = [
+    "RecordedSet",
+    "RecordingFrames",
+    "RigSink",
+    "check_recording_cameras",
+    "process_sets",
+    "read_set_images",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -204,3 +211,29 @@ def read_set_images(
         c: recording.read_frame(row, c).pipeline_image((rig.cameras[c].width, rig.cameras[c].height))
         for c in cameras
     }
+
+
+class RecordingFrames(Sequence[dict[str, NDArray[Any]]]):
+    """The sets of a recording as images, read when asked for (one set in memory at a time):
+    the ``frames`` a library function over sets takes (e.g.
+    :func:`rig.evaluate.consistency_study.consistency_study`). RecordingError naming the frame
+    when one cannot be read."""
+
+    def __init__(self, recording: RecordedPairs, rig: Rig, cameras: Sequence[str]) -> None:
+        check_recording_cameras(recording, cameras)
+        self._recording, self._rig, self._cameras = recording, rig, list(cameras)
+
+    def __len__(self) -> int:
+        return len(self._recording.pairs)
+
+    @overload
+    def __getitem__(self, index: int) -> dict[str, NDArray[Any]]: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[dict[str, NDArray[Any]]]: ...
+
+    def __getitem__(self, index: int | slice) -> dict[str, NDArray[Any]] | list[dict[str, NDArray[Any]]]:
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        row = self._recording.pairs[index]
+        return read_set_images(self._recording, row, self._rig, self._cameras)
