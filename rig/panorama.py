@@ -195,13 +195,15 @@ def _pull(
     centre, R = T[:3, 3], T[:3, :3]
     rng = p.range.astype(np.float64)
     offset = spec.origin - centre
-    index, q = _far_field(spec, pair)
-    keep = _near_valid(np.isfinite(rng), q)
-    index, rays = index[keep], spec.rays_rig[index[keep]]
+    index, far = _far_field(spec, pair)
+    keep = _near_valid(np.isfinite(rng), far)
+    index, rays, far = index[keep], spec.rays_rig[index[keep]], far[keep]
     r = np.full(index.shape[0], np.inf)
-    for _ in range(iterations):
-        seen_from_pair = np.where(np.isfinite(r)[:, None], offset + r[:, None] * rays, rays)
-        q, ok = pair.camera.project(seen_from_pair @ R, in_image=False)
+    for step in range(iterations):
+        q, ok = far, np.ones(far.shape[0], bool)  # the first step: the rays seen from infinity
+        if step:
+            seen_from_pair = np.where(np.isfinite(r)[:, None], offset + r[:, None] * rays, rays)
+            q, ok = pair.camera.project(seen_from_pair @ R, in_image=False)
         r_pair = np.where(ok, sample_surface(rng, q), np.nan)
         pix_rays, _ = pair.camera.unproject(q, in_image=False)
         point = (pix_rays @ R.T) * r_pair[:, None] - offset  # from the origin
@@ -246,7 +248,7 @@ def fuse_panorama(
     *,
     agree_sigmas: float = 3.0,
     default_sigma_px: float = 0.25,
-    iterations: int = 4,
+    iterations: int = 3,
 ) -> PanoramaFrame:
     """The panorama of ``pairs``' ranges (see the module doc)."""
     if not pairs:
