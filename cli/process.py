@@ -62,7 +62,7 @@ from cli.pipeline_options import (
     check_against_frames,
     describe_pipeline,
 )
-from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption
+from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption, TopicOption, parse_topics
 from rig.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -252,6 +252,7 @@ def register(app: typer.Typer) -> None:
         left_topic: LeftTopicOption = None,
         right_topic: RightTopicOption = None,
         max_skew_ms: MaxSkewOption = None,
+        topic: TopicOption = None,
         resume: Annotated[
             bool, typer.Option("--resume", help="Skip the pairs whose outputs are complete in DIR.")
         ] = False,
@@ -310,7 +311,8 @@ def register(app: typer.Typer) -> None:
         config = make_pair_config(
             vpc_size, vpc_hfov, yaw, pitch, projection=projection, px_per_deg=px_per_deg, field=field
         )
-        sources = [RecordingSource(p, left_topic, right_topic, max_skew_ms) for p in paths]
+        topics = parse_topics(topic)
+        sources = [RecordingSource(p, left_topic, right_topic, max_skew_ms, topics) for p in paths]
         pipelines = _Pipelines(calibration, config, stereo, cache_dir, panorama_px_per_deg)
         jobs, described = _jobs(sources, _output_dirs(sources, out, per_recording), pipelines, not no_check)
         rings = any(job.ring is not None for job in jobs)

@@ -38,12 +38,13 @@ last call (any thread)."""
 @dataclass(frozen=True)
 class RecordingSource:
     """Where a recording is and how to open it (a directory, or a ROS bag and its two image
-    topics): what a worker on another machine needs to read it."""
+    topics, or a topic per camera of a rig): what a worker on another machine needs to read it."""
 
     path: Path
     left_topic: str | None = None
     right_topic: str | None = None
     max_skew_ms: float | None = None
+    topics: tuple[tuple[str, str], ...] | None = None  # a rig's bag: (camera, topic) each
 
     @property
     def name(self) -> str:
@@ -52,7 +53,11 @@ class RecordingSource:
 
     def open(self) -> RecordedPairs:
         return open_recording(
-            self.path, left_topic=self.left_topic, right_topic=self.right_topic, max_skew_ms=self.max_skew_ms
+            self.path,
+            left_topic=self.left_topic,
+            right_topic=self.right_topic,
+            max_skew_ms=self.max_skew_ms,
+            topics=None if self.topics is None else dict(self.topics),
         )
 
 

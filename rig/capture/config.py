@@ -110,6 +110,9 @@ class FileCameraConfig(SettingsModel):
     max_skew_ms: float | None = Field(
         None, gt=0.0, description="a bag's pairing gate on header stamps; default half a frame period"
     )
+    topics: dict[str, str] | None = Field(
+        None, description="a bag's image topic of each camera of a rig (camera name: topic)"
+    )
 
     @field_validator("pace")
     @classmethod
@@ -122,6 +125,10 @@ class FileCameraConfig(SettingsModel):
     def _both_topics(self) -> FileCameraConfig:
         if (self.left_topic is None) != (self.right_topic is None):
             raise ValueError("a bag needs both left_topic and right_topic (its two image topics)")
+        if self.topics is not None and self.left_topic is not None:
+            raise ValueError(
+                "name a bag's topics per camera (topics) or as left_topic and right_topic, not both"
+            )
         return self
 
     @model_validator(mode="after")

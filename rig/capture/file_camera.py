@@ -85,6 +85,7 @@ class FileCamera:
             left_topic=config.left_topic,
             right_topic=config.right_topic,
             max_skew_ms=config.max_skew_ms,
+            topics=config.topics,
         )
         if self._cam not in rec.cameras:
             raise ConfigError(f"{rec.root}: recording has no camera {self._cam!r} (has {rec.cameras})")

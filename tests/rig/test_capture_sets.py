@@ -17,7 +17,7 @@ from rig.capture.config import CaptureConfig
 from rig.capture.frame import Frame, FramePair, FrameSet
 from rig.capture.pairing import FramePairer
 from rig.capture.recorder import Recorder, replay_capture_config
-from rig.errors import ConfigError
+from rig.errors import ConfigError, RecordingError
 from rig.recording import Recording, RecordingWriter
 from tests.helpers.recordings import write_set_recording
 
@@ -117,3 +117,28 @@ def test_a_capture_config_names_two_cameras_or_a_rig() -> None:
     ):
         with pytest.raises(ValueError, match=message):
             CaptureConfig.model_validate(doc)
+
+
+def test_a_ring_recorded_to_mcap_reads_back_as_a_bag_of_four_topics(tmp_path: Path) -> None:
+    from rig.capture.recorded import open_recording
+    from rig.ros.mcap_export import McapRecordingWriter
+    from rig.ros.names import RosNames
+
+    cams = ("cam1", "cam2", "cam3", "cam4")
+    source = write_set_recording(tmp_path / "ring", cams, 6, skews_ns=(0, 2_000_000, 1_000_000, 3_000_000))
+    config, _ = replay_capture_config(source)
+    with RigCapture(config) as capture:
+        recorder = Recorder(capture, lambda: McapRecordingWriter(tmp_path / "ring.mcap", cameras=cams))
+        assert recorder.run(max_seconds=60).pairs_written == 6
+    recorder.complete()
+    topics = {c: RosNames().raw_image(c, compressed=True) for c in cams}
+    bag = open_recording(tmp_path / "ring.mcap", topics=topics)
+    src = Recording(source)
+    assert bag.cameras == list(cams)
+    assert [row.stamps for row in bag.pairs] == [row.stamps for row in src.pairs]
+    for row, orig in zip(bag.pairs, src.pairs, strict=True):
+        for c in cams:
+            assert bag.read_frame(row, c).raw == src.read_bytes(orig, c)
+    # A topic that lags by more than the gate pairs with nothing: the bag is refused, named.
+    with pytest.raises(RecordingError, match="are not synchronised"):
+        open_recording(tmp_path / "ring.mcap", topics=topics, max_skew_ms=0.5)
