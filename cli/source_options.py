@@ -71,9 +71,20 @@ def parse_topics(values: list[str] | None) -> tuple[tuple[str, str], ...] | None
 
 
 def open_source(
-    recording: Path, left_topic: str | None, right_topic: str | None, max_skew_ms: float | None
+    recording: Path,
+    left_topic: str | None,
+    right_topic: str | None,
+    max_skew_ms: float | None,
+    topics: tuple[tuple[str, str], ...] | None = None,
 ) -> RecordedPairs:
-    """A recording directory, or a ROS bag (MCAP, .db3, bag directory) with its two image topics."""
+    """A recording directory, or a ROS bag (MCAP, .db3, bag directory) with its two image topics
+    (or a topic per camera of a rig)."""
     from rig.capture.recorded import open_recording
 
-    return open_recording(recording, left_topic=left_topic, right_topic=right_topic, max_skew_ms=max_skew_ms)
+    return open_recording(
+        recording,
+        left_topic=left_topic,
+        right_topic=right_topic,
+        max_skew_ms=max_skew_ms,
+        topics=None if topics is None else dict(topics),
+    )

@@ -18,7 +18,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Container, Sequence
 from dataclasses import dataclass, field
-from typing import Any, overload
+from typing import Any, Generic, TypeVar, overload
 
 from numpy.typing import NDArray
 
@@ -34,9 +34,11 @@ from rig.staged import PairJob
 from rig.stored_frame import StoredFrame
 
 __all__ = [
+    "OpenSet",
     "RecordedSet",
     "RecordingFrames",
     "RigSink",
+    "SetCollector",
     "check_recording_cameras",
     "process_sets",
     "read_set_images",
@@ -56,6 +58,7 @@ class RecordedSet:
 
 
 RigSink = Callable[[RecordedSet, RigFrame], None]
+S = TypeVar("S")
 """``sink(frame_set, rig_frame)``: one set's depth and panorama, in the recording's order."""
 
 
@@ -86,30 +89,33 @@ class _OnceImages:
 
 
 @dataclass
-class _Open:
-    """A set whose pairs are not all back yet."""
+class OpenSet(Generic[S]):
+    """A set whose pairs are not all back yet: ``set`` the caller's (its row, its frames)."""
 
-    set: RecordedSet
+    set: S
     frames: dict[str, DepthFrame] = field(default_factory=dict)
     error: BaseException | None = None
     resolved: int = 0
 
 
-class _Sets:
-    """Collects each set's pairs (finished or failed, in whatever order they come back)."""
+class SetCollector(Generic[S]):
+    """Collects each set's ``pairs`` pairs (finished or failed, in whatever order they come back
+    from the executor's threads); thread-safe."""
 
     def __init__(self, pairs: int) -> None:
         self._pairs = pairs
-        self._open: dict[int, _Open] = {}
+        self._open: dict[int, OpenSet[S]] = {}
         self._lock = threading.Lock()
 
-    def resolve(self, part: _Part, frame: DepthFrame | None, err: BaseException | None) -> _Open | None:
-        """Note one pair of a set; the set once all its pairs are back, else None."""
-        seq = part.set.seq
+    def resolve(
+        self, seq: int, whole: S, label: str, frame: DepthFrame | None, err: BaseException | None
+    ) -> OpenSet[S] | None:
+        """Note pair ``label`` of set ``seq`` (``whole``): its frame, or its error; the set once
+        all its pairs are back, else None."""
         with self._lock:
-            entry = self._open.setdefault(seq, _Open(part.set))
+            entry = self._open.setdefault(seq, OpenSet(whole))
             if frame is not None:
-                entry.frames[part.label] = frame
+                entry.frames[label] = frame
             elif entry.error is None:
                 entry.error = err
             entry.resolved += 1
@@ -151,7 +157,7 @@ def process_sets(
     the run."""
     check_recording_cameras(recording, rig.cameras)
     progress = RunProgress(write, on_set)
-    collected = _Sets(len(rig.pipelines))
+    collected: SetCollector[RecordedSet] = SetCollector(len(rig.pipelines))
 
     def jobs_of(
         row: FrameSetRecord, frames: dict[str, StoredFrame | None], loaders: dict[str, Loader]
@@ -171,7 +177,7 @@ def process_sets(
         ]
 
     def finished(part: _Part, frame: DepthFrame | None, err: BaseException | None) -> None:
-        entry = collected.resolve(part, frame, err)
+        entry = collected.resolve(part.set.seq, part.set, part.label, frame, err)
         if entry is None:
             return
         seq = entry.set.seq

@@ -32,6 +32,7 @@ from service.routes import (
     health,
     metrics,
     recordings,
+    ring,
     stream,
 )
 from service.runtime import Runtime
@@ -139,6 +140,7 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
         health,
         counters,
         depth,
+        ring,
         stream,
         frames,
         calibration,

@@ -27,7 +27,7 @@ from rig.capture.health import CaptureHealth
 from rig.errors import CameraUnavailable, RecordingError
 from rig.recording import PairWriter, Recording
 
-__all__ = ["RecordResult", "Recorder", "copy_calibration", "replay_capture_config"]
+__all__ = ["RecordResult", "Recorder", "copy_calibration", "replay_capture_config", "store_set"]
 
 # Replays wait on the writer under backpressure, which must not look like a stalled camera.
 _REPLAY_SUPERVISOR = SupervisorConfig(
@@ -101,15 +101,7 @@ class Recorder:
                 f"{writer.root}: {pair.cameras[0]} camera seq went from {self._last_seq} back to {seq} "
                 "(a looping replay with recorded timestamps cannot be recorded; use timestamps: live)"
             )
-        frames = pair.frames
-        stamps = [f.ts_ns for f in frames]
-        raws = [f.raw for f in frames]
-        extensions = {f.extension for f in frames}
-        if all(raw is not None for raw in raws) and len(extensions) == 1:
-            encoded = [raw for raw in raws if raw is not None]
-            writer.write_set(seq, stamps, encoded, ext=frames[0].extension or ".jpg")
-        else:
-            writer.write_set_images(seq, stamps, [f.image for f in frames])
+        store_set(writer, pair)
         self._last_seq = seq
         self.written += 1
 
@@ -170,6 +162,19 @@ class Recorder:
             raise CameraUnavailable(
                 "; ".join(c.reason or f"camera {c.name}: no frame yet" for c in down) + " (no pair recorded)"
             )
+
+
+def store_set(writer: PairWriter, frames: FrameSet) -> None:
+    """One set into ``writer``: the frames' bytes as the cameras delivered them when every one
+    has them in one format (MJPEG, PNG), else the decoded images (stored losslessly)."""
+    stamps = [f.ts_ns for f in frames.frames]
+    raws = [f.raw for f in frames.frames]
+    extensions = {f.extension for f in frames.frames}
+    if all(raw is not None for raw in raws) and len(extensions) == 1:
+        encoded = [raw for raw in raws if raw is not None]
+        writer.write_set(frames.seq, stamps, encoded, ext=frames.frames[0].extension or ".jpg")
+    else:
+        writer.write_set_images(frames.seq, stamps, [f.image for f in frames.frames])
 
 
 def copy_calibration(source: Recording, out: Path) -> bool:

@@ -28,11 +28,21 @@ from rig.errors import OutputError, RecordingError
 from rig.pipeline import DepthFrame, DepthPipeline
 from rig.recording import StoredFrame
 from rig.recording_depth import PairFailure, RecordedPair, process_pairs
+from rig.rig_depth import RecordedSet, process_sets
+from rig.rig_pipeline import RigFrame, RigPipeline
 from rig.ros.mcap_writer import Compression, McapRosWriter
 from rig.ros.messages import MessageBuilder, raw_image_message
 from rig.ros.names import RosNames
+from rig.ros.ring_messages import RingMessageBuilder
 
-__all__ = ["ExportResult", "McapDepthSink", "McapRecordingWriter", "export_mcap"]
+__all__ = [
+    "ExportResult",
+    "McapDepthSink",
+    "McapRecordingWriter",
+    "McapRingSink",
+    "export_mcap",
+    "export_ring_mcap",
+]
 
 
 @dataclass
@@ -66,6 +76,66 @@ class McapDepthSink:
         except RecordingError as err:
             raise OutputError(str(err)) from err
         self.pairs += 1
+
+
+class McapRingSink:
+    """An MCAP file as the sink of :func:`rig.rig_depth.process_sets` (a rig of N cameras): the
+    static transforms before the first set, then per set every camera's raw frame and everything
+    ``builder`` makes of it (:class:`~rig.ros.ring_messages.RingMessageBuilder`: each pair's
+    depth, the panorama, the fused cloud), stamped with the set's capture times."""
+
+    def __init__(self, writer: McapRosWriter, builder: RingMessageBuilder) -> None:
+        self.writer = writer
+        self.builder = builder
+        self.sets = 0
+
+    def __call__(self, frame_set: RecordedSet, frame: RigFrame) -> None:
+        record, builder = frame_set.record, self.builder
+        try:
+            if not self.sets:
+                self.writer.write_all(builder.static(record.first_ts_ns))
+            for camera in builder.cameras:
+                stored = frame_set.frames[camera]
+                assert stored is not None  # a set without one of its frames has no depth
+                self.writer.write_all(builder.raw_frame(camera, stored, record.ts_ns(camera)))
+            self.writer.write_all(
+                builder.set_outputs(
+                    frame.pairs,
+                    record.first_ts_ns,
+                    panorama=lambda: frame.panorama,
+                    fused_cloud=lambda: frame,
+                )
+            )
+        except RecordingError as err:
+            raise OutputError(str(err)) from err
+        self.sets += 1
+
+
+def export_ring_mcap(
+    recording: RecordedPairs,
+    ring: RigPipeline,
+    out: str | Path,
+    *,
+    names: RosNames | None = None,
+    cloud_stride: int = 1,
+    rectified_images: bool = True,
+    compression: Compression = "zstd",
+    on_set: Callable[[int, PairFailure | None], None] | None = None,
+) -> ExportResult:
+    """:func:`export_mcap` of a rig of N cameras: every set of ``recording`` through ``ring``
+    (:func:`rig.rig_depth.process_sets`) into ``out`` (:class:`McapRingSink`)."""
+    builder = RingMessageBuilder(ring, names or RosNames(), cloud_stride, rectified_images)
+    with McapRosWriter(out, compression=compression) as writer:
+        sink = McapRingSink(writer, builder)
+        run = process_sets(ring, recording, recording.pairs, sink, on_set=on_set)
+        if recording.pairs and not run.written:
+            first = run.failures[0]
+            raise RecordingError(
+                f"{recording.root}: no set of {len(recording.pairs)} could be processed "
+                f"(first: seq {first.seq}: {first.reason})"
+            )
+        messages = writer.messages
+    return ExportResult(Path(out), run.written, messages, run.failures)
 
 
 def export_mcap(
