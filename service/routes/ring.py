@@ -14,7 +14,7 @@ from fastapi import APIRouter, Query, Response
 from rig.pipeline import DepthFrame
 from rig.ring import pair_label
 from service.deps import ResultDep, RuntimeDep, SettingsDep, binary_response_doc, cached_body, frame_headers
-from service.encoders import depth_png, npy_bytes
+from service.encoders import colorize_depth, depth_png, encode_jpeg, npy_bytes
 from service.errors import NoPanorama, UnknownPair
 from service.runtime import Runtime
 from service.store import PublishedResult, RingResult
@@ -83,6 +83,24 @@ async def get_panorama(
     body = await cached_body(result, f"panorama_{format}", produce)
     headers = frame_headers(result, **{"X-Range-Scale": "1" if format == "npy" else f"{scale:g}"})
     return Response(body, media_type=NPY if format == "npy" else "image/png", headers=headers)
+
+
+@router.get(
+    "/panorama/colorized",
+    response_class=Response,
+    summary="Latest panorama as a colour-mapped JPEG (the dashboard's)",
+    responses=binary_response_doc("turbo colour map of inverse range; black = no range", "image/jpeg"),
+)
+async def get_panorama_colorized(result: ResultDep, settings: SettingsDep) -> Response:
+    ring = _ring(result)
+    near, far = settings.server.color_range_m
+    quality = settings.server.jpeg_quality
+
+    def produce() -> bytes:
+        return encode_jpeg(colorize_depth(ring.panorama().range, near, far), quality)
+
+    body = await cached_body(result, "panorama_colorized", produce)
+    return Response(body, media_type="image/jpeg", headers=frame_headers(result))
 
 
 @router.get("/panorama/info", summary="The panorama's projection, frame and pairs (panorama.json)")
