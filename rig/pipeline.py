@@ -43,6 +43,7 @@ from rig.heap import tune_allocator
 from rig.in_effect import PairGeometry, PairInEffect
 from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
+from rig.match_input import matcher_input
 from rig.postprocess import PostprocessStage
 from rig.rectified import RectifiedPair, RectifiedPairConfig
 from rig.stereo import MatchedDisparity, StereoMatcher, StereoParams, UnfilteredDisparity
@@ -347,7 +348,12 @@ class DepthPipeline:
             matcher = self._in_effect.matcher
             seen = (rect.geometry or self._in_effect.geometry).seen
             t0 = time.perf_counter()
-            unfiltered = matcher.compute(rect.left_gray, rect.right_gray, seen)
+            p = matcher.params
+            left, right = (
+                matcher_input(g, p.match_blur_sigma, p.match_normalise_window, p.match_normalise_eps)
+                for g in (rect.left_gray, rect.right_gray)
+            )
+            unfiltered = matcher.compute(left, right, seen)
             return MatchedImages(rect, matcher, unfiltered, (time.perf_counter() - t0) * 1e3)
 
     def _disparity(self, matched: MatchedImages) -> MatchedDisparity:

@@ -91,6 +91,15 @@ class StereoParams(SettingsModel):
     P1: float = Field(0.0, ge=0.0, le=1e7, description="SGBM smoothness penalty, ±1 px steps (0 = 8·w²)")
     P2: float = Field(0.0, ge=0.0, le=1e7, description="SGBM smoothness penalty, larger steps (0 = 32·w²)")
     full_dp: bool = Field(False, description="SGBM full 8-direction dynamic programming (= mode hh)")
+    match_blur_sigma: float = Field(
+        0.0, ge=0.0, le=8.0, description="blur of both views before matching (px; 0 = off; rig.match_input)"
+    )
+    match_normalise_window: int = Field(
+        31, ge=0, le=255, description="local contrast normalisation before matching (odd px; 0 = off)"
+    )
+    match_normalise_eps: float = Field(
+        16.0, gt=0.0, le=255.0, description="grey levels added to the local σ: flat regions stay flat"
+    )
     subpixel: bool = Field(True, description="gradient-based subpixel refinement (rig.subpixel)")
     subpixel_window: int = Field(15, ge=3, le=31, description="refinement window (odd, px)")
     lr_check: bool = Field(True, description="full left-right consistency check (2nd matcher run)")
@@ -115,6 +124,8 @@ class StereoParams(SettingsModel):
             for name in ("correlation_window_size", "prefilter_size", "subpixel_window")
             if getattr(self, name) % 2 == 0
         ]
+        if self.match_normalise_window and self.match_normalise_window % 2 == 0:
+            problems.append(f"match_normalise_window must be 0 or odd, got {self.match_normalise_window}")
         if self.disparity_range % 16:
             problems.append(f"disparity_range must be a multiple of 16, got {self.disparity_range}")
         if self.stereo_algorithm == 0 and self.correlation_window_size < 5:
