@@ -13,10 +13,13 @@ process; the cases alternate for ``--repeat`` rounds and each figure is the medi
 * **today's default**: the honest lens, no Reference images (what ``rig sim`` does now).
 
 Figures: wall seconds per pair and CPU seconds per pair (the child's user + system time, every
-thread), and each case's speed-up over **before** (wall and CPU). A render has no OpenCV floor to
+thread), and each case's speed-up over **before** (wall and CPU). Then, with today's code, the CPU
+seconds of ``rig serve --demo``'s one render of its room (``service.demo.render_demo``, the
+default lat-lon pair; not with ``--quick``). A render has no OpenCV floor to
 compare with; the ratio against the old implementation is the figure.
 
-Run: ``.venv/bin/python -m bench.render_speed`` (``--quick``: quarter-size cameras, 2 frames).
+Run: ``.venv/bin/python -m bench.render_speed`` (``--quick``: quarter-size cameras, 2 frames, a
+1.5 px/deg lat-lon pair).
 """
 
 from __future__ import annotations
@@ -48,14 +51,18 @@ BEFORE_COMMIT = "4c71b76"
 _CHILD = """
 import json, sys, time
 from rig.sim import get_preset, simulate_recording
+from rig.vpc import VpcConfig
 args = json.loads(sys.argv[1])
 preset = get_preset("prototype")
 if args["scale"] != 1.0:
     preset = preset.scaled(args["scale"])
+vpc = VpcConfig(**args["vpc"]) if args["vpc"] else None
 t0 = time.perf_counter()
-simulate_recording(preset, "room", args["out"], frames=args["frames"], **args["kwargs"])
+simulate_recording(preset, "room", args["out"], frames=args["frames"], vpc=vpc, **args["kwargs"])
 print(json.dumps({"wall_s": time.perf_counter() - t0}))
 """
+# --quick: a coarse lat-lon pair (the Reference images are most of the earlier renderer's work).
+_QUICK_VPC = {"projection": "latlon", "px_per_deg": 1.5}
 
 CASES: dict[str, dict[str, Any]] = {
     "before": {},
@@ -75,9 +82,11 @@ def _export(commit: str, into: Path) -> Path:
     return src
 
 
-def _run(src: Path, out: Path, frames: int, scale: float, kwargs: dict[str, Any]) -> dict[str, float]:
+def _run(
+    src: Path, out: Path, frames: int, scale: float, vpc: dict[str, Any] | None, kwargs: dict[str, Any]
+) -> dict[str, float]:
     env = {**os.environ, "PYTHONPATH": str(src)}
-    doc = json.dumps({"out": str(out), "frames": frames, "scale": scale, "kwargs": kwargs})
+    doc = json.dumps({"out": str(out), "frames": frames, "scale": scale, "vpc": vpc, "kwargs": kwargs})
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     res = subprocess.run(
         [sys.executable, "-c", _CHILD, doc], cwd=src, env=env, check=True, capture_output=True, text=True
@@ -107,6 +116,16 @@ def _compare(a: Path, b: Path) -> dict[str, float]:
     return {"max_grey_diff": float(grey), "max_range_rel_diff": rel}
 
 
+def _demo_cpu_s() -> float:
+    """CPU seconds (every thread) of the demo's render with today's code, in this process."""
+    from service.demo import DemoSpec, render_demo  # only this figure needs the service
+
+    with tempfile.TemporaryDirectory(prefix="render-speed-demo-") as tmp:
+        c0 = time.process_time()
+        render_demo(DemoSpec(), Path(tmp) / "demo")
+        return time.process_time() - c0
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(
         prog="python -m bench.render_speed", description=__doc__.split("\n\n")[0]
@@ -130,7 +149,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             for name, kwargs in CASES.items():
                 src = sources["before" if name == "before" else "today"]
                 out = root / f"{name.replace(' ', '_').replace(chr(39), '')}-{k}"
-                times[name].append(_run(src, out, frames, scale, kwargs))
+                times[name].append(_run(src, out, frames, scale, _QUICK_VPC if args.quick else None, kwargs))
                 console.print(f"round {k + 1}/{repeat} {name}: {times[name][-1]['wall_s']:.1f} s wall")
         same = _compare(root / "before-0", root / "same_output-0")
     per_pair = {
@@ -152,12 +171,18 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         f"same output vs before: largest grey-level difference {same['max_grey_diff']:g}, "
         f"largest relative range difference {same['max_range_rel_diff']:.2g}"
     )
+    demo_cpu = None if args.quick else _demo_cpu_s()
+    if demo_cpu is not None:
+        console.print(
+            f"rig serve --demo, its one render (render_demo, default lat-lon pair): {demo_cpu:.1f} s CPU"
+        )
     results = {
         "frames": frames,
         "scale": scale,
         "repeat": repeat,
         "before": args.before,
         "per_pair": per_pair,
+        "demo_render_cpu_s": demo_cpu,
     }
     return finish("render_speed", info, {**results, "same_output": same, "runs": times}, args.json, table)
 

@@ -3,21 +3,22 @@
 Applied to the renderer's box-filtered image (grey levels, linear in the scene's radiance), per
 pixel of field angle θ off the optical axis (x = θ / θmax, θmax the lens's field limit):
 
-1. **Sharpness falling with field angle and defocus**: a Gaussian PSF of
+1. **Sharpness falling with field angle, and defocus**: a Gaussian PSF of
    ``σ(x) = hypot(σ0 + σ1·x^p, defocus)`` pixels. Done as a blend of a few images blurred at
    fixed σ (steps of at most :data:`SIGMA_STEP_PX`), each pixel mixing the two levels either
    side of its σ with the weights that give the mix exactly the variance σ² (a mix of two
    Gaussians this close is Gaussian-shaped to well under a grey level).
 2. **Rim darkening** (relative illumination): ``× (1 + c1·x² + c2·x⁴ + …)``.
-3. **Exposure**: ``× gain`` (per camera: exposure time and analogue gain).
-4. **Sensor noise**: gaussian with variance ``read² + shot·v`` grey levels² at signal v (the
-   shot noise's Poisson variance, ``shot`` = grey levels per electron), seeded.
-5. **Response**: ``255 · (v / 255)^(1/γ)`` (per camera), then rounding to 8 bits.
+3. **Exposure and response** (per camera): ``v → gain · m · (v / m)^γ`` about the pivot grey
+   level m: the camera's brightness at m relative to the others', and the slope of its response.
+4. **Sensor noise**: gaussian with variance ``read² + shot·v`` grey levels² at output level v
+   (what a camera's images show; the shot part is its photon noise), seeded; then rounding to
+   8 bits (by the renderer).
 
-The curves are functions of the relative field x, so one fit serves lenses of any field and
-resolution; σ is in the lens's own pixels. :data:`HONEST_LENS` holds the parameters fitted to
-real fisheye images (``python -m bench.lens_fit``; docs/evaluation.md, "The honest renderer");
-:data:`IDEAL_LENS` turns everything off.
+The curves are functions of the relative field x, so one fit serves lenses of any field; σ is in
+the lens's own pixels. :data:`HONEST_LENS` holds the parameters fitted to real fisheye images
+(``python -m bench.lens_fit``; docs/evaluation.md, "The honest renderer"); :data:`IDEAL_LENS`
+turns everything off.
 """
 
 from __future__ import annotations
@@ -40,6 +41,8 @@ __all__ = [
     "LensEffects",
     "apply_lens",
     "blur_by_field",
+    "check_lens",
+    "lens_for",
 ]
 
 F32 = NDArray[np.float32]
@@ -53,8 +56,9 @@ LENS_CHOICES = ("honest", "ideal")
 
 @dataclass(frozen=True)
 class CameraExposure:
-    """One camera's own settings: ``gain`` (exposure × analogue gain, relative), ``gamma`` of
-    its response curve and ``defocus_px``, a constant Gaussian σ added in quadrature."""
+    """One camera's own settings: ``gain`` (its brightness at the pivot grey level, relative),
+    ``gamma`` (the slope of its response in log-log) and ``defocus_px``, a constant Gaussian σ
+    added in quadrature."""
 
     gain: float = 1.0
     gamma: float = 1.0
@@ -71,6 +75,7 @@ class LensEffects:
     blur_rim_px: float = 0.0
     blur_power: float = 2.0
     illumination: tuple[float, ...] = ()
+    response_pivot: float = 128.0
     read_noise: float = 0.0
     shot_noise: float = 0.0
     exposures: tuple[CameraExposure, ...] = field(default_factory=tuple)
@@ -85,6 +90,10 @@ class LensEffects:
         for key, value in values.items():
             if not (math.isfinite(value) and value >= 0):
                 raise ConfigError(f"lens effects {self.name!r}: {key} must be >= 0, got {value!r}")
+        if not (math.isfinite(self.response_pivot) and 0 < self.response_pivot <= 255):
+            raise ConfigError(
+                f"lens effects {self.name!r}: response_pivot must be in (0, 255], got {self.response_pivot!r}"
+            )
         if not (math.isfinite(self.blur_power) and self.blur_power > 0):
             raise ConfigError(f"lens effects {self.name!r}: blur_power must be > 0, got {self.blur_power!r}")
         for e in self.exposures:
@@ -117,24 +126,72 @@ class LensEffects:
             exposures=tuple(replace(e, defocus_px=e.defocus_px * factor) for e in self.exposures),
         )
 
+    def describe(self, cameras: int = 2) -> str:
+        """One sentence for reports: what these effects do to ``cameras`` cameras."""
+        if self == replace(IDEAL_LENS, name=self.name):
+            nothing = "no blur beyond the pixel, no rim darkening, no exposure differences, no noise"
+            return f"{self.name} lens: {nothing}"
+        sigma = self.sigma_px(np.array([0.0, 1.0]))
+        per = [self.exposure(i) for i in range(cameras)]
+
+        def each(values: list[float], digits: int) -> str:
+            return " / ".join(f"{v:.{digits}f}" for v in values)
+
+        rim = float(self.relative_illumination(np.array(1.0)))
+        return (
+            f"{self.name} lens (rig.sim.lens_effects): PSF σ {sigma[0]:.2f} → {sigma[1]:.2f} px from the "
+            f"axis to the field edge, defocus {each([e.defocus_px for e in per], 2)} px, relative "
+            f"illumination {rim:.2f} at the field edge, gains {each([e.gain for e in per], 3)} and γ "
+            f"{each([e.gamma for e in per], 3)} about grey {self.response_pivot:g}, noise σ² = "
+            f"{self.read_noise:.2f}² + {self.shot_noise:g}·grey"
+        )
+
     def noiseless(self) -> LensEffects:
         """The same optics and exposures without sensor noise."""
         return replace(self, read_noise=0.0, shot_noise=0.0)
 
+    def sensor_only(self) -> LensEffects:
+        """The sensor noise alone (an ideal lens on the same sensor: a Reference view)."""
+        return replace(
+            IDEAL_LENS, name=f"{self.name} sensor", read_noise=self.read_noise, shot_noise=self.shot_noise
+        )
+
+    def reach_px(self, camera_index: int = 0) -> int:
+        """How far (pixels) the blur reaches: a crop rendered this much larger than needed
+        blurs its needed part as the whole image would."""
+        sigma = float(np.max(self.sigma_px(np.linspace(0.0, 1.0, 65), camera_index)))
+        return math.ceil(4.0 * sigma) + 1 if sigma > 0 else 0
+
 
 IDEAL_LENS = LensEffects()
 
-#: Fitted by ``python -m bench.lens_fit`` on real fisheye images (docs/evaluation.md).
+#: Fitted by ``python -m bench.lens_fit`` to the real ring's images (docs/evaluation.md): the
+#: ring's shared blur curve, rim darkening, pivot and median noise; the two cameras take the
+#: defocus, relative gain and γ of its cameras 1 and 2, an adjacent pair.
 HONEST_LENS = LensEffects(
     name="honest",
-    blur_centre_px=0.5,
-    blur_rim_px=1.5,
+    blur_centre_px=0.562,
+    blur_rim_px=0.274,
     blur_power=2.0,
-    illumination=(-0.3,),
-    read_noise=1.0,
-    shot_noise=0.05,
-    exposures=(CameraExposure(1.0, 1.0, 0.3), CameraExposure(0.93, 1.05, 0.5)),
+    illumination=(-0.0834, -0.2309),
+    response_pivot=98.3,
+    read_noise=0.804,
+    shot_noise=0.0006,
+    exposures=(CameraExposure(0.948, 1.0, 0.0), CameraExposure(1.052, 1.075, 0.705)),
 )
+
+
+def check_lens(choice: str) -> str:
+    """``choice`` if it is one of :data:`LENS_CHOICES`; ConfigError naming them otherwise."""
+    if choice not in LENS_CHOICES:
+        raise ConfigError(f"unknown lens {choice!r}; valid: {', '.join(LENS_CHOICES)}")
+    return choice
+
+
+def lens_for(choice: str, honest: LensEffects) -> LensEffects:
+    """The effects for a ``--lens`` choice: ``honest`` (the preset's fitted ``honest``) or
+    ``ideal`` (none)."""
+    return honest if check_lens(choice) == "honest" else IDEAL_LENS
 
 
 def blur_by_field(image: F32, sigma: F64) -> F32:
@@ -180,11 +237,13 @@ def apply_lens(
     lens's field limit (radians); ``rng`` draws the noise."""
     x = np.arccos(np.clip(cos_theta, -1.0, 1.0)) / max_theta
     out = blur_by_field(shade, lens.sigma_px(x, camera_index))
+    out = out * lens.relative_illumination(x).astype(np.float32)[:, :, None]
     exposure = lens.exposure(camera_index)
-    out = out * (lens.relative_illumination(x) * exposure.gain).astype(np.float32)[:, :, None]
+    if exposure.gain != 1.0 or exposure.gamma != 1.0:
+        pivot = np.float32(lens.response_pivot)
+        response = exposure.gain * pivot * (np.maximum(out, 0.0) / pivot) ** np.float32(exposure.gamma)
+        out = np.asarray(response, dtype=np.float32)
     if lens.read_noise > 0 or lens.shot_noise > 0:
         std = np.sqrt(lens.read_noise**2 + lens.shot_noise * np.maximum(out, 0.0))
-        out += std * rng.standard_normal(out.shape, dtype=np.float32)
-    if exposure.gamma != 1.0:
-        out = 255.0 * (np.clip(out, 0.0, 255.0) / 255.0) ** np.float32(1.0 / exposure.gamma)
-    return out.astype(np.float32, copy=False)
+        out = np.asarray(out + std * rng.standard_normal(out.shape, dtype=np.float32), dtype=np.float32)
+    return np.asarray(out, dtype=np.float32)

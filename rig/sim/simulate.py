@@ -46,7 +46,7 @@ from calibration.formats import save_rig
 from calibration.geometry import make_transform, rot_y
 from rig.errors import ConfigError, DiskFullError, RecordingError, SimulationError
 from rig.recording import RecordingWriter
-from rig.sim.lens_effects import IDEAL_LENS, LENS_CHOICES, LensEffects
+from rig.sim.lens_effects import LensEffects, lens_for
 from rig.sim.pair_render import PairRenderer, RenderedPair
 from rig.sim.presets import Preset, get_preset
 from rig.sim.scene import Scene, plane_scene, room_scene
@@ -195,12 +195,7 @@ def _sensor(
 ) -> tuple[LensEffects, float, float]:
     """The fisheyes' lens effects and the simple sensor model's noise and vignetting: an explicit
     ``noise_std`` replaces the lens's noise, an explicit ``vignetting`` its rim darkening."""
-    if isinstance(lens, str):
-        if lens not in LENS_CHOICES:
-            raise ConfigError(f"unknown lens {lens!r}; valid: {', '.join(LENS_CHOICES)}")
-        effects = p.lens if lens == "honest" else IDEAL_LENS
-    else:
-        effects = lens
+    effects = lens_for(lens, p.lens) if isinstance(lens, str) else lens
     noise = 0.0 if noise_std is None else float(noise_std)
     vig = 0.0 if vignetting is None else float(vignetting)
     if not (math.isfinite(noise) and noise >= 0):

@@ -161,6 +161,7 @@ def test_rig_sim_end_to_end(tmp_path: Path) -> None:
         (["--vpc-size", "10by10"], "--vpc-size"),
         (["--scene", "room", "--distances", "3"], "--frames"),
         (["--supersample", "0"], "--supersample"),
+        (["--lens", "perfect"], "honest, ideal"),
     ],
 )
 def test_rig_sim_bad_arguments_fail_in_one_line(tmp_path: Path, args: list[str], needle: str) -> None:
