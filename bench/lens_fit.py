@@ -226,7 +226,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(prog="python -m bench.lens_fit", description=__doc__.split("\n\n")[0])
     add_common_arguments(parser)
     args = parser.parse_args(argv)
-    most = 2000 if args.quick else 8000
+    most = 5000 if args.quick else 8000
     info = machine_info()
     print_machine(info, "the honest renderer's lens model fitted to real fisheye images")
     rng = np.random.default_rng(0)

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench import lens_fit, render_speed
+from bench import lens_ablation, lens_fit, render_speed
 from bench.lens_measure import edge_widths, sigma_from_width, width_calibration
 from bench.lens_overlap import OverlapSamples
 from calibration.geometry import make_transform, rot_x, rot_y
@@ -88,8 +88,11 @@ def test_the_blur_fit_separates_the_shared_curve_from_each_cameras_defocus() -> 
 def test_lens_fit_runs_on_the_real_images(shared_data: Path, tmp_path: Path) -> None:
     doc = lens_fit.main(["--quick", "--json", str(tmp_path / "fit.json")])
     assert json.loads((tmp_path / "fit.json").read_text())["benchmark"] == "lens_fit"
-    blur = doc["ring_blur"]
-    assert 0.3 < blur["s0"] + blur["s1"] * 0.5 ** blur["p"] < 1.5 and len(blur["defocus"]) == 4
+    # The ring's measured PSFs (bins with enough edges): between a third of a pixel and 2.5 px.
+    sigma = np.array([doc["curves"][f"ring cam{k}"]["sigma_px"] for k in range(1, 5)], dtype=float)
+    measured = sigma[np.isfinite(sigma)]
+    assert measured.size >= 10 and measured.min() > 0.3 and measured.max() < 2.5, sigma
+    assert len(doc["ring_blur"]["defocus"]) == 4
     ill = doc["illumination"]
     assert ill["points"] > 500 and 0.3 < 1 + sum(ill["c"]) < 1.0  # darker at the field edge
     assert all(0.8 < g < 1.25 for g in ill["gain"])
@@ -103,3 +106,12 @@ def test_render_speed_runs_and_the_same_output_is_the_earlier_renderers(tmp_path
     assert doc["same_output"] == {"max_grey_diff": 0.0, "max_range_rel_diff": 0.0}
     for case in render_speed.CASES:
         assert doc["per_pair"][case]["wall_s"] > 0
+
+
+@pytest.mark.slow
+def test_lens_ablation_runs_and_the_ideal_lens_is_the_kindest(tmp_path: Path) -> None:
+    doc = lens_ablation.main(["--quick", "--json", str(tmp_path / "ablation.json")])
+    rows = doc["variants"]
+    assert set(rows) == set(lens_ablation.variants(LensEffects()))
+    assert rows["ideal"]["within_3pct"] > rows["honest"]["within_3pct"] > 0.3
+    assert all(0.0 < r["within_3pct"] <= r["valid"] <= 1.0 for r in rows.values())
