@@ -29,7 +29,7 @@ from rig.pipeline import DepthPipeline
 from rig.sim import IDEAL_LENS, LensEffects, get_preset, render, room_path, room_scene
 from rig.sim.render import render_range
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 
 __all__ = ["main", "variants"]
 
@@ -64,14 +64,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     print_machine(info, "the honest lens's effects, one at a time, against the matcher's range")
     scale = 0.5 if args.quick else 1.0
     preset = get_preset("prototype").scaled(scale)
-    vpc = VpcConfig(projection="latlon", px_per_deg=2.8) if args.quick else VpcConfig()
+    vpc = RectifiedPairConfig(projection="latlon", px_per_deg=2.8) if args.quick else RectifiedPairConfig()
     stereo = StereoParams(disparity_range=64) if args.quick else StereoParams()
     scene, T = room_scene(0), room_path(2, 5)
     rows: dict[str, dict[str, float]] = {}
     with tempfile.TemporaryDirectory(prefix="lens-ablation-") as tmp:
         pipe = DepthPipeline(preset.rig, vpc, stereo, cache_dir=Path(tmp), tune_malloc=False)
         pair = pipe.pair
-        truth, _ = render_range(scene, pair.camera, T @ pair.T_rig_vpc[pair.left])
+        truth, _ = render_range(scene, pair.camera, T @ pair.T_rig_rect[pair.left])
         solid = pixel_solid_angles(pair.camera)
         both = pipe.luts["left"].valid & pipe.luts["right"].valid
         for name, lens in variants(preset.lens).items():

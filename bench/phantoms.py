@@ -51,7 +51,7 @@ from rig.pipeline import DepthPipeline
 from rig.sim import get_preset
 from rig.sim.lens_effects import LENS_CHOICES
 from rig.stereo import StereoParams, create_opencv_matcher
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 
 __all__ = ["CANDIDATES", "Candidate", "main"]
 
@@ -92,7 +92,7 @@ class Shot:
     truth: np.ndarray[Any, Any]
 
 
-def cached_shot(scene: PhantomScene, vpc: VpcConfig, lens: str = "honest") -> Shot:
+def cached_shot(scene: PhantomScene, vpc: RectifiedPairConfig, lens: str = "honest") -> Shot:
     """The scene's render through ``lens``, from the bench cache or rendered (and kept) now."""
     folder = bench_cache_dir() / "phantoms"
     path = folder / f"{scene.name}-v{RENDER_VERSION}-{lens}-{vpc.width}x{vpc.height}-ss{SUPERSAMPLE}.npz"
@@ -154,7 +154,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         f"phantom obstacles per stereo setting, {args.lens} lens (shared machine: CPU figures are noisy)",
     )
     quick = args.quick
-    vpc = VpcConfig(width=320, height=240) if quick else PHANTOM_VPC
+    vpc = RectifiedPairConfig(width=320, height=240) if quick else PHANTOM_VPC
     scenes = [SCENES["stripes"], SCENES["low-texture"]] if quick else list(SCENES.values())
     scenes += [room_walk(i, args.room_frames) for i in range(args.room_frames)]
     candidates = QUICK if quick else CANDIDATES
@@ -163,7 +163,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rig = get_preset("prototype").rig
     tmp = bench_cache_dir() / "phantoms" / "lut"
     pipe = DepthPipeline(rig, vpc, cache_dir=tmp)
-    big = None if quick else DepthPipeline(rig, VpcConfig(width=1280, height=960), cache_dir=tmp)
+    big = None if quick else DepthPipeline(rig, RectifiedPairConfig(width=1280, height=960), cache_dir=tmp)
     bare = {"small": _bare_cpu_ms(pipe, shots, repeat)}
     if big is not None:
         bare["big"] = _bare_cpu_ms(big, shots[:2], repeat)

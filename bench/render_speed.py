@@ -51,12 +51,12 @@ BEFORE_COMMIT = "4c71b76"
 _CHILD = """
 import json, sys, time
 from rig.sim import get_preset, simulate_recording
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 args = json.loads(sys.argv[1])
 preset = get_preset("prototype")
 if args["scale"] != 1.0:
     preset = preset.scaled(args["scale"])
-vpc = VpcConfig(**args["vpc"]) if args["vpc"] else None
+vpc = RectifiedPairConfig(**args["vpc"]) if args["vpc"] else None
 t0 = time.perf_counter()
 simulate_recording(preset, "room", args["out"], frames=args["frames"], vpc=vpc, **args["kwargs"])
 print(json.dumps({"wall_s": time.perf_counter() - t0}))

@@ -23,7 +23,7 @@ from rich.progress import TimeRemainingColumn
 from cli.console import console, progress_bar
 from cli.errors import fail
 from cli.process import load_stereo_params
-from cli.vpc_options import FieldOption, ProjectionOption, PxPerDegOption, VpcSizeOption, make_vpc_config
+from cli.pair_options import FieldOption, ProjectionOption, PxPerDegOption, PinholeSizeOption, make_pair_config
 from rig.sim.lens_effects import LENS_CHOICES
 from rig.sim.presets import PRESETS, get_preset
 from rig.sim.simulate import DEFAULT_DISTANCES, DEFAULT_ROOM_FRAMES, SCENES, simulate_recording
@@ -141,7 +141,7 @@ def register(app: typer.Typer) -> None:
             ),
         ] = "1",
         projection: ProjectionOption = None,
-        vpc_size: VpcSizeOption = None,
+        vpc_size: PinholeSizeOption = None,
         vpc_hfov: Annotated[
             str | None,
             typer.Option(
@@ -189,7 +189,7 @@ def register(app: typer.Typer) -> None:
         ss = _int("--supersample", supersample, 1, 16)
         factor = _float("--scale", scale, 0.01, 8.0)
         hfov = _float("--vpc-hfov", vpc_hfov, 1.0, 179.0) if vpc_hfov is not None else None
-        vpc = make_vpc_config(vpc_size, hfov, projection=projection, px_per_deg=px_per_deg, field=field)
+        vpc = make_pair_config(vpc_size, hfov, projection=projection, px_per_deg=px_per_deg, field=field)
         params = load_stereo_params(stereo) if stereo is not None else StereoParams()
 
         chosen = get_preset(preset)

@@ -26,7 +26,7 @@ import platformdirs
 from rig.recording import RECORDING_VERSION, Recording, RecordingWriter
 from rig.sim import get_preset, simulate_recording
 from rig.sim.simulate import GROUND_TRUTH_VERSION
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 
 __all__ = [
     "DEMO_FPS",
@@ -56,7 +56,7 @@ class DemoSpec:
     frames: int = 30
     supersample: int = 2
     seed: int = 0
-    vpc: VpcConfig = field(default_factory=VpcConfig)
+    vpc: RectifiedPairConfig = field(default_factory=RectifiedPairConfig)
     lens: str = "honest"  # rig sim's lens effects (its noise is left to the loop's frames)
 
     def as_json(self) -> dict[str, Any]:

@@ -28,7 +28,7 @@ from rig.sim.lens_effects import LensEffects, check_lens
 from rig.sim.presets import PRESETS, Preset
 from rig.sim.textures import TEXTURES
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 
 __all__ = [
     "DEFAULT_MODELS",
@@ -69,7 +69,7 @@ class EvalConfig:
     quick: bool
     seed: int
     scale: float  # preset image scale (1 = the preset's size)
-    vpc: VpcConfig
+    vpc: RectifiedPairConfig
     supersample: int  # calibration boards and the room (sharp edges)
     plane_supersample: int  # the depth planes (most of the run's time)
     calibration_views: int
@@ -118,7 +118,7 @@ class EvalConfig:
         }
 
 
-def stereo_for(vpc: VpcConfig, nearest_k: float) -> StereoParams:
+def stereo_for(vpc: RectifiedPairConfig, nearest_k: float) -> StereoParams:
     """The product's default stereo settings with a disparity range that reaches the nearest
     plane (``fx / k`` px plus 10 %); ConfigError when that leaves too few columns to match."""
     fx = (vpc.width / 2.0) / math.tan(math.radians(vpc.hfov_deg) / 2.0)
@@ -178,7 +178,7 @@ def make_config(
         distances if distances is not None else (QUICK_DISTANCES if quick else FULL_DISTANCES)
     )
     # The paper's method: the pinhole pair.
-    vpc = VpcConfig(width=320, height=240) if quick else VpcConfig(projection="pinhole")
+    vpc = RectifiedPairConfig(width=320, height=240) if quick else RectifiedPairConfig(projection="pinhole")
     chosen = _check_models(models if models is not None else DEFAULT_MODELS)
     return EvalConfig(
         preset=preset,

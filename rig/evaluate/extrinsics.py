@@ -34,7 +34,7 @@ from rig.recording import Recording
 from rig.rectification import RectificationRefinement, RefineOptions, refine_recording
 from rig.sim.presets import Preset
 from rig.sim.simulate import simulate_recording
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 
 __all__ = [
     "CALIBRATED",
@@ -60,7 +60,7 @@ _WEDGE = [
 ]  # fmt: skip
 _RIM_CLEARANCE_DEG = 0.5
 # Ground truth of the room recording is not used: the smallest VPC keeps its render cheap.
-_GT_VPC = VpcConfig(width=32, height=24)
+_GT_VPC = RectifiedPairConfig(width=32, height=24)
 
 
 @dataclass(frozen=True)

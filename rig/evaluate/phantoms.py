@@ -37,7 +37,7 @@ from calibration.models import PinholeModel
 from calibration.rig import Rig
 from rig.depth import pixel_ray_norms
 from rig.evaluate.renders import lut_box, render_in_box
-from rig.lut import build_vpc_lut
+from rig.lut import build_rectified_lut
 from rig.sim import (
     ImageTexture,
     Scene,
@@ -50,11 +50,11 @@ from rig.sim import (
 from rig.sim.lens_effects import lens_for
 from rig.sim.patterns import spectral_noise
 from rig.sim.render import render_range
-from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
+from rig.rectified import RectifiedPairConfig, RectifiedPair, design_rectified_pair
 
 #: The rectified pair the phantom rates are measured on: the paper's 640×480, 90° pinhole pair,
 #: whose depth (z) the scenes' truth is.
-PHANTOM_VPC = VpcConfig(projection="pinhole")
+PHANTOM_VPC = RectifiedPairConfig(projection="pinhole")
 
 __all__ = [
     "PHANTOM_FACTOR",
@@ -153,13 +153,13 @@ class PhantomShot:
     right: U8
     truth: F32
     rig: Rig
-    pair: VpcPair
+    pair: RectifiedPair
 
 
-def truth_depth(scene: Scene, pair: VpcPair, T_world_rig: F64) -> F32:
+def truth_depth(scene: Scene, pair: RectifiedPair, T_world_rig: F64) -> F32:
     """What the pair's depth map holds for the nearest surface, per rectified pixel (NaN: none):
     z in the left VPC frame for a pinhole pair, the range along the ray for a lat-lon pair."""
-    distance, _ = render_range(scene, pair.camera, T_world_rig @ pair.T_rig_vpc[pair.left])
+    distance, _ = render_range(scene, pair.camera, T_world_rig @ pair.T_rig_rect[pair.left])
     if isinstance(pair.camera, PinholeModel):
         return np.asarray(distance / pixel_ray_norms(pair.camera), dtype=np.float32)
     return distance
@@ -168,7 +168,7 @@ def truth_depth(scene: Scene, pair: VpcPair, T_world_rig: F64) -> F32:
 def render_phantom_shot(
     which: str | PhantomScene,
     *,
-    vpc: VpcConfig | None = None,
+    vpc: RectifiedPairConfig | None = None,
     blind_band_px: int = 0,
     supersample: int = 2,
     seed: int = 0,
@@ -183,12 +183,12 @@ def render_phantom_shot(
     preset = get_preset("prototype")
     rig = preset.rig
     effects = lens_for(lens, preset.lens)
-    pair = design_vpc_pair(rig, vpc or PHANTOM_VPC, blind_band_px=blind_band_px)
+    pair = design_rectified_pair(rig, vpc or PHANTOM_VPC, blind_band_px=blind_band_px)
     scene = spec.build()
     images = []
     for i, cam in enumerate((pair.left, pair.right)):
         model = rig.cameras[cam]
-        box = lut_box(build_vpc_lut(model, pair.R_cam_vpc[cam], pair.camera), model)
+        box = lut_box(build_rectified_lut(model, pair.R_cam_rect[cam], pair.camera), model)
         images.append(
             render_in_box(
                 scene,

@@ -31,7 +31,7 @@ from rig.errors import EvaluationError
 from rig.lut import Lut
 from rig.sim import Scene, chessboard_corners, chessboard_scene, plane_scene, render
 from rig.sim.lens_effects import LensEffects
-from rig.vpc import VpcPair
+from rig.rectified import RectifiedPair
 
 __all__ = [
     "Box",
@@ -273,7 +273,7 @@ class PlaneShot:
     depth_true: F32
 
 
-def plane_distance(pair: VpcPair, k: float, phase_px: float) -> float:
+def plane_distance(pair: RectifiedPair, k: float, phase_px: float) -> float:
     """Distance (m) of the plane at ``k`` baselines moved so its disparity is ``fx/k + phase_px``.
 
     At whole-pixel disparities (fx/k is one for many k: fx = 320 and k = 2, 4, 5, 8, …) the
@@ -285,7 +285,7 @@ def plane_distance(pair: VpcPair, k: float, phase_px: float) -> float:
 
 def render_plane_shot(
     rig: Rig,
-    pair: VpcPair,
+    pair: RectifiedPair,
     k: float,
     texture: str,
     boxes: dict[str, Box],
@@ -314,7 +314,7 @@ def render_plane_shot(
     }  # fmt: skip
     sensor = lens.sensor_only() if lens is not None else None
     refs = {
-        name: render(scene, pair.camera, pair.T_rig_vpc[name], supersample=supersample,
+        name: render(scene, pair.camera, pair.T_rig_rect[name], supersample=supersample,
                      noise_std=noise_std, seed=int(seeds[2 + i]), lens=sensor)
         for i, name in enumerate((pair.left, pair.right))
     }  # fmt: skip

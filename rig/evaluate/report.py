@@ -300,9 +300,9 @@ def _write_figures(run: EvaluationRun, out: Path) -> None:
     _write_png(diff_dir / "reference.png", run.distortion.reference)
     shown = {}
     for name, r in run.distortion.results.items():
-        if r.vpc_image is None or r.diff_image is None:
+        if r.rect_image is None or r.diff_image is None:
             continue
-        _write_png(diff_dir / f"{name}_vpc.png", r.vpc_image)
+        _write_png(diff_dir / f"{name}_vpc.png", r.rect_image)
         enhanced = np.clip(r.diff_image.astype(np.float32) * DIFFERENCE_GAIN, 0, 255).astype(np.uint8)
         _write_png(diff_dir / f"{name}_diff.png", enhanced)
         shown[name] = (r.diff_image, r.mad_whole)

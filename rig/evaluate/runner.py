@@ -44,7 +44,7 @@ from rig.evaluate.provenance import SourceRevision, source_revision
 from rig.evaluate.renders import Box, lut_box, render_plane_shot, union_box
 from rig.pipeline import DepthPipeline
 from rig.sim.presets import Preset, get_preset
-from rig.vpc import VpcPair, design_vpc_pair
+from rig.rectified import RectifiedPair, design_rectified_pair
 
 __all__ = ["EvaluationRun", "ProgressSink", "run_evaluation"]
 
@@ -71,7 +71,7 @@ class EvaluationRun:
 
     config: EvalConfig
     preset: Preset  # scaled as the run used it
-    pair: VpcPair
+    pair: RectifiedPair
     calibration: CalibrationStudy
     distortion: DistortionStudy
     depth: dict[str, list[CurvePoint]]  # reference, true_lens, models, theory
@@ -92,7 +92,7 @@ def run_evaluation(
     source = source_revision()  # before the run: the code it starts with
     preset = get_preset(config.preset).scaled(config.scale)
     rig = preset.rig
-    pair = design_vpc_pair(rig, config.vpc)
+    pair = design_rectified_pair(rig, config.vpc)
     n_lenses = len(set(distinct_lenses(rig).values()))
     n_scenes = len(config.distances) * len(config.textures)
     sink.start(
@@ -182,7 +182,7 @@ def run_evaluation(
     )
 
 
-def _fisheye_boxes(rig: Rig, pair: VpcPair, pipelines: dict[str, DepthPipeline]) -> dict[str, Box]:
+def _fisheye_boxes(rig: Rig, pair: RectifiedPair, pipelines: dict[str, DepthPipeline]) -> dict[str, Box]:
     """Per fisheye camera: the region every fisheye pipeline's table reads (their union)."""
     boxes: dict[str, Box] = {}
     for name in (pair.left, pair.right):

@@ -47,7 +47,7 @@ from rig.sim.render import render_range
 from rig.sim.scene import Scene, room_scene
 from rig.sim.simulate import room_path
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig, design_vpc_pair, rectified_frame
+from rig.rectified import RectifiedPairConfig, design_rectified_pair, rectified_frame
 
 __all__ = [
     "ANGLE_BINS_DEG",
@@ -77,7 +77,7 @@ class Variant:
     """One rectified pair: a name (a CSV key), its configuration and a label for the figure."""
 
     name: str
-    vpc: VpcConfig
+    vpc: RectifiedPairConfig
     label: str
 
 
@@ -114,7 +114,7 @@ class WideConfig:
         }
 
 
-def latlon_for_budget(rig: Rig, pixels: int, blind_band_px: int) -> VpcConfig:
+def latlon_for_budget(rig: Rig, pixels: int, blind_band_px: int) -> RectifiedPairConfig:
     """The lat-lon configuration whose default field (the overlap plus the blind band) has about
     ``pixels`` pixels: width ≈ az·f + band, height ≈ el·f, solved for f."""
     R, _ = rectified_frame(rig, "left", "right")
@@ -122,23 +122,23 @@ def latlon_for_budget(rig: Rig, pixels: int, blind_band_px: int) -> VpcConfig:
     a, e = az_hi - az_lo, el_hi - el_lo
     # (a f + band) · e f = pixels
     f = (-blind_band_px * e + math.sqrt((blind_band_px * e) ** 2 + 4.0 * a * e * pixels)) / (2.0 * a * e)
-    return VpcConfig(projection="latlon", px_per_deg=round(math.radians(f), 3))
+    return RectifiedPairConfig(projection="latlon", px_per_deg=round(math.radians(f), 3))
 
 
 def default_variants(
-    rig: Rig, stereo: StereoParams, pinhole: VpcConfig, resolutions: Sequence[float]
+    rig: Rig, stereo: StereoParams, pinhole: RectifiedPairConfig, resolutions: Sequence[float]
 ) -> tuple[Variant, ...]:
     """The study's variants (see the module doc) for ``rig`` (already scaled) and the pinhole pair
     ``pinhole``; ``resolutions``: more lat-lon px/deg."""
     band = stereo.blind_band_px
     f = (pinhole.width / 2.0) / math.tan(math.radians(pinhole.hfov_deg) / 2.0)
-    same_res = VpcConfig(projection="latlon", px_per_deg=round(math.radians(f), 3))
-    wide = design_vpc_pair(rig, same_res, blind_band_px=band).camera
+    same_res = RectifiedPairConfig(projection="latlon", px_per_deg=round(math.radians(f), 3))
+    wide = design_rectified_pair(rig, same_res, blind_band_px=band).camera
     budget = latlon_for_budget(rig, pinhole.width * pinhole.height, band)
     # A pinhole of the lat-lon pair's pixel count at the same centre resolution: wider, not finer.
     w = 16 * round(math.sqrt(wide.width * wide.height * pinhole.width / pinhole.height) / 16)
     h = round(w * pinhole.height / pinhole.width)
-    wide_pinhole = VpcConfig(width=w, height=h, hfov_deg=round(2.0 * math.degrees(math.atan(w / 2.0 / f)), 2))
+    wide_pinhole = RectifiedPairConfig(width=w, height=h, hfov_deg=round(2.0 * math.degrees(math.atan(w / 2.0 / f)), 2))
     out = [
         Variant(
             REFERENCE_VARIANT, pinhole, f"pinhole {pinhole.width}×{pinhole.height}, {pinhole.hfov_deg:g}°"
@@ -152,7 +152,7 @@ def default_variants(
     for ppd in resolutions:
         out.append(
             Variant(
-                f"latlon_{ppd:g}", VpcConfig(projection="latlon", px_per_deg=ppd), f"lat-lon {ppd:g} px/deg"
+                f"latlon_{ppd:g}", RectifiedPairConfig(projection="latlon", px_per_deg=ppd), f"lat-lon {ppd:g} px/deg"
             )
         )
     return tuple(out)
@@ -167,7 +167,7 @@ def make_wide_config(
     and a quarter of the disparities."""
     scale = 0.25 if quick else 1.0
     stereo = StereoParams(disparity_range=32) if quick else StereoParams()
-    pinhole = VpcConfig(width=160, height=120) if quick else VpcConfig(projection="pinhole")
+    pinhole = RectifiedPairConfig(width=160, height=120) if quick else RectifiedPairConfig(projection="pinhole")
     rig = get_preset(preset).scaled(scale).rig
     resolutions = () if quick else (4.5, 7.0)
     return WideConfig(
@@ -240,12 +240,12 @@ class _Measured:
     ms: list[float] = field(default_factory=list)
 
 
-def _angles(camera: CameraModel, R_fwd_vpc: F64) -> F64:
+def _angles(camera: CameraModel, R_fwd_rect: F64) -> F64:
     """Angle (H, W) in degrees between each pixel's ray and the forward axis (the z of the
-    unpitched rectified frame, ``R_fwd_vpc`` rotating the view's rays into it)."""
+    unpitched rectified frame, ``R_fwd_rect`` rotating the view's rays into it)."""
     v, u = np.mgrid[0 : camera.height, 0 : camera.width].astype(np.float64)
     rays, _ = camera.unproject(np.stack([u.ravel(), v.ravel()], 1), in_image=False)
-    z = (rays @ R_fwd_vpc.T)[:, 2]
+    z = (rays @ R_fwd_rect.T)[:, 2]
     return np.degrees(np.arccos(np.clip(z, -1.0, 1.0))).reshape(camera.height, camera.width)
 
 
@@ -276,9 +276,9 @@ def run_wide_study(
     measured: dict[str, _Measured] = {}
     for v in config.variants:
         pipe = DepthPipeline(rig, v.vpc, config.stereo, cache_dir, tune_malloc=False)
-        R_fwd_vpc = R_rect.T @ pipe.pair.R_rig_vpc
+        R_fwd_rect = R_rect.T @ pipe.pair.R_rig_rect
         measured[v.name] = _Measured(
-            pipe, pixel_solid_angles(pipe.pair.camera), _angles(pipe.pair.camera, R_fwd_vpc)
+            pipe, pixel_solid_angles(pipe.pair.camera), _angles(pipe.pair.camera, R_fwd_rect)
         )
         note(f"tables ({v.name})")
     boxes = {
@@ -314,7 +314,7 @@ def _measure(m: _Measured, scene: Scene, T_world_rig: F64, images: dict[str, NDA
     frame = m.pipeline.process(images["left"], images["right"])
     m.ms.append((time.perf_counter() - t0) * 1e3)
     rng = disparity_to_range(frame.disparity, pair.camera, pair.baseline_m)
-    truth, _ = render_range(scene, pair.camera, T_world_rig @ pair.T_rig_vpc[pair.left])
+    truth, _ = render_range(scene, pair.camera, T_world_rig @ pair.T_rig_rect[pair.left])
     with np.errstate(invalid="ignore", divide="ignore"):
         m.errors.append(np.abs(rng / truth - 1.0).astype(np.float32))  # NaN: no range or no truth
 
@@ -384,7 +384,7 @@ def _shared(ref: _Measured, other: _Measured) -> tuple[float, float, float]:
     v, u = np.mgrid[0 : cam.height, 0 : cam.width].astype(np.float64)
     rays, _ = cam.unproject(np.stack([u.ravel(), v.ravel()], 1), in_image=False)
     # Both views sit at the left camera's centre: only their orientations differ.
-    px, ok = b.camera.project(rays @ (b.R_rig_vpc.T @ a.R_rig_vpc).T)
+    px, ok = b.camera.project(rays @ (b.R_rig_rect.T @ a.R_rig_rect).T)
     cols = np.clip(np.rint(px[:, 0]), 0, b.camera.width - 1).astype(np.intp)
     rows = np.clip(np.rint(px[:, 1]), 0, b.camera.height - 1).astype(np.intp)
     mine, theirs, sr = [], [], 0.0

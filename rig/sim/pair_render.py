@@ -22,7 +22,7 @@ from calibration.rig import Rig
 from rig.sim.lens_effects import LensEffects
 from rig.sim.render import Geometry, RayGrid, Render, render, render_geometry
 from rig.sim.scene import Scene
-from rig.vpc import VpcPair
+from rig.rectified import RectifiedPair
 
 __all__ = ["RAY_CACHE_BYTES", "PairRenderer", "RenderedPair"]
 
@@ -55,7 +55,7 @@ class PairRenderer:
     def __init__(
         self,
         rig: Rig,
-        pair: VpcPair,
+        pair: RectifiedPair,
         *,
         supersample: int,
         color: bool,
@@ -113,7 +113,7 @@ class PairRenderer:
             )  # fmt: skip
 
         def rectified(i: int) -> Render:
-            pose = T_world_rig @ self.pair.T_rig_vpc[self.names[i]]
+            pose = T_world_rig @ self.pair.T_rig_rect[self.names[i]]
             return render(
                 scene, self.pair.camera, pose, supersample=self.supersample, color=self.color,
                 progress=report(2 + i),
@@ -127,7 +127,7 @@ class PairRenderer:
                 references: tuple[Render, Render] | None = refs
                 truth = Geometry(refs[0].depth, refs[0].distance, refs[0].valid)
             else:
-                pose = T_world_rig @ self.pair.T_rig_vpc[self.names[0]]
+                pose = T_world_rig @ self.pair.T_rig_rect[self.names[0]]
                 truth_job = pool.submit(render_geometry, scene, self.pair.camera, pose, rays=self.truth_grid)
                 references, truth = None, truth_job.result()
             left, right = views[0].result(), views[1].result()

@@ -15,7 +15,7 @@ Layout written under ``out``::
                                              VPC pose
     ground_truth/reference/right/NNNNNN.png  ... and at the right VPC pose
 
-The rectified views are those of ``vpc`` (default VpcConfig()); a lat-lon field's default adds
+The rectified views are those of ``vpc`` (default RectifiedPairConfig()); a lat-lon field's default adds
 ``blind_band_px`` columns (default: the default stereo settings') as the pipeline does, so the
 ground truth is per pixel of what ``rig process`` writes with the same settings.
 
@@ -52,7 +52,7 @@ from rig.sim.presets import Preset, get_preset
 from rig.sim.scene import Scene, plane_scene, room_scene
 from rig.sim.textures import texture_name
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
+from rig.rectified import RectifiedPairConfig, RectifiedPair, design_rectified_pair
 
 __all__ = ["GROUND_TRUTH_VERSION", "SCENES", "ProgressCallback", "room_path", "simulate_recording"]
 
@@ -152,7 +152,7 @@ def _npy(array: NDArray[Any]) -> bytes:
     return buf.getvalue()
 
 
-def _ground_truth_doc(p: Preset, scene: str, pair: VpcPair, vpc: VpcConfig, band: int) -> dict[str, Any]:
+def _ground_truth_doc(p: Preset, scene: str, pair: RectifiedPair, vpc: RectifiedPairConfig, band: int) -> dict[str, Any]:
     """scene.json without its frames: the rig, the rectified pair and what each file holds."""
     view = (
         {"hfov_deg": vpc.hfov_deg}
@@ -165,7 +165,7 @@ def _ground_truth_doc(p: Preset, scene: str, pair: VpcPair, vpc: VpcConfig, band
         "scene": scene,
         "baseline_m": p.rig.baseline(),
         "vpc": {**pair.as_json(), **view, "blind_band_px": band},
-        "T_rig_vpc": {n: T.tolist() for n, T in pair.T_rig_vpc.items()},
+        "T_rig_vpc": {n: T.tolist() for n, T in pair.T_rig_rect.items()},
         "range": {
             "frame": "left rectified view",
             "quantity": "distance along the pixel's ray",
@@ -223,7 +223,7 @@ def simulate_recording(
     vignetting: float | None = None,
     supersample: int = 3,
     color: bool = False,
-    vpc: VpcConfig | None = None,
+    vpc: RectifiedPairConfig | None = None,
     blind_band_px: int | None = None,
     lens: str | LensEffects = "honest",
     reference: bool = False,
@@ -236,7 +236,7 @@ def simulate_recording(
     :class:`LensEffects`), "ideal" (none) or explicit effects; ``noise_std`` (gaussian, grey
     levels) replaces the lens's sensor noise and ``vignetting`` (:func:`vignetting_factor`'s
     strength) its rim darkening when given. Ground truth is for the rectified pair of ``vpc``
-    (default VpcConfig()) and, for a lat-lon field, ``blind_band_px`` (see the module doc);
+    (default RectifiedPairConfig()) and, for a lat-lon field, ``blind_band_px`` (see the module doc);
     ``reference`` adds the Reference pair's images. ``out`` must not exist or be an empty
     directory. Returns ``out``.
     """
@@ -248,7 +248,7 @@ def simulate_recording(
     if isinstance(supersample, bool) or int(supersample) != supersample or not 1 <= supersample <= 16:
         raise ConfigError(f"supersample must be an integer in [1, 16], got {supersample!r}")
     band = StereoParams().blind_band_px if blind_band_px is None else int(blind_band_px)
-    pair = design_vpc_pair(p.rig, vpc, blind_band_px=band)
+    pair = design_rectified_pair(p.rig, vpc, blind_band_px=band)
     root = Path(out)
     if root.exists() and (not root.is_dir() or any(root.iterdir())):
         raise RecordingError(f"{root}: already exists and is not an empty directory; choose a new --out")
@@ -284,7 +284,7 @@ def simulate_recording(
         "supersample": int(supersample),
         "color": bool(color),
     }
-    doc = _ground_truth_doc(p, scene, pair, vpc or VpcConfig(), band)
+    doc = _ground_truth_doc(p, scene, pair, vpc or RectifiedPairConfig(), band)
     renderer = PairRenderer(
         p.rig, pair, supersample=int(supersample), color=color, lens=effects, noise_std=noise,
         vignetting=vig, reference=reference, frames=len(shots),

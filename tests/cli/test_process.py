@@ -16,11 +16,11 @@ from calibration.geometry import invert_transform
 from calibration.rig import Rig
 from rig.depth import depth_from_png_mm
 from rig.recording import RecordingWriter
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 from tests.helpers.command import clean_env, run_rig
 from tests.helpers.shots import StereoShot, central_box, plane_shot, prototype_rig
 
-VPC = VpcConfig(width=320, height=240)
+VPC = RectifiedPairConfig(width=320, height=240)
 VPC_ARGS = ["--vpc-size", "320x240", "--vpc-hfov", "90"]
 STEREO_64 = "disparity_range: 64\n"
 
@@ -123,7 +123,7 @@ def test_output_layout_vpc_json_and_depth(tmp_path: Path, shot: StereoShot) -> N
         assert sorted(p.name for p in (out / sub).iterdir()) == ["000003.png", "000004.png"]
     doc = json.loads((out / "vpc.json").read_text())
     assert list(doc) == ["projection", "width", "height", "fx", "fy", "cx", "cy", "baseline_m", "R_rig_vpc"]
-    assert doc["projection"] == "pinhole" and np.allclose(doc["R_rig_vpc"], shot.pair.R_rig_vpc)
+    assert doc["projection"] == "pinhole" and np.allclose(doc["R_rig_vpc"], shot.pair.R_rig_rect)
     assert (doc["width"], doc["height"]) == (320, 240)
     assert doc["fx"] == pytest.approx(160.0) and doc["cx"] == pytest.approx(159.5)
     assert doc["baseline_m"] == pytest.approx(shot.rig.baseline())

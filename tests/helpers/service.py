@@ -16,7 +16,7 @@ import uvicorn
 import yaml
 from prometheus_client.parser import text_string_to_metric_families
 
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 from service.app import create_app
 from service.demo import DemoSpec, render_demo
 from service.runtime import Runtime
@@ -46,7 +46,7 @@ AUTH = {"Authorization": f"Bearer {TOKEN}"}
 #: Small and quick: 640x480 fisheyes (prototype rig at half size), 320x240 VPCs, 3 noisy frames.
 # The ideal lens: these recordings serve the service's and the command's behaviour, not accuracy
 # (through the honest lens the small pinhole pair has depth on 36 % of its pixels, not 56 %).
-SMALL_SPEC = DemoSpec(scale=0.5, frames=3, supersample=1, vpc=VpcConfig(width=320, height=240), lens="ideal")
+SMALL_SPEC = DemoSpec(scale=0.5, frames=3, supersample=1, vpc=RectifiedPairConfig(width=320, height=240), lens="ideal")
 REPLAY_FPS = 10.0  # keeps the worker's CPU share low on a shared 2-core machine
 
 

@@ -23,9 +23,9 @@ from calibration.geometry import make_transform
 from calibration.models import PinholeModel
 from calibration.rig import Rig
 from rig.evaluate.renders import lut_box, render_in_box
-from rig.lut import build_vpc_lut
+from rig.lut import build_rectified_lut
 from rig.sim import Scene, divergent_rig, get_preset, plane_scene, render, room_scene
-from rig.vpc import VpcConfig, VpcPair, design_vpc_pair
+from rig.rectified import RectifiedPairConfig, RectifiedPair, design_rectified_pair
 
 __all__ = [
     "PINHOLE",
@@ -35,13 +35,13 @@ __all__ = [
     "mount_rig",
     "plane_shot",
     "prototype_rig",
-    "render_for_vpc",
+    "render_for_pair",
     "room_shot",
 ]
 
 U8 = NDArray[np.uint8]
 F32 = NDArray[np.float32]
-PINHOLE = VpcConfig(projection="pinhole")  # the shots' default pair: the paper's 640x480, 90°
+PINHOLE = RectifiedPairConfig(projection="pinhole")  # the shots' default pair: the paper's 640x480, 90°
 
 
 @dataclass(frozen=True)
@@ -51,7 +51,7 @@ class StereoShot:
     left: U8
     right: U8
     depth: F32  # (H, W) z in the left VPC frame, NaN where no surface
-    pair: VpcPair
+    pair: RectifiedPair
     rig: Rig
 
     @property
@@ -72,11 +72,11 @@ def mount_rig(scale: float, angle_deg: float, pitch_deg: float) -> Rig:
     return divergent_rig(base.cameras["left"], base.cameras["right"], base.baseline(), angle_deg, pitch_deg)
 
 
-def render_for_vpc(
+def render_for_pair(
     scene: Scene,
     rig: Rig,
     name: str,
-    pair: VpcPair,
+    pair: RectifiedPair,
     T_world_rig: NDArray[np.float64],
     supersample: int,
     noise_std: float = 0.0,
@@ -86,7 +86,7 @@ def render_for_vpc(
     """Full-size fisheye image of camera ``name`` with only the VPC's source region rendered
     (noise and vignetting as the renderer applies them, per pixel)."""
     model = rig.cameras[name]
-    box = lut_box(build_vpc_lut(model, pair.R_cam_vpc[name], pair.camera), model)
+    box = lut_box(build_rectified_lut(model, pair.R_cam_rect[name], pair.camera), model)
     return render_in_box(
         scene, model, T_world_rig @ rig.T_rig_cam[name], box,
         supersample=supersample, noise_std=noise_std, vignetting=vignetting, seed=seed,
@@ -100,8 +100,8 @@ def _shot_rig(scale: float, angle_deg: float, pitch_deg: float) -> Rig:
     return mount_rig(scale, angle_deg, pitch_deg)
 
 
-def _reference_depth(scene: Scene, camera: PinholeModel, T_world_vpc: NDArray[np.float64]) -> F32:
-    return render(scene, camera, T_world_vpc, supersample=1).depth
+def _reference_depth(scene: Scene, camera: PinholeModel, T_world_rect: NDArray[np.float64]) -> F32:
+    return render(scene, camera, T_world_rect, supersample=1).depth
 
 
 @functools.lru_cache(maxsize=32)
@@ -109,7 +109,7 @@ def plane_shot(
     k_baselines: float,
     *,
     scale: float = 0.5,
-    vpc: VpcConfig | None = None,
+    vpc: RectifiedPairConfig | None = None,
     texture: int = 0,
     seed: int = 0,
     supersample: int = 3,
@@ -120,14 +120,14 @@ def plane_shot(
 ) -> StereoShot:
     """The paper's target: a textured fronto-parallel plane ``k_baselines`` baselines ahead."""
     rig = _shot_rig(scale, angle_deg, pitch_deg)
-    pair = design_vpc_pair(rig, vpc or PINHOLE)
+    pair = design_rectified_pair(rig, vpc or PINHOLE)
     scene = plane_scene(k_baselines * rig.baseline(), texture=texture, seed=seed)
     eye = np.eye(4)
     left, right = (
-        render_for_vpc(scene, rig, n, pair, eye, supersample, noise_std, vignetting, seed * 2 + i)
+        render_for_pair(scene, rig, n, pair, eye, supersample, noise_std, vignetting, seed * 2 + i)
         for i, n in enumerate(("left", "right"))
     )
-    depth = _reference_depth(scene, pair.camera, pair.T_rig_vpc[pair.left])
+    depth = _reference_depth(scene, pair.camera, pair.T_rig_rect[pair.left])
     return StereoShot(left, right, depth, pair, rig)
 
 
@@ -136,7 +136,7 @@ def room_shot(
     seed: int = 0,
     *,
     scale: float = 0.5,
-    vpc: VpcConfig | None = None,
+    vpc: RectifiedPairConfig | None = None,
     supersample: int = 2,
     x_m: float = 0.0,
     angle_deg: float = 90.0,
@@ -144,11 +144,11 @@ def room_shot(
 ) -> StereoShot:
     """The demo room (walls and boxes: depth edges and occlusions), rig at (x_m, 0, -0.5)."""
     rig = _shot_rig(scale, angle_deg, pitch_deg)
-    pair = design_vpc_pair(rig, vpc or PINHOLE)
+    pair = design_rectified_pair(rig, vpc or PINHOLE)
     scene = room_scene(seed)
     T = make_transform(np.eye(3), [x_m, 0.0, -0.5])
-    left, right = (render_for_vpc(scene, rig, n, pair, T, supersample) for n in ("left", "right"))
-    depth = _reference_depth(scene, pair.camera, T @ pair.T_rig_vpc[pair.left])
+    left, right = (render_for_pair(scene, rig, n, pair, T, supersample) for n in ("left", "right"))
+    depth = _reference_depth(scene, pair.camera, T @ pair.T_rig_rect[pair.left])
     return StereoShot(left, right, depth, pair, rig)
 
 

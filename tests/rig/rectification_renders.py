@@ -15,14 +15,14 @@ from calibration.geometry import invert_transform, rot_x, rot_y, rot_z, rotation
 from calibration.models import PinholeModel
 from calibration.rig import Rig
 from rig.depth import depth_points
-from rig.rectification.measure import vpc_rows
+from rig.rectification.measure import rectified_rows
 from rig.sim import get_preset, simulate_recording
-from rig.vpc import VpcConfig, design_vpc_pair
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 
 #: Half-size prototype renders (640x480 fisheye), a VPC of the matching resolution.
 SCALE = 0.5
-VPC = VpcConfig(width=320, height=240)
-GT_VPC = VpcConfig(width=160, height=120)
+VPC = RectifiedPairConfig(width=320, height=240)
+GT_VPC = RectifiedPairConfig(width=160, height=120)
 
 
 def render_room(out: Path, frames: int = 2, truth: Rig | None = None) -> Path:
@@ -57,24 +57,24 @@ def relative_rotation_error_deg(a: Rig, b: Rig) -> float:
 
 
 def true_vertical_disparity(
-    recording: Path, truth: Rig, calibration: Rig, vpc: VpcConfig = VPC
+    recording: Path, truth: Rig, calibration: Rig, vpc: RectifiedPairConfig = VPC
 ) -> np.ndarray:
     """|v_left − v_right| (VPC px of ``calibration``'s pair) of the scene's true surface points
     (ground-truth depth of every frame) that land in both VPC images."""
     doc = json.loads((recording / "ground_truth" / "scene.json").read_text())
     gt = doc["vpc"]
     cam = PinholeModel(gt["width"], gt["height"], fx=gt["fx"], fy=gt["fy"], cx=gt["cx"], cy=gt["cy"])
-    T_rig_vpc = np.asarray(doc["T_rig_vpc"]["left"])
-    pair = design_vpc_pair(calibration, vpc)
+    T_rig_rect = np.asarray(doc["T_rig_vpc"]["left"])
+    pair = design_rectified_pair(calibration, vpc)
     out = []
     for frame in doc["frames"]:
         depth = np.load(recording / frame["depth"])
-        pts, _ = depth_points(depth, cam, T_rig_vpc, stride=2)
+        pts, _ = depth_points(depth, cam, T_rig_rect, stride=2)
         rows = {}
         for name in ("left", "right"):
             T = truth.T_rig_cam[name]
             p = (pts.astype(np.float64) - T[:3, 3]) @ T[:3, :3]
-            rows[name] = vpc_rows(pair, name, p / np.linalg.norm(p, axis=1, keepdims=True))
+            rows[name] = rectified_rows(pair, name, p / np.linalg.norm(p, axis=1, keepdims=True))
         inside = rows["left"][1] & rows["right"][1]
         out.append(np.abs(rows["left"][0][inside, 1] - rows["right"][0][inside, 1]))
     return np.concatenate(out)

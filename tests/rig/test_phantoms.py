@@ -24,7 +24,7 @@ import pytest
 from rig.evaluate.phantoms import PHANTOM_VPC, PhantomShot, PhantomStats, phantom_stats, render_phantom_shot
 from rig.pipeline import DepthPipeline
 from rig.stereo import StereoParams
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 
 pytestmark = pytest.mark.slow
 
@@ -67,11 +67,11 @@ def latlon_measured(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Phant
     the matcher's unmatched columns, as the pipeline's does)."""
     params = StereoParams()
     shots = {
-        n: render_phantom_shot(n, vpc=VpcConfig(), blind_band_px=params.blind_band_px, lens=LENS)
+        n: render_phantom_shot(n, vpc=RectifiedPairConfig(), blind_band_px=params.blind_band_px, lens=LENS)
         for n in SCENES
     }
     first = shots[SCENES[0]]
-    pipe = DepthPipeline(first.rig, VpcConfig(), params, cache_dir=tmp_path_factory.mktemp("lut-latlon"))
+    pipe = DepthPipeline(first.rig, RectifiedPairConfig(), params, cache_dir=tmp_path_factory.mktemp("lut-latlon"))
     assert pipe.pair.projection == "latlon" and pipe.pair.camera.width == first.pair.camera.width
     out = {}
     for name, shot in shots.items():

@@ -13,15 +13,15 @@ import pytest
 
 from calibration.models import LatLonModel
 from rig.field import pixel_solid_angles
-from rig.pipeline import DepthFrame, DepthPipeline, MatchedPair
+from rig.pipeline import DepthFrame, DepthPipeline, MatchedImages
 from rig.sim import room_scene
 from rig.sim.render import render_range
 from rig.stereo import StereoMatcher, StereoParams
-from rig.vpc import VpcConfig
-from tests.helpers.shots import StereoShot, prototype_rig, render_for_vpc
+from rig.rectified import RectifiedPairConfig
+from tests.helpers.shots import StereoShot, prototype_rig, render_for_pair
 
 STEREO = StereoParams(disparity_range=64)
-LATLON = VpcConfig(projection="latlon", px_per_deg=2.8)  # half the default, for the half-size rig
+LATLON = RectifiedPairConfig(projection="latlon", px_per_deg=2.8)  # half the default, for the half-size rig
 
 
 @functools.lru_cache(maxsize=1)
@@ -34,9 +34,9 @@ def _room(cache: str) -> tuple[DepthPipeline, StereoShot, np.ndarray]:
     pipe = DepthPipeline(rig, LATLON, STEREO, cache_dir=cache, tune_malloc=False)
     scene, T = room_scene(0), room_path(2, 5)
     left, right = (
-        render_for_vpc(scene, rig, n, pipe.pair, T, 2, 0.75, 0.35, i) for i, n in enumerate(("left", "right"))
+        render_for_pair(scene, rig, n, pipe.pair, T, 2, 0.75, 0.35, i) for i, n in enumerate(("left", "right"))
     )
-    truth, _ = render_range(scene, pipe.pair.camera, T @ pipe.pair.T_rig_vpc["left"])
+    truth, _ = render_range(scene, pipe.pair.camera, T @ pipe.pair.T_rig_rect["left"])
     return pipe, StereoShot(left, right, truth, pipe.pair, rig), truth
 
 
@@ -95,7 +95,7 @@ def test_matching_only_the_columns_the_lenses_see_keeps_the_range(
     rect = pipe.rectify(shot.left, shot.right)
     matcher = StereoMatcher(STEREO)
     frames = [
-        pipe.finish(MatchedPair(rect, matcher, matcher.compute(rect.left_gray, rect.right_gray, s), 0.0))
+        pipe.finish(MatchedImages(rect, matcher, matcher.compute(rect.left_gray, rect.right_gray, s), 0.0))
         for s in (seen, None)
     ]
     cropped, whole = frames
@@ -115,7 +115,7 @@ def test_matching_only_the_columns_the_lenses_see_keeps_the_range(
 def test_latlon_point_cloud_and_footprint(room: tuple[DepthPipeline, DepthFrame, np.ndarray]) -> None:
     pipe, frame, _ = room
     pts, colours = pipe.point_cloud(frame, stride=2)
-    centre = pipe.pair.T_rig_vpc["left"][:3, 3]
+    centre = pipe.pair.T_rig_rect["left"][:3, 3]
     dist = np.linalg.norm(pts - centre, axis=1)
     expected = frame.range[::2, ::2][np.isfinite(frame.range[::2, ::2])]
     assert np.allclose(np.sort(dist), np.sort(expected), rtol=1e-5)
@@ -131,9 +131,9 @@ def test_latlon_point_cloud_and_footprint(room: tuple[DepthPipeline, DepthFrame,
 def test_pinhole_range_is_depth_along_the_ray(tmp_path: Path) -> None:
     from tests.helpers.shots import plane_shot
 
-    shot = plane_shot(5.0, scale=0.25, vpc=VpcConfig(width=160, height=120), supersample=1)
+    shot = plane_shot(5.0, scale=0.25, vpc=RectifiedPairConfig(width=160, height=120), supersample=1)
     pipe = DepthPipeline(
-        shot.rig, VpcConfig(width=160, height=120), StereoParams(disparity_range=32), tmp_path
+        shot.rig, RectifiedPairConfig(width=160, height=120), StereoParams(disparity_range=32), tmp_path
     )
     frame = pipe.process(shot.left, shot.right)
     cam = pipe.pair.camera
@@ -148,7 +148,7 @@ def test_pinhole_range_is_depth_along_the_ray(tmp_path: Path) -> None:
 def test_a_wider_blind_band_later_is_logged(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     rig = prototype_rig(0.25)
     pipe = DepthPipeline(
-        rig, VpcConfig(projection="latlon", px_per_deg=1.4), StereoParams(disparity_range=32), tmp_path
+        rig, RectifiedPairConfig(projection="latlon", px_per_deg=1.4), StereoParams(disparity_range=32), tmp_path
     )
     with caplog.at_level(logging.WARNING, logger="rig.pipeline"):
         pipe.update_stereo(StereoParams(disparity_range=32, min_disparity=4))

@@ -15,9 +15,9 @@ import pytest
 from calibration.models import LatLonModel
 from rig.sim import get_preset, plane_scene, render, simulate_recording
 from rig.sim.render import render_range
-from rig.vpc import VpcConfig, design_vpc_pair
+from rig.rectified import RectifiedPairConfig, design_rectified_pair
 
-LATLON = VpcConfig(projection="latlon", px_per_deg=1.5)
+LATLON = RectifiedPairConfig(projection="latlon", px_per_deg=1.5)
 
 
 def test_render_range_is_the_ray_plane_distance_and_renders_distance() -> None:
@@ -46,15 +46,15 @@ def test_latlon_recording_has_range_and_a_reference_pair_whose_rows_match(tmp_pa
     frame = doc["frames"][0]
     assert "depth" not in frame and not (out / "ground_truth" / "depth").exists()
     rng = np.load(out / frame["range"])
-    pair = design_vpc_pair(preset.rig, LATLON, blind_band_px=16)
+    pair = design_rectified_pair(preset.rig, LATLON, blind_band_px=16)
     cam = pair.camera
     assert isinstance(cam, LatLonModel) and rng.shape == (cam.height, cam.width)
     assert doc["vpc"]["width"] == cam.width and doc["vpc"]["cx"] == pytest.approx(cam.cx)
-    # The plane z = k·B of the rig frame, along each left pixel's ray (rig frame: R_rig_vpc·ray).
+    # The plane z = k·B of the rig frame, along each left pixel's ray (rig frame: R_rig_rect·ray).
     v, u = np.mgrid[0 : cam.height, 0 : cam.width].astype(np.float64)
     rays, _ = cam.unproject(np.stack([u.ravel(), v.ravel()], 1))
-    z_rig = (rays @ pair.R_rig_vpc.T)[:, 2].reshape(cam.height, cam.width)
-    origin_z = pair.T_rig_vpc["left"][2, 3]
+    z_rig = (rays @ pair.R_rig_rect.T)[:, 2].reshape(cam.height, cam.width)
+    origin_z = pair.T_rig_rect["left"][2, 3]
     on_plane = np.isfinite(rng)
     assert on_plane.mean() > 0.3
     expected = (k * 0.2 - origin_z) / z_rig
@@ -82,7 +82,7 @@ def test_latlon_recording_has_range_and_a_reference_pair_whose_rows_match(tmp_pa
 
 def test_pinhole_range_is_depth_along_the_ray(tmp_path: Path) -> None:
     preset = get_preset("paper-sim").scaled(0.25)
-    vpc = VpcConfig(width=160, height=120)
+    vpc = RectifiedPairConfig(width=160, height=120)
     out = simulate_recording(preset, "plane", tmp_path / "p", distances=(5.0,), supersample=1, vpc=vpc)
     doc = json.loads((out / "ground_truth" / "scene.json").read_text())
     frame = doc["frames"][0]

@@ -15,10 +15,10 @@ from calibration.formats import load_rig
 from rig.errors import ConfigError, RecordingError
 from rig.recording import FRAMES_HEADER, Recording
 from rig.sim import Preset, get_preset, simulate_recording
-from rig.vpc import VpcConfig
+from rig.rectified import RectifiedPairConfig
 from tests.helpers.command import assert_one_line_error, run_rig
 
-SMALL_VPC = VpcConfig(width=160, height=120)
+SMALL_VPC = RectifiedPairConfig(width=160, height=120)
 
 
 def small_preset(name: str = "paper-sim", scale: float = 0.25) -> Preset:
