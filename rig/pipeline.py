@@ -23,6 +23,7 @@ geometry, whichever it started with, so no frame mixes two or is dropped.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Mapping
@@ -45,7 +46,8 @@ from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
 from rig.match_input import matcher_input
 from rig.postprocess import PostprocessStage
-from rig.rectified import RectifiedPair, RectifiedPairConfig
+from rig.reach import reaching
+from rig.rectified import RectifiedPair, RectifiedPairConfig, pinhole_intrinsics
 from rig.stereo import MatchedDisparity, StereoMatcher, StereoParams, UnfilteredDisparity
 
 __all__ = [
@@ -121,6 +123,24 @@ class MatchedImages:
     match_ms: float
 
 
+def _reaching(params: StereoParams, rig: Rig, config: RectifiedPairConfig) -> StereoParams:
+    """``params`` widened to reach ``min_range_m`` (rig.reach) on the pair ``config`` designs:
+    its resolution and baseline are known before its field (which the search's blind band
+    widens)."""
+    if params.min_range_m is None:
+        return params
+    if config.projection == "latlon":
+        fx, width = math.degrees(config.resolution_px_per_deg), None
+    else:
+        fx, width = pinhole_intrinsics(config).fx, config.pinhole_size[0]
+    return reaching(params, config.projection, fx, rig.baseline(config.left, config.right), width)
+
+
+def _width(in_effect: PairInEffect) -> int | None:
+    """The width a pinhole pair's search must fit in (a lat-lon field widens with it)."""
+    return in_effect.camera.width if in_effect.pair.projection == "pinhole" else None
+
+
 def _check_params(params: StereoParams, width: int) -> None:
     if params.disparity_range + max(params.min_disparity, 0) >= width:
         raise ConfigError(
@@ -158,7 +178,7 @@ class DepthPipeline:
         if tune_malloc:
             tune_allocator()
         config = config or RectifiedPairConfig()
-        params = stereo or StereoParams()
+        params = _reaching(stereo or StereoParams(), rig, config)
         self.cache = LutCache(cache_dir)
         # A lat-lon field's default leaves room for the matcher's unmatched columns.
         reserve = params.blind_band_px
@@ -250,6 +270,9 @@ class DepthPipeline:
             geometry = None if rig is None else self._corrected_geometry(old, rig)
             matcher = None
             if stereo is not None:
+                stereo = reaching(
+                    stereo, old.pair.projection, old.camera.fx, old.pair.baseline_m, _width(old)
+                )
                 _check_params(stereo, old.camera.width)
                 matcher = StereoMatcher(stereo)
                 self._warn_blind_band(old, stereo)

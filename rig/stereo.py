@@ -81,6 +81,12 @@ class StereoParams(SettingsModel):
     disparity_range: int = Field(
         96, ge=16, le=4096, description="disparities searched (multiple of 16); nearest depth fx·B/range"
     )
+    min_range_m: float | None = Field(
+        None,
+        gt=0.0,
+        le=1000.0,
+        description="nearest range to reach: the search widens to it (rig.reach); null = off",
+    )
     # OpenCV 5.0 SGBM_3WAY divides by zero (SIGFPE, the process dies) at a ratio of 100 (rounded):
     # this bound is the only guard against it, for the settings, the command line and PATCH /config.
     uniqueness_ratio: float = Field(10.0, ge=0.0, lt=99.5, description="best must beat 2nd by this %")
