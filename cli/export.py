@@ -139,7 +139,7 @@ def register(app: typer.Typer) -> None:
         note = f", [yellow]{len(result.skipped)} skipped[/yellow]" if result.skipped else ""
         console.print(
             f"exported {result.pairs} of {len(rec.pairs)} pairs{note} -> {result.path} "
-            f"({result.messages} messages; calibration {cal_path}, VPC {config.width}x{config.height}, "
+            f"({result.messages} messages; calibration {cal_path}, {pipeline.pair.describe()}, "
             f"B {pipeline.baseline_m:.4f} m)",
             highlight=False,
             soft_wrap=True,

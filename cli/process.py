@@ -31,7 +31,6 @@ import glob
 import hashlib
 import json
 import logging
-import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -180,12 +179,7 @@ class _Pipelines:
 
 
 def _describe(pipeline: DepthPipeline, cal_path: Path) -> str:
-    cam = pipeline.pair.camera
-    if pipeline.pair.projection == "pinhole":
-        view = f"VPC {cam.width}x{cam.height} fx {cam.fx:.1f}"
-    else:
-        view = f"lat-lon {cam.width}x{cam.height} {math.radians(cam.fx):.3f} px/deg"
-    return f"calibration {cal_path}, {view}, B {pipeline.baseline_m:.4f} m"
+    return f"calibration {cal_path}, {pipeline.pair.describe()}, B {pipeline.baseline_m:.4f} m"
 
 
 def _report(summary: RecordingSummary, described: str) -> None:
