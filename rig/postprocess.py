@@ -359,6 +359,9 @@ class PostprocessStage:
         if gone.any():
             valid ^= gone  # gone ⊂ valid: clears them
             fill_where(disparity, np.nan, gone)
+            fill_where(depth, np.nan, gone)  # below the floor depth was finite
+            if out.range is not out.depth:
+                fill_where(out.range[r0:r1], np.nan, gone)
             if out.confidence is not None:
                 fill_where(out.confidence[r0:r1], 0.0, gone)
         return {"depth": (time.perf_counter() - t0) * 1e3}

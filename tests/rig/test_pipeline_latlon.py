@@ -151,6 +151,7 @@ def test_no_range_beyond_the_smallest_trusted_disparity(
     assert np.nanmax(truth) < 7.6
     ok = frame.valid
     assert (frame.disparity[ok] >= floor).all()
+    assert np.array_equal(np.isfinite(frame.range), ok) and np.array_equal(np.isfinite(frame.disparity), ok)
     assert (frame.range <= bound[None, :] * (1 + 1e-5))[ok].all()
     assert float(np.nanmax(bound)) == pytest.approx(cam.fx * pipe.pair.baseline_m / floor, rel=1e-3)
 
