@@ -6,6 +6,7 @@ or missing (the controls say why they are off); Swagger UI's Authorize button.""
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -44,9 +45,9 @@ def text_of(page: Any, element: str) -> str:
     return str(page.text_content(f"#{element}") or "")
 
 
-def wait_text(page: Any, element: str, needle: str) -> str:
+def wait_text(page: Any, element: str, needle: str, timeout_ms: float = WAIT_MS) -> str:
     page.wait_for_function(
-        f"(document.getElementById({element!r}).textContent || '').includes({needle!r})", timeout=WAIT_MS
+        f"(document.getElementById({element!r}).textContent || '').includes({needle!r})", timeout=timeout_ms
     )
     return text_of(page, element)
 
@@ -85,9 +86,44 @@ def hover(page: Any, element: str, u: int, v: int) -> None:
     """The pointer on pixel (u, v) of the image ``element``."""
     box = page.locator(f"#{element}").bounding_box()
     width, height = page.eval_on_selector(f"#{element}", "e => [e.naturalWidth, e.naturalHeight]")
+    # Chromium reports whole CSS pixels for the pointer: pick the whole position whose pixel, by
+    # the page's floor((x - left) / width * naturalWidth), is (u, v).
     page.mouse.move(
-        box["x"] + (u + 0.5) * box["width"] / width, box["y"] + (v + 0.5) * box["height"] / height
+        _whole_position(box["x"], box["width"] / width, u),
+        _whole_position(box["y"], box["height"] / height, v),
     )
+
+
+def _whole_position(start: float, scale: float, pixel: int) -> float:
+    for x in range(math.floor(start + pixel * scale), math.ceil(start + (pixel + 1) * scale) + 1):
+        if math.floor((x - start) / scale) == pixel:
+            return float(x)
+    return start + (pixel + 0.5) * scale  # a pixel narrower than a CSS pixel: its centre
+
+
+def read_at(page: Any, u: int, v: int) -> tuple[int, int, str]:
+    """The pixel the read-out shows and its line, once it shows one within a pixel of (u, v) (the
+    pointer lands on whole CSS pixels, and the layout may move as captions fill in): the pointer
+    put there again, from outside the image, until it does."""
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
+    pattern = r"/^\((\d+), (\d+)\): range/"
+    near = (
+        f"(() => {{ const m = (document.getElementById('readout').textContent || '').match({pattern});"
+        f" return m && Math.abs(m[1] - {u}) <= 1 && Math.abs(m[2] - {v}) <= 1; }})()"
+    )
+    for _ in range(12):
+        page.mouse.move(0, 0)
+        hover(page, "depth-img", u, v)
+        try:
+            page.wait_for_function(near, timeout=5_000)
+        except PlaywrightTimeout:
+            continue
+        line = text_of(page, "readout")
+        shown = re.match(r"\((\d+), (\d+)\)", line)
+        assert shown is not None, line
+        return int(shown.group(1)), int(shown.group(2)), line
+    raise AssertionError(f"the read-out never showed a pixel near ({u}, {v}): {text_of(page, 'readout')!r}")
 
 
 def test_metres_cloud_and_controls_with_the_token_from_the_url(
@@ -122,8 +158,7 @@ def test_metres_cloud_and_controls_with_the_token_from_the_url(
         # The read-out under the pointer: near the rendered truth at a steady pixel.
         truth = true_range(live, small_recording)
         u, v = steady_pixel(live, truth)
-        hover(page, "depth-img", u, v)
-        line = wait_text(page, "readout", f"({u}, {v}): range")
+        u, v, line = read_at(page, u, v)  # within a pixel of the steady one: steady too
         shown = float(re.search(r"range (\d+\.\d+) m", line).group(1))  # type: ignore[union-attr]
         print(f"read-out at ({u}, {v}): {line!r}; truth {truth[v, u]:.3f} m")
         assert shown == pytest.approx(float(truth[v, u]), rel=0.02)
