@@ -6,7 +6,6 @@ recording's frames before any pair is processed (:func:`check_against_frames`)."
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -86,12 +85,7 @@ def build_pipeline(
 
 def describe_pipeline(pipeline: DepthPipeline, cal_path: Path) -> str:
     """One line naming the calibration file, the rectified pair and the baseline."""
-    cam = pipeline.pair.camera
-    if pipeline.pair.projection == "pinhole":
-        view = f"VPC {cam.width}x{cam.height} fx {cam.fx:.1f}"
-    else:
-        view = f"lat-lon {cam.width}x{cam.height} {math.radians(cam.fx):.3f} px/deg"
-    return f"calibration {cal_path}, {view}, B {pipeline.baseline_m:.4f} m"
+    return f"calibration {cal_path}, {pipeline.pair.describe()}, B {pipeline.baseline_m:.4f} m"
 
 
 def check_against_frames(pipeline: DepthPipeline, recording: RecordedPairs) -> None:

@@ -31,6 +31,7 @@ from service.routes import (
     frames,
     health,
     metrics,
+    readout,
     recordings,
     stream,
 )
@@ -139,6 +140,7 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
         health,
         counters,
         depth,
+        readout,
         stream,
         frames,
         calibration,

@@ -131,8 +131,8 @@ def test_output_layout_vpc_json_and_depth(tmp_path: Path, shot: StereoShot) -> N
     assert left.shape == (240, 320) and left.dtype == np.uint8
     assert within_2_percent(out / "depth" / "000003.png", shot.depth) >= 0.95
     preview = np.asarray(cv2.imread(str(out / "preview" / "000003.png"), cv2.IMREAD_UNCHANGED))
-    assert preview.shape == (240, 640, 3)
-    assert np.array_equal(preview[:, :320, 0], left)  # the left half is the VPC image
+    assert preview.shape == (240, 640 + 72, 3)  # left view | colour depth | colour bar in metres
+    assert np.array_equal(preview[:, :320, 0], left)  # the left part is the left rectified image
     ply = (out / "cloud" / "000003.ply").read_bytes()
     assert ply.startswith(b"ply\nformat binary_little_endian 1.0\n")
 

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from calibration.models import LatLonModel
+from rig.depth import latlon_range
 from rig.field import pixel_solid_angles
 from rig.pipeline import DepthFrame, DepthPipeline, MatchedImages
 from rig.rectified import RectifiedPairConfig
@@ -129,6 +130,46 @@ def test_latlon_point_cloud_and_footprint(room: tuple[DepthPipeline, DepthFrame,
         poly = pipe.footprint(name, samples=32)
         assert poly.shape[0] > 100
         assert pipe.rig.cameras[name].in_image(poly).all()
+
+
+def test_no_range_beyond_the_smallest_trusted_disparity(
+    room_shot: tuple[DepthPipeline, StereoShot, np.ndarray],
+    room: tuple[DepthPipeline, DepthFrame, np.ndarray],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The room's ranges stop at the one the smallest trusted disparity gives (half a pixel above
+    the lowest searched): the matcher's minima on its search range's edge and the refinement's
+    steps below the floor are invalid, not kilometres; against the same pipeline without the
+    rule (patched out), the ranges beyond 10 m in a room of at most 7.5 m are fewer and the
+    accuracy is the same."""
+    import rig.postprocess as postprocess
+
+    pipe, shot, truth = room_shot
+    _, frame, _ = room
+    floor = postprocess.trusted_disparity_floor(pipe.stereo)
+    assert floor == 0.5
+    cam = pipe.pair.camera
+    assert isinstance(cam, LatLonModel)
+    bound = latlon_range(np.full((1, cam.width), floor, np.float32), cam, pipe.pair.baseline_m)[0]
+    assert np.nanmax(truth) < 7.6
+    ok = frame.valid
+    assert (frame.disparity[ok] >= floor).all()
+    assert np.array_equal(np.isfinite(frame.range), ok) and np.array_equal(np.isfinite(frame.disparity), ok)
+    assert (frame.range <= bound[None, :] * (1 + 1e-5))[ok].all()
+    assert float(np.nanmax(bound)) == pytest.approx(cam.fx * pipe.pair.baseline_m / floor, rel=1e-3)
+
+    monkeypatch.setattr(postprocess, "trusted_disparity_floor", lambda params: 0.0)
+    monkeypatch.setattr(postprocess, "_drop_search_edge", lambda raw, min_disparity, cols: None)
+    without = pipe.process(shot.left, shot.right)
+    beyond = [int((f.valid & (f.range > 10.0)).sum()) for f in (without, frame)]
+    print(
+        f"beyond 10 m: {beyond[0]} -> {beyond[1]} px of {int(ok.sum())}; largest range "
+        f"{np.nanmax(without.range):.1f} -> {np.nanmax(frame.range):.1f} m; within 3 %: "
+        f"{_within(pipe, without, truth, 0.03):.4f} -> {_within(pipe, frame, truth, 0.03):.4f}"
+    )
+    assert (without.valid & (without.range > bound[None, :] * 1.01)).any(), "nothing for the rule to remove"
+    assert beyond[1] < beyond[0]  # measured 63 -> 45
+    assert _within(pipe, frame, truth, 0.03) >= _within(pipe, without, truth, 0.03) - 0.001
 
 
 def test_pinhole_range_is_depth_along_the_ray(tmp_path: Path) -> None:
