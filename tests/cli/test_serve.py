@@ -150,7 +150,9 @@ def test_serve_demo_from_an_empty_cache(tmp_path: Path) -> None:
         assert page.status_code == 200 and 'id="depth-img"' in page.text
     finally:
         served.proc.send_signal(signal.SIGINT)
-        rest, _ = served.proc.communicate(timeout=60)
+        served.proc.wait(timeout=60)
+        assert served.proc.stdout is not None
+        rest = served.proc.stdout.read()  # the reader's buffer too (communicate reads past it)
     assert served.proc.returncode == 0
     assert f"API docs: {served.url}docs (Authorize with the token {token})" in rest
     bindir = RIG.resolve().parent  # said relative to the working directory when inside it
