@@ -26,6 +26,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
@@ -46,14 +47,23 @@ from rig.floor import (
     pixel_samples,
 )
 from rig.pipeline import DepthFrame, DepthPipeline
+from rig.recording import Recording
 from rig.rectification.matching import MatchOptions, RayMatches, match_pair
 from rig.rectification.measure import VerticalDisparity, vertical_disparity
+from rig.rectification.refine import pick_pairs
 from rig.rectification.views import EpipolarViews
 from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from rig.ring import rig_up
 from rig.stereo import StereoParams
 
-__all__ = ["FloorFigures", "FloorRefineOptions", "FloorRefinement", "refine_floor", "turn_camera"]
+__all__ = [
+    "FloorFigures",
+    "FloorRefineOptions",
+    "FloorRefinement",
+    "recording_frames",
+    "refine_floor",
+    "turn_camera",
+]
 
 U8 = NDArray[np.uint8]
 F64 = NDArray[np.float64]
@@ -134,12 +144,48 @@ class FloorRefinement:
     def angle_deg(self) -> float:
         return float(np.hypot(*self.correction_deg))
 
+    def summary(self) -> list[str]:
+        """The figures in lines of text: the turn, the floor and the vertical disparity before
+        and after, and whether it was applied."""
+        fb, fa = self.floor_before, self.floor_after
+        y, z = self.correction_deg
+        sy, sz = self.sigma_deg
+        vb, va = self.vertical_before, self.vertical_after
+        return [
+            f"right camera turned {y:+.4f}° about y (vergence, 1σ {sy:.4f}°), {z:+.4f}° about z (the look "
+            f"direction, 1σ {sz:.4f}°; correlation {self.correlation:+.2f}), from {self.fit.cells} cells of "
+            f"floor in {self.frames} frame(s), floor {self.height_m:.3f} m down",
+            f"floor residual {fb.residual_px:.3f} -> {fa.residual_px:.3f} px; range error "
+            f"{fb.range_error:.2%} -> {fa.range_error:.2%} (bias {fb.range_bias:+.2%} -> "
+            f"{fa.range_bias:+.2%})",
+            f"floor as the range shows it: {fb.height_m:.3f} -> {fa.height_m:.3f} m down, tilt "
+            f"{_deg(fb.plane.tilt_deg)} -> {_deg(fa.plane.tilt_deg)}, flatness {fb.flatness_px:.3f} -> "
+            f"{fa.flatness_px:.3f} px",
+            f"vertical disparity p50 {_px(vb.p50_px)} -> {_px(va.p50_px)} px ({vb.count} matches)",
+            "applied" if self.applied else str(self.reason),
+        ]
+
 
 def turn_camera(rig: Rig, name: str, rotvec: ArrayLike) -> Rig:
     """``rig`` with camera ``name`` turned by ``rotvec`` (radians, rig frame) about its centre."""
     T = {n: t.copy() for n, t in rig.T_rig_cam.items()}
     T[name][:3, :3] = Rotation.from_rotvec(np.asarray(rotvec, dtype=np.float64)).as_matrix() @ T[name][:3, :3]
     return Rig(dict(rig.cameras), T)
+
+
+def recording_frames(
+    recording: Recording, frames: int, config: RectifiedPairConfig | None = None
+) -> list[tuple[U8, U8]]:
+    """Up to ``frames`` grey pairs evenly spread over ``recording`` (RecordingError: it lacks a
+    camera of ``config``'s pair, holds no pairs, or a frame cannot be read)."""
+    config = config or RectifiedPairConfig()
+    return [
+        (
+            recording.read_image(p, "left", cv2.IMREAD_GRAYSCALE),
+            recording.read_image(p, "right", cv2.IMREAD_GRAYSCALE),
+        )
+        for p in pick_pairs(recording, frames, config.left, config.right)
+    ]
 
 
 def _check_height(height_m: float) -> float:
@@ -246,6 +292,10 @@ def _verdict(
 
 def _px(v: float | None) -> str:
     return "none" if v is None else f"{v:.3f}"
+
+
+def _deg(tilt: F64) -> str:
+    return f"({tilt[0]:+.3f}, {tilt[1]:+.3f})°"
 
 
 def refine_floor(
