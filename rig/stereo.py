@@ -19,7 +19,7 @@ the rest; the price is the nearest depth (fx·B/96 at the VPC's fx) and a second
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from concurrent.futures import Executor
 from typing import Any, Literal
 
 import cv2
@@ -27,11 +27,15 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
+from rig.coarse_to_fine import CoarseToFine, FineLevel
+from rig.disparity import MatchedDisparity, SeenColumns, UnfilteredDisparity
 from rig.errors import PipelineError
 from rig.filters import fill_where, left_right_consistent
 from rig.settings_model import SettingsModel
 
 __all__ = [
+    "COARSE_HALF_UP_TO",
+    "COARSE_P2_FACTOR",
     "COST_PER_WINDOW_PIXEL",
     "MAX_PATH_COST",
     "SGBM_MODES",
@@ -63,6 +67,12 @@ MAX_PATH_COST = 32767
 #: renders (tests/rig/test_stereo_limits.py): with P2 + 16·w² above 32767 nearly every disparity
 #: is wrong (w = 27 with the default penalties; P2 = 32000 with a 7 px window).
 COST_PER_WINDOW_PIXEL = 16
+#: The coarse-to-fine search's coarse level is 1/2 resolution up to this many disparities, 1/4 beyond.
+COARSE_HALF_UP_TO = 128
+#: The coarse level's P2 over the full resolution's: a step of one coarse pixel is ``scale`` full
+#: ones, and a stiffer coarse level keeps repetitive texture from locking onto the wrong period
+#: (measured: docs/stereo.md, "Coarse-to-fine search").
+COARSE_P2_FACTOR = 4
 
 
 class StereoParams(SettingsModel):
@@ -100,6 +110,10 @@ class StereoParams(SettingsModel):
     temporal_reset: float = Field(1.0, gt=0.0, le=64.0, description="disparity change that restarts (px)")
     confidence: bool = Field(True, description="per-pixel confidence map in [0, 1]")
     confidence_sigma: float = Field(0.1, ge=1e-4, le=10.0, description="predicted σ_d giving conf. 1/e")
+    # The coarse-to-fine search (rig.coarse_to_fine; docs/stereo.md, "Coarse-to-fine search").
+    coarse_to_fine: bool = Field(True, description="whole range at a coarse level, full resolution in bands")
+    coarse_scale: Literal[0, 2, 4] = Field(0, description="coarse level 1/2 or 1/4 (0: 1/2 up to 128 disp.)")
+    temporal_prior: bool = Field(True, description="live: unchanged rows keep their last coarse search")
 
     @field_validator("sgbm_mode", mode="before")
     @classmethod
@@ -151,8 +165,41 @@ class StereoParams(SettingsModel):
     @property
     def blind_band_px(self) -> int:
         """Columns on the left of the image the matcher never matches: OpenCV's matchers start at
-        column ``min_disparity + disparity_range`` (a left pixel's match must lie in the image)."""
-        return max(0, self.min_disparity + self.disparity_range)
+        column ``min_disparity + disparity_range`` (a left pixel's match must lie in the image);
+        the coarse-to-fine search at its coarse level's (the range rounded up to 16 coarse px)."""
+        s = self.coarse_factor
+        if s == 1:
+            return max(0, self.min_disparity + self.disparity_range)
+        coarse = self.coarse_level()
+        return max(0, s * (coarse.min_disparity + coarse.disparity_range))
+
+    @property
+    def coarse_factor(self) -> int:
+        """The coarse level's downsampling factor: 1 without the coarse-to-fine search; by
+        default 2 up to 128 disparities and 4 beyond (at most 64 coarse disparities up to 256)."""
+        if not self.coarse_to_fine:
+            return 1
+        return self.coarse_scale or (2 if self.disparity_range <= COARSE_HALF_UP_TO else 4)
+
+    def coarse_level(self) -> StereoParams:
+        """The parameters of the coarse level's matcher (:attr:`coarse_factor`): the range in
+        coarse pixels (covering this one, rounded up to a multiple of 16), speckles of a
+        proportional area, and a larger P2 (:data:`COARSE_P2_FACTOR`). Unchecked: derived."""
+        s = self.coarse_factor
+        lo = self.min_disparity // s
+        hi = -(-(self.min_disparity + self.disparity_range) // s)
+        p1, p2 = self.penalties()
+        headroom = MAX_PATH_COST - COST_PER_WINDOW_PIXEL * self.correlation_window_size**2
+        return self.model_copy(
+            update={
+                "coarse_to_fine": False,
+                "min_disparity": lo,
+                "disparity_range": -(-(hi - lo) // 16) * 16,
+                "speckle_size": self.speckle_size // (s * s),
+                "P1": float(p1),
+                "P2": float(max(p1 + 1, min(COARSE_P2_FACTOR * p2, headroom))),
+            }
+        )
 
     @property
     def effective_mode(self) -> str:
@@ -164,47 +211,6 @@ class StereoParams(SettingsModel):
         p1 = int(self.P1) if self.P1 else 8 * channels * w2
         p2 = int(self.P2) if self.P2 else 32 * channels * w2
         return p1, max(p2, p1 + 1)
-
-
-@dataclass
-class MatchedDisparity:
-    """The disparity of one matched pair: (H, W) float32 px, NaN where ``valid`` is False."""
-
-    disparity: F32
-    valid: NDArray[np.bool_]
-
-
-@dataclass(frozen=True)
-class SeenColumns:
-    """The columns ``[start, stop)`` of each rectified image that its lens sees on at least one
-    row (a lat-lon field's corners are outside a lens). The matcher never matches a reference
-    pixel outside them, so it leaves out the columns that only serve those pixels."""
-
-    left: tuple[int, int]
-    right: tuple[int, int]
-
-    @classmethod
-    def of(cls, left_valid: NDArray[np.bool_], right_valid: NDArray[np.bool_]) -> SeenColumns:
-        """From the two lookup tables' validity masks (H, W)."""
-        return cls(_span(left_valid), _span(right_valid))
-
-
-def _span(valid: NDArray[np.bool_]) -> tuple[int, int]:
-    cols = np.flatnonzero(valid.any(axis=0))
-    return (int(cols[0]), int(cols[-1]) + 1) if cols.size else (0, 0)
-
-
-@dataclass
-class UnfilteredDisparity:
-    """OpenCV's fixed-point disparities of one pair (1/16 px, int16) before the speckle removal:
-    the left view's (H, W) and, with ``lr_check``, the mirrored pair's (H, W), still mirrored;
-    ``right_unsearched_from``: the right image's columns from this one on have no right-view
-    disparity (the mirrored run's unmatched band). Made by :meth:`StereoMatcher.compute`,
-    turned into a :class:`MatchedDisparity` by :meth:`StereoMatcher.disparity_of`."""
-
-    left: NDArray[np.int16]
-    mirrored: NDArray[np.int16] | None = None
-    right_unsearched_from: int = 0
 
 
 def create_opencv_matcher(p: StereoParams) -> Any:
@@ -237,6 +243,24 @@ def create_opencv_matcher(p: StereoParams) -> Any:
     )
 
 
+def _coarse_to_fine(p: StereoParams) -> CoarseToFine | None:
+    """The coarse-to-fine search of ``p`` (None: the exact search)."""
+    if p.coarse_factor == 1:
+        return None
+    coarse = p.coarse_level()
+    level = FineLevel(
+        scale=p.coarse_factor,
+        coarse_min=coarse.min_disparity,
+        window=p.correlation_window_size,
+        d_min=p.min_disparity,
+        d_max=p.min_disparity + p.disparity_range - 1,
+        invalid=(p.min_disparity - 1) * 16,
+        lr_check=p.lr_check,
+        parabola=not p.subpixel,
+    )
+    return CoarseToFine(StereoMatcher(coarse), level)
+
+
 class StereoMatcher:
     """OpenCV matcher built from :class:`StereoParams`; ``match`` runs it (and the LR check).
 
@@ -257,6 +281,7 @@ class StereoMatcher:
         self._deferred_speckles = self.params.stereo_algorithm == 1 and self.params.speckle_size > 0
         deferred = {"speckle_size": 0} if self._deferred_speckles else {}
         self._matcher = create_opencv_matcher(self.params.model_copy(update=deferred))
+        self._coarse_to_fine = _coarse_to_fine(self.params)
 
     def _compute(self, left: U8, right: U8) -> NDArray[np.int16]:
         try:
@@ -277,12 +302,25 @@ class StereoMatcher:
                 f"{self.params.disparity_range} + min_disparity {self.params.min_disparity}"
             )
 
-    def compute(self, left: U8, right: U8, seen: SeenColumns | None = None) -> UnfilteredDisparity:
-        """The OpenCV matcher on gray images (H, W) uint8 (and on the mirrored pair with
-        ``lr_check``), speckles not yet removed. With ``seen``, each run matches only the
-        columns its reference lens sees (and those their matches and windows need); the
-        others are invalid."""
+    def compute(
+        self,
+        left: U8,
+        right: U8,
+        seen: SeenColumns | None = None,
+        *,
+        pool: Executor | None = None,
+        temporal_prior: bool = False,
+    ) -> UnfilteredDisparity:
+        """The matcher on gray images (H, W) uint8 (and on the mirrored pair with
+        ``lr_check``), speckles not yet removed: the coarse-to-fine search
+        (:mod:`rig.coarse_to_fine`; ``pool`` its threads, ``temporal_prior`` for a live stream of
+        frames in order, when ``stereo.temporal_prior`` allows) or the OpenCV matcher over the
+        whole range. With ``seen``, each run matches only the columns its reference lens sees
+        (and those their matches and windows need); the others are invalid."""
         self._check(left, right)
+        if self._coarse_to_fine is not None:
+            prior = temporal_prior and self.params.temporal_prior
+            return self._coarse_to_fine.compute(left, right, seen, pool=pool, temporal_prior=prior)
         width = left.shape[1]
         mirrored, unsearched = None, width
         if self.params.lr_check:
