@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["BAND_ROWS", "BandSearch", "Hypothesis", "quantise_normalised", "search_rows"]
+__all__ = ["BAND_ROWS", "NONE", "BandSearch", "Hypothesis", "quantise_normalised", "search_rows"]
 
 U8 = NDArray[np.uint8]
 I16 = NDArray[np.int16]
@@ -51,22 +51,27 @@ def quantise_normalised(normalised: F32) -> U8:
     return out
 
 
+#: A hypothesis's value where it proposes nothing.
+NONE = int(np.iinfo(np.int16).min)
+
+
 @dataclass(frozen=True)
 class Hypothesis:
-    """A disparity field (H, W) float32 px, NaN where it proposes nothing, searched ±``half_width``."""
+    """A disparity field (H, W) int16 of whole pixels, :data:`NONE` where it proposes nothing,
+    searched ±``half_width``."""
 
-    disparity: F32
+    centre: I16
     half_width: int
 
 
 @functools.lru_cache(maxsize=8)
-def _grid(h: int, w: int) -> I16:
-    """(H, W, 2) int16 of each pixel's (x, y): the identity map of an integer remap."""
-    grid = np.empty((h, w, 2), dtype=np.int16)
-    grid[..., 0] = np.arange(w, dtype=np.int16)[None, :]
-    grid[..., 1] = np.arange(h, dtype=np.int16)[:, None]
-    grid.flags.writeable = False
-    return grid
+def _grid(h: int, w: int) -> tuple[I16, I16]:
+    """Each pixel's x and y (H, W) int16: the two halves of an integer remap's identity map."""
+    xs = np.ascontiguousarray(np.broadcast_to(np.arange(w, dtype=np.int16)[None, :], (h, w)))
+    ys = np.ascontiguousarray(np.broadcast_to(np.arange(h, dtype=np.int16)[:, None], (h, w)))
+    xs.flags.writeable = False
+    ys.flags.writeable = False
+    return xs, ys
 
 
 class BandSearch:
@@ -94,11 +99,13 @@ class BandSearch:
         start = self._reach - j
         return self._padded[:, start : start + w]
 
-    def _map(self, disparity: I16) -> I16:
-        """The integer remap (h, W, 2) to ``(x − disparity, y)``."""
-        out = np.array(self._grid)
-        np.subtract(self._grid[..., 0], disparity, out=out[..., 0])
-        return out
+    def _map(self, disparity: I16, where: U8 | None = None) -> I16:
+        """The integer remap (h, W, 2) to ``(x − disparity, y)`` (only ``where`` it is non-zero;
+        ``(x, y)`` elsewhere)."""
+        xs, ys = self._grid
+        columns = xs.copy()
+        cv2.subtract(xs, disparity, dst=columns, mask=where)
+        return np.asarray(cv2.merge([columns, ys]), dtype=np.int16)
 
     def _cost(self, columns: I16, j: int) -> U16:
         """Block cost of matching each pixel with ``other`` at ``columns − j``."""
@@ -112,11 +119,11 @@ class BandSearch:
     def search(self, hypothesis: Hypothesis) -> None:
         """Try every shift of ``hypothesis``'s band at every pixel it proposes for; keeps each
         pixel's best try so far (earlier tries win ties)."""
-        field = hypothesis.disparity
-        proposes = cv2.compare(field, field, cv2.CMP_EQ)  # 255 where not NaN
-        centre = np.asarray(cv2.patchNaNs(field.copy(), 0.0), dtype=np.float32)
-        d0 = np.rint(centre).astype(np.int16)
-        columns = self._map(d0)
+        d0 = hypothesis.centre
+        proposes = cv2.compare(d0, NONE, cv2.CMP_NE)
+        # A pixel it proposes nothing for is gathered at disparity 0 (it still sits in its
+        # neighbours' blocks).
+        columns = self._map(d0, proposes)
         for j in range(-hypothesis.half_width, hypothesis.half_width + 1):
             cost = self._cost(columns, j)
             better = cv2.compare(cost, self.best_cost, cv2.CMP_LT)
@@ -168,5 +175,5 @@ def search_rows(
     reach = max([h.half_width for h in hypotheses] + [1])
     search = BandSearch(ref[a:b], other[a:b], window, d_range[0], d_range[1], reach)
     for h in hypotheses:
-        search.search(Hypothesis(h.disparity[a:b], h.half_width))
+        search.search(Hypothesis(h.centre[a:b], h.half_width))
     return search.fixed_point(invalid, parabola)[r0 - a : r1 - a]

@@ -29,10 +29,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from rig.band_search import BAND_ROWS, Hypothesis, quantise_normalised, search_rows
+from rig.band_search import BAND_ROWS, NONE, Hypothesis, quantise_normalised, search_rows
 from rig.bands import submit_or_run
 from rig.disparity import SeenColumns, UnfilteredDisparity
-from rig.subpixel import Normalisation
+from rig.subpixel import Normalisation, normalise_contrast
 from rig.temporal_prior import CoarseSearch, TemporalPrior
 
 __all__ = ["CoarseMatcher", "CoarseToFine", "FineLevel", "downsample", "hypotheses"]
@@ -84,35 +84,41 @@ def downsample(image: U8, scale: int) -> U8:
 
 
 def _upsampled(coarse: F32, shape: tuple[int, int], scale: int, interpolation: int) -> F32:
-    """A coarse field at full resolution (H, W) in full-resolution pixels (× ``scale``)."""
+    """A coarse field at full resolution (H, W), still in coarse pixels."""
     size = (coarse.shape[1] * scale, coarse.shape[0] * scale)
     up = np.asarray(cv2.resize(coarse, size, interpolation=interpolation), dtype=np.float32)
-    out = np.ascontiguousarray(up[: shape[0], : shape[1]])
-    out *= np.float32(scale)
-    return out
+    return np.ascontiguousarray(up[: shape[0], : shape[1]])  # OpenCV writes into it
+
+
+def _centres(field: F32, scale: int) -> I16:
+    """A field (H, W) of coarse px, ``NONE / scale`` where none, as whole full-resolution px:
+    ``round(field · scale)`` saturated to int16 (:data:`NONE` where none)."""
+    return np.asarray(cv2.multiply(field, float(scale), dtype=cv2.CV_16S), dtype=np.int16)
 
 
 def hypotheses(coarse: F32, shape: tuple[int, int], scale: int) -> list[Hypothesis]:
     """The fine level's hypotheses (module doc) from a coarse disparity (h, w) float32 coarse
     px, NaN invalid, for a full-resolution image of ``shape``."""
-    up = _upsampled(coarse, shape, scale, cv2.INTER_LINEAR)
-    nearest = _upsampled(coarse, shape, scale, cv2.INTER_NEAREST)
-    # Next to an invalid coarse pixel the bilinear field is NaN: the nearest one's value there.
-    gap = np.isnan(up)
-    up[gap] = nearest[gap]
-    box = np.ones((3, 3), np.uint8)
     invalid = np.isnan(coarse)
-    low = np.where(invalid, np.float32(np.inf), coarse)
-    low = np.asarray(cv2.erode(low, box, borderType=cv2.BORDER_REPLICATE), dtype=np.float32)
-    low[np.isinf(low)] = np.nan
-    high = np.where(invalid, np.float32(-np.inf), coarse)
-    high = np.asarray(cv2.dilate(high, box, borderType=cv2.BORDER_REPLICATE), dtype=np.float32)
-    high[np.isinf(high)] = np.nan
-    return [
-        Hypothesis(up, 1),
-        Hypothesis(_upsampled(low, shape, scale, cv2.INTER_NEAREST), 0),
-        Hypothesis(_upsampled(high, shape, scale, cv2.INTER_NEAREST), 0),
-    ]
+    none = NONE / scale
+    up = _upsampled(coarse, shape, scale, cv2.INTER_LINEAR)
+    filled = coarse.copy()
+    filled[invalid] = none
+    # The bilinear field is NaN next to an invalid coarse pixel: the nearest value there.
+    nearest = _upsampled(filled, shape, scale, cv2.INTER_NEAREST)
+    cv2.copyTo(
+        nearest, cv2.bitwise_not(cv2.compare(up, up, cv2.CMP_EQ)), up
+    )  # (OpenCV's NE: NaN ≠ NaN is False)
+    fields = [up]
+    box = np.ones((3, 3), np.uint8)
+    for pad, morph in ((np.inf, cv2.erode), (-np.inf, cv2.dilate)):
+        padded = coarse.copy()
+        padded[invalid] = pad
+        extreme = np.asarray(morph(padded, box, borderType=cv2.BORDER_REPLICATE), dtype=np.float32)
+        extreme[np.isinf(extreme)] = none  # no valid neighbour
+        fields.append(_upsampled(extreme, shape, scale, cv2.INTER_NEAREST))
+    centres = [_centres(f, scale) for f in fields]
+    return [Hypothesis(centres[0], 1), Hypothesis(centres[1], 0), Hypothesis(centres[2], 0)]
 
 
 def _coarse_seen(seen: SeenColumns | None, scale: int) -> SeenColumns | None:
@@ -130,6 +136,8 @@ class CoarseToFine:
     Not safe for concurrent calls (the matcher's scratch buffers, the temporal prior)."""
 
     def __init__(self, coarse: CoarseMatcher, level: FineLevel) -> None:
+        if level.scale not in (2, 4):
+            raise ValueError(f"coarse-to-fine: the coarse level is 1/2 or 1/4, not 1/{level.scale}")
         self.coarse = coarse
         self.level = level
         self.prior = TemporalPrior()
@@ -146,24 +154,33 @@ class CoarseToFine:
         """Fixed-point disparities of gray images (H, W) uint8 as
         :meth:`rig.stereo.StereoMatcher.compute` gives them (with ``lr_check`` the mirrored
         pair's too), and both images' contrast normalisation. ``pool``: threads for the
-        normalisation and the fine level's bands; ``temporal_prior``: the live service's
+        normalisation and the fine levels' bands; ``temporal_prior``: the live service's
         (frames in order, one stream)."""
         lv = self.level
         normalised = Normalisation(left, right, pool)
-        coarse_left, coarse_right = downsample(left, lv.scale), downsample(right, lv.scale)
+        # Halved until the coarse level: a coarse scale of 4 has a band search at 1/2 too.
+        pyramid = [(left, right)]
+        while len(pyramid) < lv.scale.bit_length():
+            pyramid.append((downsample(pyramid[-1][0], 2), downsample(pyramid[-1][1], 2)))
+        coarse_left, coarse_right = pyramid.pop()
+        coarse_seen = _coarse_seen(seen, lv.scale)
         if temporal_prior:
-            found = self._with_prior(coarse_left, coarse_right, _coarse_seen(seen, lv.scale))
+            found = self._with_prior(coarse_left, coarse_right, coarse_seen)
         else:
             self.prior.reset()
-            found = self._search(coarse_left, coarse_right, _coarse_seen(seen, lv.scale))
+            found = self._search(coarse_left, coarse_right, coarse_seen)
+        fields = [found.left] if found.mirrored is None else [found.left, found.mirrored]
+        while len(pyramid) > 1:  # the intermediate levels, in their own pixels
+            step = 1 << (len(pyramid) - 1)
+            images = pyramid.pop()
+            pair = (
+                quantise_normalised(normalise_contrast(images[0])),
+                quantise_normalised(normalise_contrast(images[1])),
+            )
+            fixed = self._fine(pair, fields, pool, step)
+            fields = [_pixels(f, (lv.d_min // step) * 16) for f in fixed]
         norm_left, norm_right = normalised.result()
-        ref, other = quantise_normalised(norm_left), quantise_normalised(norm_right)
-        shape = (left.shape[0], left.shape[1])
-        views = [(ref, other, hypotheses(found.left, shape, lv.scale))]
-        if found.mirrored is not None:
-            mirrored = (np.ascontiguousarray(other[:, ::-1]), np.ascontiguousarray(ref[:, ::-1]))
-            views.append((*mirrored, hypotheses(found.mirrored, shape, lv.scale)))
-        fixed = self._fine(views, pool)
+        fixed = self._fine((quantise_normalised(norm_left), quantise_normalised(norm_right)), fields, pool, 1)
         unsearched = min(left.shape[1], lv.scale * found.right_unsearched_from)
         return UnfilteredDisparity(
             fixed[0], fixed[1] if len(fixed) > 1 else None, unsearched, (norm_left, norm_right)
@@ -172,15 +189,13 @@ class CoarseToFine:
     def _search(self, left: U8, right: U8, seen: SeenColumns | None) -> CoarseSearch:
         """The coarse level's matcher on coarse images, speckles removed, in coarse px."""
         raw = self.coarse.compute(left, right, seen)
-        mirrored = None if raw.mirrored is None else self._pixels(raw.mirrored)
-        return CoarseSearch(self._pixels(raw.left), mirrored, raw.right_unsearched_from)
-
-    def _pixels(self, fixed: I16) -> F32:
-        self.coarse.remove_speckles(fixed)
-        out = fixed.astype(np.float32)
-        out *= np.float32(1.0 / 16.0)
-        out[fixed < self.level.coarse_min * 16] = np.nan
-        return out
+        valid_from = self.level.coarse_min * 16
+        mirrored = None
+        if raw.mirrored is not None:
+            self.coarse.remove_speckles(raw.mirrored)
+            mirrored = _pixels(raw.mirrored, valid_from)
+        self.coarse.remove_speckles(raw.left)
+        return CoarseSearch(_pixels(raw.left, valid_from), mirrored, raw.right_unsearched_from)
 
     def _with_prior(self, left: U8, right: U8, seen: SeenColumns | None) -> CoarseSearch:
         """The coarse search of the rows the temporal prior says changed, over its history."""
@@ -199,11 +214,19 @@ class CoarseToFine:
             fresh.append(CoarseSearch(part.left[keep], mirrored, part.right_unsearched_from))
         return self.prior.merge(left, right, spans, fresh)
 
-    def _fine(self, views: list[tuple[U8, U8, list[Hypothesis]]], pool: Executor | None) -> list[I16]:
-        """The fine level of each view (reference, other, hypotheses), in row bands on ``pool``."""
+    def _fine(self, images: tuple[U8, U8], fields: list[F32], pool: Executor | None, step: int) -> list[I16]:
+        """The band search at 1/``step`` of full resolution, of the left view and, given a
+        second field, of the mirrored pair, around the hypotheses of the next coarser level's
+        ``fields`` (its px; NaN invalid); in row bands on ``pool``."""
         lv = self.level
-        outputs = [np.empty(ref.shape, dtype=np.int16) for ref, _, _ in views]
-        futures: list[Future[None]] = []
+        ref, other = images
+        shape = (ref.shape[0], ref.shape[1])
+        views = [(ref, other, hypotheses(fields[0], shape, 2))]
+        if len(fields) > 1:
+            views.append((cv2.flip(other, 1), cv2.flip(ref, 1), hypotheses(fields[1], shape, 2)))
+        outputs = [np.empty(shape, dtype=np.int16) for _ in views]
+        d_range = (lv.d_min // step, -(-lv.d_max // step))
+        invalid = (d_range[0] - 1) * 16
 
         def band(view: int, r0: int, r1: int) -> None:
             ref, other, hyps = views[view]
@@ -213,15 +236,23 @@ class CoarseToFine:
                 hyps,
                 (r0, r1),
                 window=lv.window,
-                d_range=(lv.d_min, lv.d_max),
-                invalid=lv.invalid,
-                parabola=lv.parabola,
+                d_range=d_range,
+                invalid=invalid if step > 1 else lv.invalid,
+                parabola=lv.parabola and step == 1,
             )
 
-        height = views[0][0].shape[0]
+        futures: list[Future[None]] = []
         for view in range(len(views)):
-            for r0 in range(0, height, BAND_ROWS):
-                futures.append(submit_or_run(pool, band, view, r0, min(height, r0 + BAND_ROWS)))
+            for r0 in range(0, shape[0], BAND_ROWS):
+                futures.append(submit_or_run(pool, band, view, r0, min(shape[0], r0 + BAND_ROWS)))
         for future in futures:
             future.result()
         return outputs
+
+
+def _pixels(fixed: I16, valid_from: int) -> F32:
+    """A fixed-point disparity (1/16 px) in px, NaN below ``valid_from`` (1/16 px)."""
+    out = fixed.astype(np.float32)
+    out *= np.float32(1.0 / 16.0)
+    out[fixed < valid_from] = np.nan
+    return out

@@ -354,8 +354,8 @@ class StereoMatcher:
         reference: ``seen`` are the right image's seen columns, mirrored here."""
         width = left.shape[1]
         return self._compute_columns(
-            np.ascontiguousarray(right[:, ::-1]),
-            np.ascontiguousarray(left[:, ::-1]),
+            np.asarray(cv2.flip(right, 1), dtype=np.uint8),
+            np.asarray(cv2.flip(left, 1), dtype=np.uint8),
             (width - seen[1], width - seen[0]),
         )
 
