@@ -42,6 +42,7 @@ QUANT_SCALE = 32.0
 #: Output rows per band of the search.
 BAND_ROWS = 128
 _NO_COST = int(np.iinfo(np.uint16).max)
+_NOT_KEPT = int(np.iinfo(np.int8).min)
 
 
 def quantise_normalised(normalised: F32) -> U8:
@@ -93,6 +94,10 @@ class BandSearch:
         self._grid = _grid(h, w)
         self.best_cost: U16 = np.full((h, w), _NO_COST, dtype=np.uint16)
         self.best: I16 = np.zeros((h, w), dtype=np.int16)
+        # With :meth:`search`'s ``keep``: that hypothesis's costs per shift, and the shift of
+        # each pixel's best try if it is that hypothesis's (else :data:`_NOT_KEPT`).
+        self._kept: dict[int, U16] = {}
+        self._kept_shift: NDArray[np.int8] | None = None
 
     def _shifted(self, j: int) -> U8:
         w = self.ref.shape[1]
@@ -116,14 +121,18 @@ class BandSearch:
         k = (self.window, self.window)
         return np.asarray(cv2.boxFilter(gathered, cv2.CV_16U, k, normalize=False), dtype=np.uint16)
 
-    def search(self, hypothesis: Hypothesis) -> None:
+    def search(self, hypothesis: Hypothesis, *, keep: bool = False) -> None:
         """Try every shift of ``hypothesis``'s band at every pixel it proposes for; keeps each
-        pixel's best try so far (earlier tries win ties)."""
+        pixel's best try so far (earlier tries win ties). ``keep``: remember this hypothesis's
+        costs for the parabola (:meth:`fixed_point`)."""
         d0 = hypothesis.centre
         proposes = cv2.compare(d0, NONE, cv2.CMP_NE)
         # A pixel it proposes nothing for is gathered at disparity 0 (it still sits in its
         # neighbours' blocks).
         columns = self._map(d0, proposes)
+        if keep:
+            self._kept = {}
+            self._kept_shift = np.full(d0.shape, _NOT_KEPT, dtype=np.int8)
         for j in range(-hypothesis.half_width, hypothesis.half_width + 1):
             cost = self._cost(columns, j)
             better = cv2.compare(cost, self.best_cost, cv2.CMP_LT)
@@ -132,25 +141,31 @@ class BandSearch:
             cv2.bitwise_and(better, cv2.inRange(d0, self.d_min - j, self.d_max - j), dst=better)
             cv2.copyTo(cost, better, self.best_cost)
             cv2.copyTo(np.asarray(cv2.add(d0, j), dtype=np.int16), better, self.best)
+            if self._kept_shift is not None:
+                if keep:
+                    self._kept[j] = cost
+                self._kept_shift[better != 0] = j if keep else _NOT_KEPT
 
     def fixed_point(self, invalid: int, parabola: bool) -> I16:
         """Each pixel's best disparity in 1/16 px (OpenCV's fixed point), ``invalid`` where no
         hypothesis proposed one. ``parabola``: with a subpixel offset from a parabola through the
-        costs one pixel either side (as SGBM's own); else whole pixels (a subpixel refinement
-        follows)."""
+        costs one pixel either side (as SGBM's own) where the kept hypothesis has them; else
+        whole pixels (a subpixel refinement follows)."""
         found = self.best_cost != _NO_COST
-        if parabola:
-            columns = self._map(self.best)
-            c0 = self.best_cost.astype(np.float32)
-            below = self._cost(columns, -1).astype(np.float32)
-            above = self._cost(columns, 1).astype(np.float32)
-            curvature = below + above - 2.0 * c0
-            with np.errstate(divide="ignore", invalid="ignore"):
-                offset = np.where(curvature > 0.0, (below - above) / (2.0 * curvature), 0.0)
-            np.clip(offset, -0.5, 0.5, out=offset)
+        fixed = self.best * np.int16(16)
+        if parabola and self._kept_shift is not None:
+            # Through the kept hypothesis's costs (one warp for all three: consistent blocks),
+            # where its best try has a neighbour on either side.
+            offset = np.zeros(fixed.shape, dtype=np.float32)
+            for j in self._kept:
+                if j - 1 in self._kept and j + 1 in self._kept:
+                    here = self._kept_shift == j
+                    below, centre, above = (self._kept[k][here].astype(np.float32) for k in (j - 1, j, j + 1))
+                    curvature = below + above - 2.0 * centre
+                    with np.errstate(divide="ignore", invalid="ignore"):
+                        step = np.where(curvature > 0.0, (below - above) / (2.0 * curvature), 0.0)
+                    offset[here] = np.clip(step, -0.5, 0.5)
             fixed = np.rint((self.best + offset) * 16.0).astype(np.int16)
-        else:
-            fixed = self.best * np.int16(16)
         fixed[~found] = invalid
         return fixed
 
@@ -167,13 +182,16 @@ def search_rows(
     parabola: bool,
 ) -> I16:
     """:class:`BandSearch` of output rows ``rows = (r0, r1)`` of the whole images ``ref``/``other``
-    (H, W) and hypotheses (H, W): the block of rows with the margins that make it exact (a block
-    cost reaches ``window // 2`` rows, the parabola's costs twice that)."""
+    (H, W) and hypotheses (H, W): the block of rows with the margin that makes it exact (a block
+    cost reaches ``window // 2`` rows). ``parabola``: a subpixel offset where the first
+    hypothesis's band (searched one shift wider) has the best try."""
     r0, r1 = rows
-    margin = 2 * (window // 2)
+    margin = window // 2
     a, b = max(0, r0 - margin), min(ref.shape[0], r1 + margin)
-    reach = max([h.half_width for h in hypotheses] + [1])
+    reach = max(h.half_width for h in hypotheses) + 1
     search = BandSearch(ref[a:b], other[a:b], window, d_range[0], d_range[1], reach)
-    for h in hypotheses:
-        search.search(Hypothesis(h.centre[a:b], h.half_width))
+    for i, h in enumerate(hypotheses):
+        # With the parabola: the first hypothesis one shift wider, its costs kept.
+        wider = parabola and i == 0
+        search.search(Hypothesis(h.centre[a:b], h.half_width + wider), keep=wider)
     return search.fixed_point(invalid, parabola)[r0 - a : r1 - a]

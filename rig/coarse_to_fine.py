@@ -57,12 +57,14 @@ class CoarseMatcher(Protocol):
 @dataclass(frozen=True)
 class FineLevel:
     """The search's figures: the coarse level's ``scale`` and smallest disparity (coarse px),
-    the full resolution's block ``window``, disparity bounds ``[d_min, d_max]`` and fixed-point
-    value of an invalid pixel; ``lr_check``: search the right view too; ``parabola``: subpixel
-    offsets (else whole pixels, for a refinement that follows)."""
+    the columns on the left it leaves unmatched (``blind``, full-resolution px: the fine levels
+    leave them too), the full resolution's block ``window``, disparity bounds ``[d_min, d_max]``
+    and fixed-point value of an invalid pixel; ``lr_check``: search the right view too;
+    ``parabola``: subpixel offsets (else whole pixels, for a refinement that follows)."""
 
     scale: int
     coarse_min: int
+    blind: int
     window: int
     d_min: int
     d_max: int
@@ -166,10 +168,13 @@ class CoarseToFine:
         coarse_seen = _coarse_seen(seen, lv.scale)
         if temporal_prior:
             found = self._with_prior(coarse_left, coarse_right, coarse_seen)
-        else:
-            self.prior.reset()
+        else:  # (a pair outside the stream leaves the stream's history alone)
             found = self._search(coarse_left, coarse_right, coarse_seen)
         fields = [found.left] if found.mirrored is None else [found.left, found.mirrored]
+        # The coarse level's unmatched columns, full resolution, per view (the right one's are on
+        # its right, so on the left of the mirrored view): the fine levels leave them unmatched too.
+        unsearched = min(left.shape[1], lv.scale * found.right_unsearched_from)
+        blind = [lv.blind, left.shape[1] - unsearched]
         while len(pyramid) > 1:  # the intermediate levels, in their own pixels
             step = 1 << (len(pyramid) - 1)
             images = pyramid.pop()
@@ -177,25 +182,33 @@ class CoarseToFine:
                 quantise_normalised(normalise_contrast(images[0])),
                 quantise_normalised(normalise_contrast(images[1])),
             )
-            fixed = self._fine(pair, fields, pool, step)
+            fixed = self._fine(pair, fields, pool, step, blind)
             fields = [_pixels(f, (lv.d_min // step) * 16) for f in fixed]
         norm_left, norm_right = normalised.result()
-        fixed = self._fine((quantise_normalised(norm_left), quantise_normalised(norm_right)), fields, pool, 1)
-        unsearched = min(left.shape[1], lv.scale * found.right_unsearched_from)
+        fixed = self._fine(
+            (quantise_normalised(norm_left), quantise_normalised(norm_right)), fields, pool, 1, blind
+        )
         return UnfilteredDisparity(
             fixed[0], fixed[1] if len(fixed) > 1 else None, unsearched, (norm_left, norm_right)
         )
 
     def _search(self, left: U8, right: U8, seen: SeenColumns | None) -> CoarseSearch:
-        """The coarse level's matcher on coarse images, speckles removed, in coarse px."""
+        """The coarse level's matcher on coarse images, speckles removed, in coarse px. The
+        images get a few repeated columns on the right first: OpenCV's SGBM gives its last two
+        columns disparity 0, harmless at full resolution (no range) but a hypothesis of 0 to 1
+        px for four full-resolution columns (a far surface there)."""
+        w = left.shape[1]
+        pad = self.level.window // 2 + 1
+        left, right = (cv2.copyMakeBorder(img, 0, 0, 0, pad, cv2.BORDER_REPLICATE) for img in (left, right))
         raw = self.coarse.compute(left, right, seen)
         valid_from = self.level.coarse_min * 16
         mirrored = None
         if raw.mirrored is not None:
             self.coarse.remove_speckles(raw.mirrored)
-            mirrored = _pixels(raw.mirrored, valid_from)
+            mirrored = _pixels(raw.mirrored[:, pad:], valid_from)  # mirrored: the padding is on the left
         self.coarse.remove_speckles(raw.left)
-        return CoarseSearch(_pixels(raw.left, valid_from), mirrored, raw.right_unsearched_from)
+        unsearched = min(w, raw.right_unsearched_from)
+        return CoarseSearch(_pixels(raw.left[:, :w], valid_from), mirrored, unsearched)
 
     def _with_prior(self, left: U8, right: U8, seen: SeenColumns | None) -> CoarseSearch:
         """The coarse search of the rows the temporal prior says changed, over its history."""
@@ -214,10 +227,14 @@ class CoarseToFine:
             fresh.append(CoarseSearch(part.left[keep], mirrored, part.right_unsearched_from))
         return self.prior.merge(left, right, spans, fresh)
 
-    def _fine(self, images: tuple[U8, U8], fields: list[F32], pool: Executor | None, step: int) -> list[I16]:
+    def _fine(
+        self, images: tuple[U8, U8], fields: list[F32], pool: Executor | None, step: int, blind: list[int]
+    ) -> list[I16]:
         """The band search at 1/``step`` of full resolution, of the left view and, given a
         second field, of the mirrored pair, around the hypotheses of the next coarser level's
-        ``fields`` (its px; NaN invalid); in row bands on ``pool``."""
+        ``fields`` (its px; NaN invalid); in row bands on ``pool``. Each view's first
+        ``blind`` columns (full resolution px) are left unmatched (the coarse level's hypotheses
+        reach a pixel into them)."""
         lv = self.level
         ref, other = images
         shape = (ref.shape[0], ref.shape[1])
@@ -230,7 +247,7 @@ class CoarseToFine:
 
         def band(view: int, r0: int, r1: int) -> None:
             ref, other, hyps = views[view]
-            outputs[view][r0:r1] = search_rows(
+            found = search_rows(
                 ref,
                 other,
                 hyps,
@@ -240,7 +257,11 @@ class CoarseToFine:
                 invalid=invalid if step > 1 else lv.invalid,
                 parabola=lv.parabola and step == 1,
             )
+            start = -(-blind[view] // step)
+            outputs[view][r0:r1, start:] = found[:, start:]
 
+        for view, out in enumerate(outputs):
+            out[:, : -(-blind[view] // step)] = invalid if step > 1 else lv.invalid
         futures: list[Future[None]] = []
         for view in range(len(views)):
             for r0 in range(0, shape[0], BAND_ROWS):

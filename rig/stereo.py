@@ -175,16 +175,18 @@ class StereoParams(SettingsModel):
 
     @property
     def coarse_factor(self) -> int:
-        """The coarse level's downsampling factor: 1 without the coarse-to-fine search; by
-        default 2 up to 128 disparities and 4 beyond (at most 64 coarse disparities up to 256)."""
-        if not self.coarse_to_fine:
+        """The coarse level's downsampling factor: 1 without the coarse-to-fine search (and for
+        block matching, cheap over the whole range); by default 2 up to 128 disparities and 4
+        beyond (at most 64 coarse disparities up to 256)."""
+        if not self.coarse_to_fine or self.stereo_algorithm != 1:
             return 1
         return self.coarse_scale or (2 if self.disparity_range <= COARSE_HALF_UP_TO else 4)
 
     def coarse_level(self) -> StereoParams:
         """The parameters of the coarse level's matcher (:attr:`coarse_factor`): the range in
         coarse pixels (covering this one, rounded up to a multiple of 16), speckles of a
-        proportional area, and a larger P2 (:data:`COARSE_P2_FACTOR`). Unchecked: derived."""
+        proportional area, and a larger P2 (:data:`COARSE_P2_FACTOR` times, up to half the path
+        costs' headroom; never below this level's). Unchecked: derived."""
         s = self.coarse_factor
         lo = self.min_disparity // s
         hi = -(-(self.min_disparity + self.disparity_range) // s)
@@ -197,7 +199,7 @@ class StereoParams(SettingsModel):
                 "disparity_range": -(-(hi - lo) // 16) * 16,
                 "speckle_size": self.speckle_size // (s * s),
                 "P1": float(p1),
-                "P2": float(max(p1 + 1, min(COARSE_P2_FACTOR * p2, headroom))),
+                "P2": float(max(p1 + 1, min(COARSE_P2_FACTOR * p2, max(p2, headroom // 2)))),
             }
         )
 
@@ -251,6 +253,7 @@ def _coarse_to_fine(p: StereoParams) -> CoarseToFine | None:
     level = FineLevel(
         scale=p.coarse_factor,
         coarse_min=coarse.min_disparity,
+        blind=p.blind_band_px,
         window=p.correlation_window_size,
         d_min=p.min_disparity,
         d_max=p.min_disparity + p.disparity_range - 1,
