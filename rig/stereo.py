@@ -284,7 +284,7 @@ class StereoMatcher:
         self._deferred_speckles = self.params.stereo_algorithm == 1 and self.params.speckle_size > 0
         deferred = {"speckle_size": 0} if self._deferred_speckles else {}
         self._matcher = create_opencv_matcher(self.params.model_copy(update=deferred))
-        self._coarse_to_fine = _coarse_to_fine(self.params)
+        self.coarse_to_fine_search = _coarse_to_fine(self.params)
 
     def _compute(self, left: U8, right: U8) -> NDArray[np.int16]:
         try:
@@ -321,9 +321,9 @@ class StereoMatcher:
         whole range. With ``seen``, each run matches only the columns its reference lens sees
         (and those their matches and windows need); the others are invalid."""
         self._check(left, right)
-        if self._coarse_to_fine is not None:
+        if self.coarse_to_fine_search is not None:
             prior = temporal_prior and self.params.temporal_prior
-            return self._coarse_to_fine.compute(left, right, seen, pool=pool, temporal_prior=prior)
+            return self.coarse_to_fine_search.compute(left, right, seen, pool=pool, temporal_prior=prior)
         width = left.shape[1]
         mirrored, unsearched = None, width
         if self.params.lr_check:

@@ -4,11 +4,12 @@ search's coarse disparities, and only the changed bands are searched again.
 
 Change is measured against the images each band was last *searched* on, not the previous frame,
 so a slow drift adds up until it counts. A band has changed when at least :data:`MIN_CHANGED`
-of its coarse pixels differ by more than the threshold in either image: :data:`THRESHOLD` grey
-levels, or five times the frame difference's own noise (its median absolute value) when that is
-larger. A changed band is searched with its neighbours (an object straddles bands; the matcher's
-paths need context), and every band is searched again at least every :data:`MAX_AGE` frames, in
-turn. The fine level always runs on the whole frame: the prior only says where to look.
+of its coarse pixels differ by more than :data:`THRESHOLD` grey levels in either image; when
+half of all pixels differ by more than half that (the light or the exposure changed, the view
+moved, or the noise is too high to tell), the whole frame is searched. A changed band is searched
+with its neighbours (an object straddles bands; the matcher's paths need context), and every band
+is searched again at least every :data:`MAX_AGE` frames, in turn. The fine level always runs on
+the whole frame: the prior only says where to look.
 """
 
 from __future__ import annotations
@@ -68,9 +69,11 @@ class TemporalPrior:
             return [(0, h)]
         diff = cv2.max(cv2.absdiff(left, self._left), cv2.absdiff(right, self._right))
         counts = np.bincount(diff.ravel(), minlength=256)
-        median = int(np.searchsorted(np.cumsum(counts), diff.size / 2))
-        threshold = max(THRESHOLD, 5 * 1.4826 * median)
-        over = diff > threshold
+        if np.cumsum(counts)[THRESHOLD // 2] < diff.size / 2:
+            # Half the pixels changed by more than half the threshold: the light, the exposure
+            # or the whole view changed (or the noise is too high to tell): everything.
+            return [(0, h)]
+        over = diff > THRESHOLD
         bands = -(-h // BAND_ROWS)
         padded = np.zeros((bands * BAND_ROWS, left.shape[1]), dtype=bool)
         padded[:h] = over
