@@ -56,14 +56,16 @@ class CoarseMatcher(Protocol):
 
 @dataclass(frozen=True)
 class FineLevel:
-    """The search's figures: the coarse level's ``scale`` and smallest disparity (coarse px),
-    the columns on the left it leaves unmatched (``blind``, full-resolution px: the fine levels
-    leave them too), the full resolution's block ``window``, disparity bounds ``[d_min, d_max]``
-    and fixed-point value of an invalid pixel; ``lr_check``: search the right view too;
-    ``parabola``: subpixel offsets (else whole pixels, for a refinement that follows)."""
+    """The search's figures: the coarse level's ``scale``, smallest disparity and disparities
+    searched beyond the range (``beyond``; coarse px), the columns on the left it leaves
+    unmatched (``blind``, full-resolution px: the fine levels leave them too), the full
+    resolution's block ``window``, disparity bounds ``[d_min, d_max]`` and fixed-point value of
+    an invalid pixel; ``lr_check``: search the right view too; ``parabola``: subpixel offsets
+    (else whole pixels, for a refinement that follows)."""
 
     scale: int
     coarse_min: int
+    beyond: int
     blind: int
     window: int
     d_min: int
@@ -193,22 +195,35 @@ class CoarseToFine:
         )
 
     def _search(self, left: U8, right: U8, seen: SeenColumns | None) -> CoarseSearch:
-        """The coarse level's matcher on coarse images, speckles removed, in coarse px. The
-        images get a few repeated columns on the right first: OpenCV's SGBM gives its last two
-        columns disparity 0, harmless at full resolution (no range) but a hypothesis of 0 to 1
-        px for four full-resolution columns (a far surface there)."""
+        """The coarse level's matcher on coarse images, speckles removed, in coarse px; where
+        it finds a disparity beyond the range (a surface too near), none.
+
+        The images get repeated columns either side first: on the left as many as the search
+        goes beyond the range, so that its unmatched band stays the range's (those disparities
+        only say "too near"), on the right as many again (the mirrored pair's band) and a few:
+        OpenCV's SGBM gives its last two columns disparity 0, harmless at full resolution (no
+        range) but a hypothesis of 0 to 1 px for four full-resolution columns (a far surface)."""
+        lv = self.level
         w = left.shape[1]
-        pad = self.level.window // 2 + 1
-        left, right = (cv2.copyMakeBorder(img, 0, 0, 0, pad, cv2.BORDER_REPLICATE) for img in (left, right))
+        beyond, pad = lv.beyond, lv.window // 2 + 1
+        left, right = (
+            cv2.copyMakeBorder(img, 0, 0, beyond, beyond + pad, cv2.BORDER_REPLICATE) for img in (left, right)
+        )
+        if seen is not None:
+            seen = SeenColumns(*((a + beyond, b + beyond) for a, b in (seen.left, seen.right)))
         raw = self.coarse.compute(left, right, seen)
-        valid_from = self.level.coarse_min * 16
+        valid_from = lv.coarse_min * 16
+        # Beyond the range (a full-resolution pixel's tolerance): too near, no hypothesis.
+        too_near = (lv.d_max + 1) * 16 // lv.scale
         mirrored = None
-        if raw.mirrored is not None:
+        if raw.mirrored is not None:  # mirrored: the right-hand padding is on its left
             self.coarse.remove_speckles(raw.mirrored)
-            mirrored = _pixels(raw.mirrored[:, pad:], valid_from)  # mirrored: the padding is on the left
+            mirrored = _pixels(raw.mirrored[:, beyond + pad : beyond + pad + w], valid_from, too_near)
         self.coarse.remove_speckles(raw.left)
-        unsearched = min(w, raw.right_unsearched_from)
-        return CoarseSearch(_pixels(raw.left[:, :w], valid_from), mirrored, unsearched)
+        unsearched = min(w, raw.right_unsearched_from - beyond)
+        return CoarseSearch(
+            _pixels(raw.left[:, beyond : beyond + w], valid_from, too_near), mirrored, unsearched
+        )
 
     def _with_prior(self, left: U8, right: U8, seen: SeenColumns | None) -> CoarseSearch:
         """The coarse search of the rows the temporal prior says changed, over its history."""
@@ -271,9 +286,12 @@ class CoarseToFine:
         return outputs
 
 
-def _pixels(fixed: I16, valid_from: int) -> F32:
-    """A fixed-point disparity (1/16 px) in px, NaN below ``valid_from`` (1/16 px)."""
+def _pixels(fixed: I16, valid_from: int, beyond: int | None = None) -> F32:
+    """A fixed-point disparity (1/16 px) in px, NaN below ``valid_from`` and above ``beyond``
+    (1/16 px)."""
     out = fixed.astype(np.float32)
     out *= np.float32(1.0 / 16.0)
     out[fixed < valid_from] = np.nan
+    if beyond is not None:
+        out[fixed > beyond] = np.nan
     return out

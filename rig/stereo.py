@@ -170,8 +170,23 @@ class StereoParams(SettingsModel):
         s = self.coarse_factor
         if s == 1:
             return max(0, self.min_disparity + self.disparity_range)
-        coarse = self.coarse_level()
-        return max(0, s * (coarse.min_disparity + coarse.disparity_range))
+        lo, core = self._coarse_span()
+        return max(0, s * (lo + core))
+
+    def _coarse_span(self) -> tuple[int, int]:
+        """The coarse level's smallest disparity and the range that covers this one's (coarse
+        px, rounded up to a multiple of 16)."""
+        s = self.coarse_factor
+        lo = self.min_disparity // s
+        hi = -(-(self.min_disparity + self.disparity_range) // s)
+        return lo, -(-(hi - lo) // 16) * 16
+
+    @property
+    def coarse_beyond(self) -> int:
+        """Coarse disparities the coarse level searches beyond the range (a multiple of 16, a
+        quarter of the range or more): a surface nearer than the range reaches is found there
+        and left without depth, rather than matched wrongly within the range."""
+        return -(-self._coarse_span()[1] // 64) * 16
 
     @property
     def coarse_factor(self) -> int:
@@ -184,19 +199,19 @@ class StereoParams(SettingsModel):
 
     def coarse_level(self) -> StereoParams:
         """The parameters of the coarse level's matcher (:attr:`coarse_factor`): the range in
-        coarse pixels (covering this one, rounded up to a multiple of 16), speckles of a
-        proportional area, and a larger P2 (:data:`COARSE_P2_FACTOR` times, up to half the path
-        costs' headroom; never below this level's). Unchecked: derived."""
+        coarse pixels (covering this one, rounded up to a multiple of 16, and
+        :attr:`coarse_beyond` more), speckles of a proportional area, and a larger P2
+        (:data:`COARSE_P2_FACTOR` times, up to half the path costs' headroom; never below this
+        level's). Unchecked: derived."""
         s = self.coarse_factor
-        lo = self.min_disparity // s
-        hi = -(-(self.min_disparity + self.disparity_range) // s)
+        lo, core = self._coarse_span()
         p1, p2 = self.penalties()
         headroom = MAX_PATH_COST - COST_PER_WINDOW_PIXEL * self.correlation_window_size**2
         return self.model_copy(
             update={
                 "coarse_to_fine": False,
                 "min_disparity": lo,
-                "disparity_range": -(-(hi - lo) // 16) * 16,
+                "disparity_range": core + self.coarse_beyond,
                 "speckle_size": self.speckle_size // (s * s),
                 "P1": float(p1),
                 "P2": float(max(p1 + 1, min(COARSE_P2_FACTOR * p2, max(p2, headroom // 2)))),
@@ -253,6 +268,7 @@ def _coarse_to_fine(p: StereoParams) -> CoarseToFine | None:
     level = FineLevel(
         scale=p.coarse_factor,
         coarse_min=coarse.min_disparity,
+        beyond=p.coarse_beyond,
         blind=p.blind_band_px,
         window=p.correlation_window_size,
         d_min=p.min_disparity,
