@@ -25,6 +25,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -42,6 +43,8 @@ QUANT_SCALE = 32.0
 #: Output rows per band of the search.
 BAND_ROWS = 128
 _NO_COST = int(np.iinfo(np.uint16).max)
+# OpenCV calls with a scalar operand or without a second map, which its type stubs leave out.
+_cv: Any = cv2
 _NOT_KEPT = int(np.iinfo(np.int8).min)
 
 
@@ -89,7 +92,7 @@ class BandSearch:
         self._reach = reach  # the largest |j| or parabola step asked for
         # ``other`` with ``reach`` replicated columns either side: its view from column
         # ``reach − j`` is other(u − j), so one map serves every shift j.
-        self._padded = cv2.copyMakeBorder(other, 0, 0, reach, reach, cv2.BORDER_REPLICATE)
+        self._padded: U8 = np.asarray(cv2.copyMakeBorder(other, 0, 0, reach, reach, cv2.BORDER_REPLICATE))
         h, w = ref.shape
         self._grid = _grid(h, w)
         self.best_cost: U16 = np.full((h, w), _NO_COST, dtype=np.uint16)
@@ -114,7 +117,7 @@ class BandSearch:
 
     def _cost(self, columns: I16, j: int) -> U16:
         """Block cost of matching each pixel with ``other`` at ``columns − j``."""
-        gathered = cv2.remap(
+        gathered = _cv.remap(
             self._shifted(j), columns, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE
         )
         cv2.absdiff(self.ref, gathered, dst=gathered)
@@ -126,7 +129,7 @@ class BandSearch:
         pixel's best try so far (earlier tries win ties). ``keep``: remember this hypothesis's
         costs for the parabola (:meth:`fixed_point`)."""
         d0 = hypothesis.centre
-        proposes = cv2.compare(d0, NONE, cv2.CMP_NE)
+        proposes = _cv.compare(d0, NONE, cv2.CMP_NE)
         # A pixel it proposes nothing for is gathered at disparity 0 (it still sits in its
         # neighbours' blocks).
         columns = self._map(d0, proposes)
@@ -140,7 +143,7 @@ class BandSearch:
             # d0 + j within [d_min, d_max]
             cv2.bitwise_and(better, cv2.inRange(d0, self.d_min - j, self.d_max - j), dst=better)
             cv2.copyTo(cost, better, self.best_cost)
-            cv2.copyTo(np.asarray(cv2.add(d0, j), dtype=np.int16), better, self.best)
+            cv2.copyTo(np.asarray(_cv.add(d0, j), dtype=np.int16), better, self.best)
             if self._kept_shift is not None:
                 if keep:
                     self._kept[j] = cost

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from concurrent.futures import Executor, Future
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -81,10 +81,9 @@ def downsample(image: U8, scale: int) -> U8:
     ``[s·i, s·i + s)`` × ``[s·j, s·j + s)``."""
     h, w = image.shape
     pad_h, pad_w = -h % scale, -w % scale
-    if pad_h or pad_w:
-        image = cv2.copyMakeBorder(image, 0, pad_h, 0, pad_w, cv2.BORDER_REPLICATE)
+    padded = cv2.copyMakeBorder(image, 0, pad_h, 0, pad_w, cv2.BORDER_REPLICATE) if pad_h or pad_w else image
     size = ((w + pad_w) // scale, (h + pad_h) // scale)
-    return np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), dtype=np.uint8)
+    return np.asarray(cv2.resize(padded, size, interpolation=cv2.INTER_AREA), dtype=np.uint8)
 
 
 def _upsampled(coarse: F32, shape: tuple[int, int], scale: int, interpolation: int) -> F32:
@@ -97,7 +96,8 @@ def _upsampled(coarse: F32, shape: tuple[int, int], scale: int, interpolation: i
 def _centres(field: F32, scale: int) -> I16:
     """A field (H, W) of coarse px, ``NONE / scale`` where none, as whole full-resolution px:
     ``round(field · scale)`` saturated to int16 (:data:`NONE` where none)."""
-    return np.asarray(cv2.multiply(field, float(scale), dtype=cv2.CV_16S), dtype=np.int16)
+    scaled: Any = cv2.multiply  # (a scalar factor: OpenCV's type stubs leave it out)
+    return np.asarray(scaled(field, float(scale), dtype=cv2.CV_16S), dtype=np.int16)
 
 
 def hypotheses(coarse: F32, shape: tuple[int, int], scale: int) -> list[Hypothesis]:
@@ -207,7 +207,10 @@ class CoarseToFine:
         w = left.shape[1]
         beyond, pad = lv.beyond, lv.window // 2 + 1
         left, right = (
-            cv2.copyMakeBorder(img, 0, 0, beyond, beyond + pad, cv2.BORDER_REPLICATE) for img in (left, right)
+            np.asarray(
+                cv2.copyMakeBorder(img, 0, 0, beyond, beyond + pad, cv2.BORDER_REPLICATE), dtype=np.uint8
+            )
+            for img in (left, right)
         )
         if seen is not None:
             seen = SeenColumns(*((a + beyond, b + beyond) for a, b in (seen.left, seen.right)))
@@ -255,7 +258,11 @@ class CoarseToFine:
         shape = (ref.shape[0], ref.shape[1])
         views = [(ref, other, hypotheses(fields[0], shape, 2))]
         if len(fields) > 1:
-            views.append((cv2.flip(other, 1), cv2.flip(ref, 1), hypotheses(fields[1], shape, 2)))
+            mirrored = (
+                np.asarray(cv2.flip(other, 1), dtype=np.uint8),
+                np.asarray(cv2.flip(ref, 1), dtype=np.uint8),
+            )
+            views.append((*mirrored, hypotheses(fields[1], shape, 2)))
         outputs = [np.empty(shape, dtype=np.int16) for _ in views]
         d_range = (lv.d_min // step, -(-lv.d_max // step))
         invalid = (d_range[0] - 1) * 16

@@ -38,7 +38,8 @@ def test_done_when_prototype_plane_depth_within_2_percent(lut_cache: Path, coars
     stereo = StereoParams(coarse_to_fine=coarse_to_fine)
     pipe = DepthPipeline(prototype_rig(1.0), PINHOLE, stereo, cache_dir=lut_cache)
     print(
-        f"\nprototype plane, pinhole VPC, coarse_to_fine {coarse_to_fine}: central box within 2% of true depth"
+        f"\nprototype plane, pinhole VPC, coarse_to_fine {coarse_to_fine}: "
+        "central box within 2% of true depth"
     )
     # Measured (docs/stereo.md's figures): depth RMS (mm) and disparity RMS (px) at each distance.
     measured = {

@@ -185,7 +185,7 @@ def test_nothing_outside_the_range(subpixel: bool) -> None:
         params = StereoParams(disparity_range=32, min_disparity=1, subpixel=subpixel)
         res = StereoMatcher(params).match(left, right)
         found = res.disparity[res.valid]
-        assert found.size == 0 or (0.5 <= found.min() and found.max() <= 32.5), d
+        assert found.size == 0 or (found.min() >= 0.5 and found.max() <= 32.5), d
         assert found.size > 0.3 * left.size if d < 32 else found.size < 0.005 * left.size, d
     exact = StereoMatcher(StereoParams(disparity_range=32, min_disparity=1, coarse_to_fine=False))
     assert exact.match(left, right).valid[ROI].mean() > 0.1

@@ -93,8 +93,9 @@ def test_an_object_entering_the_view_has_depth_in_its_first_frame(
     }
     print(
         f"\nbox: {box.sum()} px; rows searched: static frames {searched_static:.3f}, the box's frame "
-        f"{searched_entering:.3f}; box within 5 %: prior {found['prior']:.3f}, whole search {found['whole']:.3f}; "
-        f"the room's range on it: prior {behind['prior']:.4f}, whole search {behind['whole']:.4f}"
+        f"{searched_entering:.3f}; box within 5 %: prior {found['prior']:.3f}, whole search "
+        f"{found['whole']:.3f}; the room's range on it: prior {behind['prior']:.4f}, whole search "
+        f"{behind['whole']:.4f}"
     )
     assert box.sum() > 1500, "the box is in view"
     # Static frames: only the bands due for their periodic search (and their neighbours).
