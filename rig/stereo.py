@@ -168,25 +168,8 @@ class StereoParams(SettingsModel):
         column ``min_disparity + disparity_range`` (a left pixel's match must lie in the image);
         the coarse-to-fine search at its coarse level's (the range rounded up to 16 coarse px)."""
         s = self.coarse_factor
-        if s == 1:
-            return max(0, self.min_disparity + self.disparity_range)
-        lo, core = self._coarse_span()
-        return max(0, s * (lo + core))
-
-    def _coarse_span(self) -> tuple[int, int]:
-        """The coarse level's smallest disparity and the range that covers this one's (coarse
-        px, rounded up to a multiple of 16)."""
-        s = self.coarse_factor
-        lo = self.min_disparity // s
-        hi = -(-(self.min_disparity + self.disparity_range) // s)
-        return lo, -(-(hi - lo) // 16) * 16
-
-    @property
-    def coarse_beyond(self) -> int:
-        """Coarse disparities the coarse level searches beyond the range (a multiple of 16, a
-        quarter of the range or more): a surface nearer than the range reaches is found there
-        and left without depth, rather than matched wrongly within the range."""
-        return -(-self._coarse_span()[1] // 64) * 16
+        lo, core, _ = self.coarse_span()
+        return max(0, s * (lo + core) if s > 1 else self.min_disparity + self.disparity_range)
 
     @property
     def coarse_factor(self) -> int:
@@ -197,21 +180,29 @@ class StereoParams(SettingsModel):
             return 1
         return self.coarse_scale or (2 if self.disparity_range <= COARSE_HALF_UP_TO else 4)
 
-    def coarse_level(self) -> StereoParams:
-        """The parameters of the coarse level's matcher (:attr:`coarse_factor`): the range in
-        coarse pixels (covering this one, rounded up to a multiple of 16, and
-        :attr:`coarse_beyond` more), speckles of a proportional area, and a larger P2
-        (:data:`COARSE_P2_FACTOR` times, up to half the path costs' headroom; never below this
-        level's). Unchecked: derived."""
+    def coarse_span(self) -> tuple[int, int, int]:
+        """The coarse level's smallest disparity, the range that covers this one (rounded up to
+        a multiple of 16) and how far it searches beyond that (16 per 64, at least 16: a surface
+        found there is too near and gets no depth, rather than a wrong match within the range);
+        coarse px."""
         s = self.coarse_factor
-        lo, core = self._coarse_span()
+        lo = self.min_disparity // s
+        core = -(-(-(-(self.min_disparity + self.disparity_range) // s) - lo) // 16) * 16
+        return lo, core, -(-core // 64) * 16
+
+    def coarse_level(self) -> StereoParams:
+        """The parameters of the coarse level's matcher (:meth:`coarse_span`), speckles of a
+        proportional area and a stiffer P2 (:data:`COARSE_P2_FACTOR` times, up to half the path
+        costs' headroom, never below this level's). Unchecked: derived."""
+        s = self.coarse_factor
+        lo, core, beyond = self.coarse_span()
         p1, p2 = self.penalties()
         headroom = MAX_PATH_COST - COST_PER_WINDOW_PIXEL * self.correlation_window_size**2
         return self.model_copy(
             update={
                 "coarse_to_fine": False,
                 "min_disparity": lo,
-                "disparity_range": core + self.coarse_beyond,
+                "disparity_range": core + beyond,
                 "speckle_size": self.speckle_size // (s * s),
                 "P1": float(p1),
                 "P2": float(max(p1 + 1, min(COARSE_P2_FACTOR * p2, max(p2, headroom // 2)))),
@@ -264,20 +255,13 @@ def _coarse_to_fine(p: StereoParams) -> CoarseToFine | None:
     """The coarse-to-fine search of ``p`` (None: the exact search)."""
     if p.coarse_factor == 1:
         return None
-    coarse = p.coarse_level()
+    lo, _, beyond = p.coarse_span()
+    d_min, d_max = p.min_disparity, p.min_disparity + p.disparity_range - 1
     level = FineLevel(
-        scale=p.coarse_factor,
-        coarse_min=coarse.min_disparity,
-        beyond=p.coarse_beyond,
-        blind=p.blind_band_px,
-        window=p.correlation_window_size,
-        d_min=p.min_disparity,
-        d_max=p.min_disparity + p.disparity_range - 1,
-        invalid=(p.min_disparity - 1) * 16,
-        lr_check=p.lr_check,
-        parabola=not p.subpixel,
-    )
-    return CoarseToFine(StereoMatcher(coarse), level)
+        p.coarse_factor, lo, beyond, p.blind_band_px, p.correlation_window_size, d_min, d_max,
+        (d_min - 1) * 16, p.lr_check, not p.subpixel,
+    )  # fmt: skip
+    return CoarseToFine(StereoMatcher(p.coarse_level()), level)
 
 
 class StereoMatcher:

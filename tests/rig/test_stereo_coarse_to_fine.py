@@ -158,8 +158,9 @@ def test_the_refinement_gets_the_normalisation_it_would_make() -> None:
 def test_the_coarse_level(disparities: int, scale: int, coarse_range: int) -> None:
     p = StereoParams(disparity_range=disparities)
     coarse = p.coarse_level()
-    assert p.coarse_factor == scale and coarse.disparity_range == coarse_range + p.coarse_beyond
-    assert p.coarse_beyond == 16 and p.coarse_beyond >= coarse_range / 4
+    _, core, beyond = p.coarse_span()
+    assert p.coarse_factor == scale and core == coarse_range and coarse.disparity_range == core + beyond
+    assert beyond == 16 and beyond >= coarse_range / 4
     assert not coarse.coarse_to_fine and coarse.min_disparity == 0
     # It covers the range, and leaves the same columns unmatched as the exact search.
     assert scale * coarse.disparity_range >= disparities
