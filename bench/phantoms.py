@@ -83,6 +83,7 @@ CANDIDATES = (
     Candidate("96 + LR check (exact)", EXACT),
     Candidate("64 + LR check", {"disparity_range": 64, "lr_check": True, **EXACT}),
     Candidate("96 + LR check, coarse-to-fine (default)", {}),
+    Candidate("64 + LR check, coarse-to-fine", {"disparity_range": 64}),
     Candidate("256 + LR check, coarse-to-fine", {"disparity_range": 256}),
 )
 QUICK = (CANDIDATES[0], CANDIDATES[7])

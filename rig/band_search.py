@@ -23,7 +23,7 @@ the whole frame's, bit for bit.
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,7 +31,16 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["BAND_ROWS", "NONE", "BandSearch", "Hypothesis", "quantise_normalised", "search_rows"]
+__all__ = [
+    "BAND_ROWS",
+    "NONE",
+    "BandSearch",
+    "HypothesesOf",
+    "Hypothesis",
+    "of_rows",
+    "quantise_normalised",
+    "search_rows",
+]
 
 U8 = NDArray[np.uint8]
 I16 = NDArray[np.int16]
@@ -173,10 +182,19 @@ class BandSearch:
         return fixed
 
 
+HypothesesOf = Callable[[int, int], Sequence[Hypothesis]]
+"""``hypotheses(a, b)``: the hypotheses of image rows ``[a, b)`` ((b − a, W) each)."""
+
+
+def of_rows(hypotheses: Sequence[Hypothesis]) -> HypothesesOf:
+    """The rows of whole-image hypotheses (H, W)."""
+    return lambda a, b: [Hypothesis(h.centre[a:b], h.half_width) for h in hypotheses]
+
+
 def search_rows(
     ref: U8,
     other: U8,
-    hypotheses: Sequence[Hypothesis],
+    hypotheses: HypothesesOf,
     rows: tuple[int, int],
     *,
     window: int,
@@ -185,16 +203,17 @@ def search_rows(
     parabola: bool,
 ) -> I16:
     """:class:`BandSearch` of output rows ``rows = (r0, r1)`` of the whole images ``ref``/``other``
-    (H, W) and hypotheses (H, W): the block of rows with the margin that makes it exact (a block
-    cost reaches ``window // 2`` rows). ``parabola``: a subpixel offset where the first
-    hypothesis's band (searched one shift wider) has the best try."""
+    (H, W), with the hypotheses of the rows it reads: the block of rows with the margin that
+    makes it exact (a block cost reaches ``window // 2`` rows). ``parabola``: a subpixel offset
+    where the first hypothesis's band (searched one shift wider) has the best try."""
     r0, r1 = rows
     margin = window // 2
     a, b = max(0, r0 - margin), min(ref.shape[0], r1 + margin)
-    reach = max(h.half_width for h in hypotheses) + 1
+    proposed = hypotheses(a, b)
+    reach = max(h.half_width for h in proposed) + 1
     search = BandSearch(ref[a:b], other[a:b], window, d_range[0], d_range[1], reach)
-    for i, h in enumerate(hypotheses):
+    for i, h in enumerate(proposed):
         # With the parabola: the first hypothesis one shift wider, its costs kept.
         wider = parabola and i == 0
-        search.search(Hypothesis(h.centre[a:b], h.half_width + wider), keep=wider)
+        search.search(Hypothesis(h.centre, h.half_width + wider), keep=wider)
     return search.fixed_point(invalid, parabola)[r0 - a : r1 - a]

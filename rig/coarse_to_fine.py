@@ -29,13 +29,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from rig.band_search import BAND_ROWS, NONE, Hypothesis, quantise_normalised, search_rows
+from rig.band_search import BAND_ROWS, NONE, HypothesesOf, Hypothesis, quantise_normalised, search_rows
 from rig.bands import submit_or_run
 from rig.disparity import SeenColumns, UnfilteredDisparity
 from rig.subpixel import Normalisation, normalise_contrast
 from rig.temporal_prior import CoarseSearch, TemporalPrior
 
-__all__ = ["CoarseMatcher", "CoarseToFine", "FineLevel", "downsample", "hypotheses"]
+__all__ = ["CoarseMatcher", "CoarseToFine", "FineLevel", "band_hypotheses", "downsample", "hypotheses"]
 
 U8 = NDArray[np.uint8]
 I16 = NDArray[np.int16]
@@ -49,7 +49,9 @@ class CoarseMatcher(Protocol):
     """What the coarse level needs of its matcher (a :class:`rig.stereo.StereoMatcher` of the
     coarse parameters)."""
 
-    def compute(self, left: U8, right: U8, seen: SeenColumns | None = None) -> UnfilteredDisparity: ...
+    def left_view(self, left: U8, right: U8, seen: SeenColumns | None = None) -> I16: ...
+
+    def mirrored_view(self, left: U8, right: U8, seen: SeenColumns | None = None) -> tuple[I16, int]: ...
 
     def remove_speckles(self, fixed: I16) -> None: ...
 
@@ -125,6 +127,21 @@ def hypotheses(coarse: F32, shape: tuple[int, int], scale: int) -> list[Hypothes
     return [Hypothesis(centres[0], 1), Hypothesis(centres[1], 0), Hypothesis(centres[2], 0)]
 
 
+def band_hypotheses(coarse: F32, width: int, height: int, scale: int) -> HypothesesOf:
+    """:func:`hypotheses` of a coarse field made for the rows asked for only (each band's on its
+    own thread): from the coarse rows they come from and two more either side, so that they are
+    the whole image's, bit for bit (the bilinear field and the 3×3 extremes reach one coarse
+    row)."""
+
+    def rows(a: int, b: int) -> list[Hypothesis]:
+        c0, c1 = max(0, a // scale - 2), min(coarse.shape[0], -(-b // scale) + 2)
+        top = c0 * scale
+        part = hypotheses(coarse[c0:c1], (min(height, c1 * scale) - top, width), scale)
+        return [Hypothesis(h.centre[a - top : b - top], h.half_width) for h in part]
+
+    return rows
+
+
 def _coarse_seen(seen: SeenColumns | None, scale: int) -> SeenColumns | None:
     if seen is None:
         return None
@@ -139,9 +156,11 @@ class CoarseToFine:
     """The search (module doc) with the ``coarse`` level's matcher and the ``level``'s figures.
     Not safe for concurrent calls (the matcher's scratch buffers, the temporal prior)."""
 
-    def __init__(self, coarse: CoarseMatcher, level: FineLevel) -> None:
+    def __init__(self, coarse: tuple[CoarseMatcher, CoarseMatcher], level: FineLevel) -> None:
         if level.scale not in (2, 4):
             raise ValueError(f"coarse-to-fine: the coarse level is 1/2 or 1/4, not 1/{level.scale}")
+        # A matcher per view, so that the two views' searches run at once (an OpenCV matcher
+        # keeps scratch buffers).
         self.coarse = coarse
         self.level = level
         self.prior = TemporalPrior()
@@ -169,9 +188,9 @@ class CoarseToFine:
         coarse_left, coarse_right = pyramid.pop()
         coarse_seen = _coarse_seen(seen, lv.scale)
         if temporal_prior:
-            found = self._with_prior(coarse_left, coarse_right, coarse_seen)
+            found = self._with_prior(coarse_left, coarse_right, coarse_seen, pool)
         else:  # (a pair outside the stream leaves the stream's history alone)
-            found = self._search(coarse_left, coarse_right, coarse_seen)
+            found = self._search(coarse_left, coarse_right, coarse_seen, pool)
         fields = [found.left] if found.mirrored is None else [found.left, found.mirrored]
         # The coarse level's unmatched columns, full resolution, per view (the right one's are on
         # its right, so on the left of the mirrored view): the fine levels leave them unmatched too.
@@ -194,9 +213,10 @@ class CoarseToFine:
             fixed[0], fixed[1] if len(fixed) > 1 else None, unsearched, (norm_left, norm_right)
         )
 
-    def _search(self, left: U8, right: U8, seen: SeenColumns | None) -> CoarseSearch:
-        """The coarse level's matcher on coarse images, speckles removed, in coarse px; where
-        it finds a disparity beyond the range (a surface too near), none.
+    def _search(self, left: U8, right: U8, seen: SeenColumns | None, pool: Executor | None) -> CoarseSearch:
+        """The coarse level's matcher on coarse images (the mirrored pair's on ``pool`` while
+        the left view's runs here), speckles removed, in coarse px; where it finds a disparity
+        beyond the range (a surface too near), none.
 
         The images get repeated columns either side first: on the left as many as the search
         goes beyond the range, so that its unmatched band stays the range's (those disparities
@@ -214,32 +234,41 @@ class CoarseToFine:
         )
         if seen is not None:
             seen = SeenColumns(*((a + beyond, b + beyond) for a, b in (seen.left, seen.right)))
-        raw = self.coarse.compute(left, right, seen)
         valid_from = lv.coarse_min * 16
         # Beyond the range (a full-resolution pixel's tolerance): too near, no hypothesis.
         too_near = (lv.d_max + 1) * 16 // lv.scale
-        mirrored = None
-        if raw.mirrored is not None:  # mirrored: the right-hand padding is on its left
-            self.coarse.remove_speckles(raw.mirrored)
-            mirrored = _pixels(raw.mirrored[:, beyond + pad : beyond + pad + w], valid_from, too_near)
-        self.coarse.remove_speckles(raw.left)
-        unsearched = min(w, raw.right_unsearched_from - beyond)
-        return CoarseSearch(
-            _pixels(raw.left[:, beyond : beyond + w], valid_from, too_near), mirrored, unsearched
-        )
+        first, second = self.coarse
 
-    def _with_prior(self, left: U8, right: U8, seen: SeenColumns | None) -> CoarseSearch:
+        def mirrored_view() -> tuple[F32, int]:
+            fixed, unsearched = second.mirrored_view(left, right, seen)
+            second.remove_speckles(fixed)  # mirrored: the right-hand padding is on its left
+            return _pixels(fixed[:, beyond + pad : beyond + pad + w], valid_from, too_near), unsearched
+
+        other = submit_or_run(pool, mirrored_view) if lv.lr_check else None
+        try:
+            fixed = first.left_view(left, right, seen)
+            first.remove_speckles(fixed)
+            found = _pixels(fixed[:, beyond : beyond + w], valid_from, too_near)
+        finally:
+            done = other.result() if other is not None else None
+        if done is None:
+            return CoarseSearch(found, None, w)
+        return CoarseSearch(found, done[0], min(w, done[1] - beyond))
+
+    def _with_prior(
+        self, left: U8, right: U8, seen: SeenColumns | None, pool: Executor | None
+    ) -> CoarseSearch:
         """The coarse search of the rows the temporal prior says changed, over its history."""
         h = left.shape[0]
         spans = self.prior.spans(left, right)
         fresh = []
         for a, b in spans:
             if (a, b) == (0, h):
-                fresh.append(self._search(left, right, seen))
+                fresh.append(self._search(left, right, seen, pool))
                 continue
             # Rows of context above and below: the matcher's paths run through them.
             top, bottom = max(0, a - PRIOR_MARGIN_ROWS), min(h, b + PRIOR_MARGIN_ROWS)
-            part = self._search(left[top:bottom], right[top:bottom], seen)
+            part = self._search(left[top:bottom], right[top:bottom], seen, pool)
             keep = slice(a - top, b - top)
             mirrored = None if part.mirrored is None else part.mirrored[keep]
             fresh.append(CoarseSearch(part.left[keep], mirrored, part.right_unsearched_from))
@@ -256,13 +285,13 @@ class CoarseToFine:
         lv = self.level
         ref, other = images
         shape = (ref.shape[0], ref.shape[1])
-        views = [(ref, other, hypotheses(fields[0], shape, 2))]
+        views = [(ref, other, band_hypotheses(fields[0], shape[1], shape[0], 2))]
         if len(fields) > 1:
             mirrored = (
                 np.asarray(cv2.flip(other, 1), dtype=np.uint8),
                 np.asarray(cv2.flip(ref, 1), dtype=np.uint8),
             )
-            views.append((*mirrored, hypotheses(fields[1], shape, 2)))
+            views.append((*mirrored, band_hypotheses(fields[1], shape[1], shape[0], 2)))
         outputs = [np.empty(shape, dtype=np.int16) for _ in views]
         d_range = (lv.d_min // step, -(-lv.d_max // step))
         invalid = (d_range[0] - 1) * 16

@@ -261,7 +261,8 @@ def _coarse_to_fine(p: StereoParams) -> CoarseToFine | None:
         p.coarse_factor, lo, beyond, p.blind_band_px, p.correlation_window_size, d_min, d_max,
         (d_min - 1) * 16, p.lr_check, not p.subpixel,
     )  # fmt: skip
-    return CoarseToFine(StereoMatcher(p.coarse_level()), level)
+    coarse = p.coarse_level()
+    return CoarseToFine((StereoMatcher(coarse), StereoMatcher(coarse)), level)  # a matcher per view
 
 
 class StereoMatcher:
@@ -324,13 +325,24 @@ class StereoMatcher:
         if self.coarse_to_fine_search is not None:
             prior = temporal_prior and self.params.temporal_prior
             return self.coarse_to_fine_search.compute(left, right, seen, pool=pool, temporal_prior=prior)
-        width = left.shape[1]
-        mirrored, unsearched = None, width
+        mirrored, unsearched = None, left.shape[1]
         if self.params.lr_check:
-            mirrored, start = self._compute_mirrored(left, right, seen.right if seen else (0, width))
-            unsearched = width - start - self.params.blind_band_px
-        left_disp, _ = self._compute_columns(left, right, seen.left if seen else (0, width))
-        return UnfilteredDisparity(left_disp, mirrored, unsearched)
+            mirrored, unsearched = self.mirrored_view(left, right, seen)
+        return UnfilteredDisparity(self.left_view(left, right, seen), mirrored, unsearched)
+
+    def left_view(self, left: U8, right: U8, seen: SeenColumns | None = None) -> NDArray[np.int16]:
+        """The OpenCV matcher's fixed-point disparity of the left view (:meth:`compute`'s exact
+        search without the mirrored pair)."""
+        return self._compute_columns(left, right, seen.left if seen else (0, left.shape[1]))[0]
+
+    def mirrored_view(
+        self, left: U8, right: U8, seen: SeenColumns | None = None
+    ) -> tuple[NDArray[np.int16], int]:
+        """The OpenCV matcher's fixed-point disparity of the mirrored pair (still mirrored) and
+        the right image's first column it never matched (:meth:`compute`'s second run)."""
+        width = left.shape[1]
+        mirrored, start = self._compute_mirrored(left, right, seen.right if seen else (0, width))
+        return mirrored, width - start - self.params.blind_band_px
 
     def _compute_columns(self, ref: U8, other: U8, seen: tuple[int, int]) -> tuple[NDArray[np.int16], int]:
         """The matcher on the columns of ``ref`` from ``seen[0]`` to ``seen[1]`` (and the ones

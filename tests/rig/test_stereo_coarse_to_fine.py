@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from rig.band_search import NONE, Hypothesis, search_rows
-from rig.coarse_to_fine import downsample, hypotheses
+from rig.band_search import NONE, Hypothesis, of_rows, search_rows
+from rig.coarse_to_fine import band_hypotheses, downsample, hypotheses
 from rig.stereo import StereoMatcher, StereoParams
 from rig.subpixel import normalise_contrast
 from tests.rig.test_stereo import ROI, shifted_pair
@@ -111,7 +111,7 @@ def test_band_search_is_a_brute_force_block_matcher(window: int) -> None:
     got = search_rows(
         ref,
         other,
-        [Hypothesis(centre, 2)],
+        of_rows([Hypothesis(centre, 2)]),
         (0, 60),
         window=window,
         d_range=(0, 40),
@@ -135,10 +135,15 @@ def test_band_layout_does_not_change_the_result() -> None:
     coarse = np.where(raw.left > 0, raw.left / 32.0, np.nan).astype(np.float32)[::2, ::2]
     hyps = hypotheses(coarse, left.shape, 2)
     kwargs = {"window": 7, "d_range": (0, 63), "invalid": -16, "parabola": True}
-    whole = search_rows(ref, other, hyps, (0, 150), **kwargs)  # type: ignore[arg-type]
+    whole = search_rows(ref, other, of_rows(hyps), (0, 150), **kwargs)  # type: ignore[arg-type]
+    # Each band's hypotheses made from its own coarse rows are the whole image's.
+    by_band = band_hypotheses(coarse, 120, 150, 2)
+    for a, b in ((0, 150), (0, 7), (3, 60), (61, 63), (100, 150)):
+        for mine, theirs in zip(by_band(a, b), of_rows(hyps)(a, b), strict=True):
+            np.testing.assert_array_equal(mine.centre, theirs.centre)
     for step in (1, 7, 50):
         parts = [
-            search_rows(ref, other, hyps, (r, min(150, r + step)), **kwargs) for r in range(0, 150, step)
+            search_rows(ref, other, by_band, (r, min(150, r + step)), **kwargs) for r in range(0, 150, step)
         ]  # type: ignore[arg-type]
         np.testing.assert_array_equal(np.concatenate(parts), whole)
 
