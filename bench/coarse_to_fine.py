@@ -105,11 +105,10 @@ def _rows(pairs: list[Pair], wide: list[Pair] | None, quick: bool) -> dict[str, 
     search = c2f.coarse_to_fine_search
     assert search is not None
     pool = refine_pool()
-    coarse_level = search.coarse
     quarter = max(16, (d // 4 + 15) // 16 * 16)
 
     def coarse(pair: Pair) -> object:
-        return coarse_level.compute(downsample(pair[0], 2), downsample(pair[1], 2))
+        return search.coarse_search(downsample(pair[0], 2), downsample(pair[1], 2), None, pool)
 
     rows: dict[str, Row] = {
         EXACT: (lambda p: exact.compute(*p), pairs),

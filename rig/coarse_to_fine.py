@@ -190,7 +190,7 @@ class CoarseToFine:
         if temporal_prior:
             found = self._with_prior(coarse_left, coarse_right, coarse_seen, pool)
         else:  # (a pair outside the stream leaves the stream's history alone)
-            found = self._search(coarse_left, coarse_right, coarse_seen, pool)
+            found = self.coarse_search(coarse_left, coarse_right, coarse_seen, pool)
         fields = [found.left] if found.mirrored is None else [found.left, found.mirrored]
         # The coarse level's unmatched columns, full resolution, per view (the right one's are on
         # its right, so on the left of the mirrored view): the fine levels leave them unmatched too.
@@ -213,7 +213,9 @@ class CoarseToFine:
             fixed[0], fixed[1] if len(fixed) > 1 else None, unsearched, (norm_left, norm_right)
         )
 
-    def _search(self, left: U8, right: U8, seen: SeenColumns | None, pool: Executor | None) -> CoarseSearch:
+    def coarse_search(
+        self, left: U8, right: U8, seen: SeenColumns | None, pool: Executor | None
+    ) -> CoarseSearch:
         """The coarse level's matcher on coarse images (the mirrored pair's on ``pool`` while
         the left view's runs here), speckles removed, in coarse px; where it finds a disparity
         beyond the range (a surface too near), none.
@@ -264,11 +266,11 @@ class CoarseToFine:
         fresh = []
         for a, b in spans:
             if (a, b) == (0, h):
-                fresh.append(self._search(left, right, seen, pool))
+                fresh.append(self.coarse_search(left, right, seen, pool))
                 continue
             # Rows of context above and below: the matcher's paths run through them.
             top, bottom = max(0, a - PRIOR_MARGIN_ROWS), min(h, b + PRIOR_MARGIN_ROWS)
-            part = self._search(left[top:bottom], right[top:bottom], seen, pool)
+            part = self.coarse_search(left[top:bottom], right[top:bottom], seen, pool)
             keep = slice(a - top, b - top)
             mirrored = None if part.mirrored is None else part.mirrored[keep]
             fresh.append(CoarseSearch(part.left[keep], mirrored, part.right_unsearched_from))

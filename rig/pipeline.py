@@ -9,7 +9,7 @@ with per-stage timings.
 
 ``process`` is three stages that a pipelined caller (:mod:`rig.staged`) may run on three
 threads, frame N+1's stage 1 while frame N is in stage 2 or 3: :meth:`rectify` (LUT remap + gray;
-thread-safe), :meth:`match` (the OpenCV matcher's parallel part; serialised) and
+thread-safe), :meth:`match` (the matcher's search; serialised) and
 :meth:`postprocess` (speckle removal, refinement, filters, confidence, depth; serialised, in
 frame order for the temporal filter).
 

@@ -1,9 +1,11 @@
 """Stereo matching on the rectified VPC pair (see docs/stereo.md).
 
 OpenCV ``StereoSGBM`` (any of its modes) or ``StereoBM``, configured with the parameter names
-of ROS ``stereo_image_proc``'s disparity node, plus our own stages: subpixel refinement
-and a confidence map (:mod:`rig.subpixel`), a full left-right check, median and temporal
-filters (:mod:`rig.filters`). Every stage is configuration; none is a code fork.
+of ROS ``stereo_image_proc``'s disparity node, searching the whole range at a coarse level and
+full resolution in narrow bands (:mod:`rig.coarse_to_fine`, the default) or the whole range at
+full resolution (``coarse_to_fine: false``, the exact search), plus our own stages: subpixel
+refinement and a confidence map (:mod:`rig.subpixel`), a full left-right check, median and
+temporal filters (:mod:`rig.filters`). Every stage is configuration; none is a code fork.
 
 Default choices (measured on the virtual environment; see docs/stereo.md, whose tables
 ``python -m bench.phantoms`` and ``pytest -s tests/rig/test_stereo_render.py tests/rig/test_filters.py``
@@ -13,7 +15,9 @@ left-right check on, chosen against *phantom obstacles*: a repetitive or weak te
 its next repeat gives a disparity one period too large, a near surface that is not there. Fewer
 disparities leave fewer wrong periods within reach, and the left-right check removes most of
 the rest; the price is the nearest depth (fx·B/96 at the VPC's fx) and a second matcher run
-(both measured in docs/stereo.md). The temporal filter is off (it lags moving scenes).
+(both measured in docs/stereo.md). The temporal filter is off (it lags moving scenes). The
+coarse-to-fine search gives the same coverage and error on the wide-pair study for about half the
+matching's CPU (docs/stereo.md, "Coarse-to-fine search").
 """
 
 from __future__ import annotations
@@ -266,16 +270,19 @@ def _coarse_to_fine(p: StereoParams) -> CoarseToFine | None:
 
 
 class StereoMatcher:
-    """OpenCV matcher built from :class:`StereoParams`; ``match`` runs it (and the LR check).
+    """The matcher of :class:`StereoParams`; ``match`` runs it (and the LR check).
 
-    ``match`` is :meth:`compute` (the OpenCV matcher's parallel part) then :meth:`disparity_of` (SGBM's
-    speckle removal, single-threaded, and the float conversion), so that a pipelined caller can
-    run the next pair's ``compute`` while this one is finished. ``StereoSGBM.compute`` ends with
-    that same ``filterSpeckles`` call on one core (~10 ms of a 1280×960 frame); the result is the
-    bare matcher's bit for bit (tested for every mode).
+    ``match`` is :meth:`compute` (the search: the coarse-to-fine one, or the OpenCV matcher's
+    parallel part) then :meth:`disparity_of` (SGBM's speckle removal, single-threaded, and the
+    float conversion), so that a pipelined caller can run the next pair's ``compute`` while this
+    one is finished. ``StereoSGBM.compute`` ends with that same ``filterSpeckles`` call on one
+    core (~10 ms of a 1280×960 frame); the exact search's result is the bare matcher's bit for
+    bit (tested for every mode). :meth:`raw`, :meth:`left_view`, :meth:`mirrored_view` and
+    :meth:`right_disparity` are the exact search's whatever the parameters.
 
-    ``compute`` is not safe for concurrent calls (OpenCV matchers keep scratch buffers); the
-    pipeline swaps whole instances instead of mutating one. ``disparity_of`` is.
+    ``compute`` is not safe for concurrent calls (OpenCV matchers keep scratch buffers, the
+    coarse-to-fine search its live history); the pipeline swaps whole instances instead of
+    mutating one. ``disparity_of`` is.
     """
 
     def __init__(self, params: StereoParams | None = None) -> None:
