@@ -25,9 +25,9 @@ venv: $(DEV_STAMP)
 demo: $(RUN_STAMP)
 	$(BIN)/rig serve --demo
 
-## test: run the whole test suite (slow tests included)
+## test: run the whole test suite (slow tests included), two workers (pytest-xdist), a module each at a time
 test: $(DEV_STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2 --dist loadscope
 
 ## lint: ruff (rules, complexity <= 15, format), mypy --strict, import layering (cli -> service -> rig -> calibration)
 lint: $(DEV_STAMP)

@@ -23,7 +23,11 @@ file descriptors (``/proc``), and per attack:
   frames);
 - ``poll``: 32 clients (16 on ``/depth``, 16 on ``/health``, 10 requests/s each) for
   ``--poll-s``: peak RSS against the service's memory budget (``rig_memory_budget_bytes`` in
-  ``/metrics``, where it has one).
+  ``/metrics``, where it has one);
+- ``listing``: ``GET /recordings`` (``--listings`` times) beside a recording a crash left with
+  ``--files`` frame files and one with a malformed recording.json: status and latency;
+- ``fox_stalled``, ``fox_idle``, ``fox_flood``, ``fox_reset``: the same against the Foxglove port
+  (``server.foxglove`` turned on for these), :mod:`bench.hostile_foxglove`.
 
 Run: ``.venv/bin/python -m bench.hostile`` (``--attack NAME`` for one, ``--quick`` for seconds).
 The machine is shared: figures taken under other load are pessimistic.
@@ -35,13 +39,9 @@ import argparse
 import asyncio
 import contextlib
 import json
-import os
-import resource
-import shutil
 import socket
 import time
 from collections.abc import Callable, Coroutine
-from pathlib import Path
 from typing import Any
 
 import httpx
@@ -49,13 +49,21 @@ from rich.table import Table
 
 from bench.common import add_common_arguments, bench_cache_dir, console, finish, machine_info, print_machine
 from bench.common import summary as stats_of
-from bench.hostile_clients import HealthProbe, flood_headers, read_stream_slowly
-from bench.service_proc import ServiceProcess, quick_serve_args
+from bench.hostile_clients import (
+    HealthProbe,
+    closed_by_peer,
+    flood_headers,
+    flooded,
+    hold_and_leave,
+    open_sockets,
+    read_stream_slowly,
+)
+from bench.hostile_foxglove import FOXGLOVE_ATTACKS, foxglove_env
+from bench.hostile_recordings import AUTH, TOKEN, attack_listing, attack_recording
+from bench.service_proc import ServiceProcess, free_port, quick_serve_args
 
 __all__ = ["ATTACKS", "FIELD_CHANGES", "main"]
 
-TOKEN = "hostile-bench-token-0123456789"
-AUTH = {"Authorization": f"Bearer {TOKEN}"}
 
 # Stereo fields and values a writer may set, each valid with any combination of the others.
 FIELD_CHANGES: tuple[tuple[str, Any], ...] = (
@@ -73,38 +81,6 @@ FIELD_CHANGES: tuple[tuple[str, Any], ...] = (
     ("subpixel_window", 13),
     ("lr_check", True),
 )
-
-
-def fd_count(pid: int) -> int:
-    try:
-        return len(os.listdir(f"/proc/{pid}/fd"))
-    except OSError:
-        return -1
-
-
-async def _health_doc(url: str) -> dict[str, Any]:
-    """``/health``'s document, or what came instead (``status`` says so)."""
-    try:
-        async with httpx.AsyncClient(timeout=30.0) as c:
-            r = await c.get(url + "/health")
-        doc: dict[str, Any] = r.json()
-        if "cameras" in doc:
-            return doc
-        return {"status": f"HTTP {r.status_code}", "reasons": [str(doc)[:300]], "cameras": {}}
-    except (httpx.HTTPError, ValueError) as err:
-        return {"status": "no answer", "reasons": [f"{type(err).__name__}: {err}"], "cameras": {}}
-
-
-def _closed_by_peer(sock: socket.socket) -> bool:
-    """Whether the server has closed ``sock`` (reads and drops whatever it sent first)."""
-    try:
-        while sock.recv(1 << 20, socket.MSG_DONTWAIT):
-            pass
-        return True
-    except BlockingIOError:
-        return False
-    except OSError:
-        return True
 
 
 def _host_port(svc: ServiceProcess) -> tuple[str, int]:
@@ -182,48 +158,20 @@ async def _open_streams(host: str, port: int, n: int) -> tuple[list[socket.socke
     return socks, statuses
 
 
-async def _in_use_mb(url: str) -> float | None:
-    """What malloc has handed out and not had back (RSS keeps freed memory for reuse)."""
-    async with httpx.AsyncClient(timeout=30.0) as c:
-        text = (await c.get(url + "/metrics")).text
-    for line in text.splitlines():
-        if line.startswith("rig_malloc_in_use_bytes "):
-            return float(line.split()[1]) / 2**20
-    return None
-
-
 async def attack_streams(svc: ServiceProcess, args: argparse.Namespace) -> dict[str, Any]:
     host, port = _host_port(svc)
-    rss0, in_use0 = svc.rss_mb(), await _in_use_mb(svc.url)
-    probe = HealthProbe(host, port).start()
-    socks, statuses = await _open_streams(host, port, args.streams)
-    peak = svc.rss_mb()
-    until = time.monotonic() + args.hold_s
-    while time.monotonic() < until:
-        await asyncio.sleep(0.5)
-        peak = max(peak, svc.rss_mb())
-    held, in_use_held = svc.rss_mb(), await _in_use_mb(svc.url)
-    fds_held = fd_count(svc.pid)
-    closed_by_server = sum(_closed_by_peer(s) for s in socks)
-    health = await probe.stop()
-    for s in socks:
-        s.close()
-    await asyncio.sleep(args.after_s)
+    statuses: dict[int, int] = {}
+
+    async def open_streams() -> list[socket.socket]:
+        socks, counts = await _open_streams(host, port, args.streams)
+        statuses.update(counts)
+        return socks
+
+    figures = await hold_and_leave(svc, open_streams, args.hold_s, args.after_s)
     return {
         "streams": args.streams,
         "statuses": {str(k): v for k, v in sorted(statuses.items())},
-        "rss_before_mb": rss0,
-        "rss_peak_mb": peak,
-        "rss_held_mb": held,
-        "rss_after_leave_mb": svc.rss_mb(),
-        "malloc_in_use_mb": {
-            "before": in_use0,
-            "held": in_use_held,
-            "after_leave": await _in_use_mb(svc.url),
-        },
-        "server_fds_held": fds_held,
-        "closed_by_server": closed_by_server,
-        "health": health,
+        **figures,
     }
 
 
@@ -237,62 +185,20 @@ async def attack_slow(svc: ServiceProcess, args: argparse.Namespace) -> dict[str
 
 async def attack_slowloris(svc: ServiceProcess, args: argparse.Namespace) -> dict[str, Any]:
     host, port = _host_port(svc)
-    soft, hard = resource.prlimit(svc.pid, resource.RLIMIT_NOFILE)
-    resource.prlimit(svc.pid, resource.RLIMIT_NOFILE, (min(1024, hard), hard))
-    before = await _health_doc(svc.url)
-    loop = asyncio.get_running_loop()
-    socks: list[socket.socket] = []
-    refused = 0
-
-    async def connect() -> None:
-        nonlocal refused
-        s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        s.setblocking(False)
-        try:
-            async with asyncio.timeout(10.0):
-                await loop.sock_connect(s, (host, port))
-                await loop.sock_sendall(s, f"GET /health HTTP/1.1\r\nHost: {host}\r\n".encode())
-            socks.append(s)
-        except (OSError, TimeoutError):
-            refused += 1
-            s.close()
-
-    probe = HealthProbe(host, port).start()
-    for k in range(0, args.sockets, 100):
-        await asyncio.gather(*(connect() for _ in range(min(100, args.sockets - k))))
-    fds_peak = fd_count(svc.pid)
-    until = time.monotonic() + args.slowloris_s
-    k = 0
-    while time.monotonic() < until:
-        for s in socks:
-            with contextlib.suppress(OSError):
-                s.send(f"X-{k}: {k}\r\n".encode())
-        k += 1
-        fds_peak = max(fds_peak, fd_count(svc.pid))
-        await asyncio.sleep(args.drip_s)
-    closed = sum(_closed_by_peer(s) for s in socks)
-    health = await probe.stop()
-    during = await _health_doc(svc.url)
-    for s in socks:
-        s.close()
-    await asyncio.sleep(2.0)
-    after = await _health_doc(svc.url)
-    resource.prlimit(svc.pid, resource.RLIMIT_NOFILE, (soft, hard))
-
-    def corrupt(doc: dict[str, Any]) -> int:
-        return sum(int(c.get("frames_corrupt") or 0) for c in doc["cameras"].values())
-
-    return {
-        "sockets": args.sockets,
-        "connect_failed": refused,
-        "server_fds_peak": fds_peak,
-        "closed_by_server": closed,
-        "corrupt_frames_counted": corrupt(after) - corrupt(before),
-        "status_during": during["status"],
-        "reasons_during": during["reasons"],
-        "status_after_leave": after["status"],
-        "health": health,
-    }
+    async with flooded(svc.pid, svc.url, host, port) as flood:
+        head = f"GET /health HTTP/1.1\r\nHost: {host}\r\n".encode()
+        flood.socks, refused = await open_sockets(host, port, args.sockets, head)
+        flood.sample()
+        until = time.monotonic() + args.slowloris_s
+        k = 0
+        while time.monotonic() < until:
+            for s in flood.socks:
+                with contextlib.suppress(OSError):
+                    s.send(f"X-{k}: {k}\r\n".encode())
+            k += 1
+            flood.sample()
+            await asyncio.sleep(args.drip_s)
+    return {"sockets": args.sockets, "connect_failed": refused, **flood.figures}
 
 
 async def attack_idle(svc: ServiceProcess, args: argparse.Namespace) -> dict[str, Any]:
@@ -302,39 +208,10 @@ async def attack_idle(svc: ServiceProcess, args: argparse.Namespace) -> dict[str
         s = socket.create_connection((host, port))
         socks.append(s)
     await asyncio.sleep(args.idle_s)
-    closed = sum(_closed_by_peer(s) for s in socks)
+    closed = sum(closed_by_peer(s) for s in socks)
     for s in socks:
         s.close()
     return {"connections": args.idle, "after_s": args.idle_s, "closed_by_server": closed}
-
-
-async def attack_recording(svc: ServiceProcess, args: argparse.Namespace) -> dict[str, Any]:
-    host, port = _host_port(svc)
-    name = f"hostile-{os.getpid()}-{int(time.time())}"
-    async with httpx.AsyncClient(timeout=60.0, headers=AUTH) as c:
-        r = await c.post(svc.url + "/recordings", json={"name": name})
-        r.raise_for_status()
-        path = Path(r.json()["path"])
-        try:
-            extra = path / "extra"
-            extra.mkdir()
-            for k in range(args.files):
-                (extra / f"{k:06d}.bin").touch()
-            probes = [HealthProbe(host, port, period_s=0.0).start() for _ in range(4)]
-            await asyncio.sleep(args.recording_s)
-            results = [await p.stop() for p in probes]
-            await c.post(svc.url + f"/recordings/{name}/stop")
-        finally:
-            shutil.rmtree(path, ignore_errors=True)
-    lat = sorted(x for p in probes for x in p.latencies_s)
-    s = stats_of([x * 1e3 for x in lat])
-    return {
-        "files": args.files,
-        "health_p50_ms": s["p50"],
-        "health_p95_ms": s["p95"],
-        "requests": s["n"],
-        "failures": sum(r["failures"] for r in results),
-    }
 
 
 async def attack_poll(svc: ServiceProcess, args: argparse.Namespace) -> dict[str, Any]:
@@ -392,13 +269,15 @@ ATTACKS: dict[str, Attack] = {
     "idle": attack_idle,
     "recording": attack_recording,
     "poll": attack_poll,
+    "listing": attack_listing,
+    **FOXGLOVE_ATTACKS,
 }
 
 
 def _quick(args: argparse.Namespace) -> None:
     args.writers, args.header_mib, args.streams, args.hold_s, args.after_s = 8, 2.0, 20, 2.0, 1.0
     args.slow_s, args.sockets, args.slowloris_s, args.idle, args.idle_s = 4.0, 50, 2.0, 10, 2.0
-    args.files, args.recording_s, args.poll_s = 300, 2.0, 3.0
+    args.files, args.recording_s, args.poll_s, args.viewers = 300, 2.0, 3.0, 4
 
 
 def _row(figures: dict[str, Any]) -> str:
@@ -432,8 +311,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--idle", type=int, default=50)
     parser.add_argument("--idle-s", type=float, default=30.0)
     parser.add_argument("--files", type=int, default=3000)
+    parser.add_argument("--listings", type=int, default=10, help="GET /recordings (listing)")
     parser.add_argument("--recording-s", type=float, default=8.0)
     parser.add_argument("--poll-s", type=float, default=20.0)
+    parser.add_argument("--viewers", type=int, default=25, help="Foxglove viewers (fox_stalled, fox_reset)")
     args = parser.parse_args(argv)
     if args.quick:
         _quick(args)
@@ -448,7 +329,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     table.add_column("attack")
     table.add_column("figures")
     for name in args.attack or list(ATTACKS):
-        with ServiceProcess([*serve_args, "--log-level", "warning"], env) as svc:
+        fox_port = free_port()
+        fox_env = foxglove_env(fox_port) if name.startswith("fox_") else {}
+        with ServiceProcess([*serve_args, "--log-level", "warning"], {**env, **fox_env}) as svc:
+            svc.foxglove_port = fox_port  # type: ignore[attr-defined]
             svc.wait_ready(600.0)
             time.sleep(1.0)
             figures: dict[str, Any] = asyncio.run(ATTACKS[name](svc, args))

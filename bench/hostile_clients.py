@@ -7,17 +7,74 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
+import resource
 import socket
 import time
+from collections.abc import AsyncIterator, Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from bench.common import summary as stats_of
+import httpx
 
-__all__ = ["BOUNDARY", "HealthProbe", "flood_headers", "parse_parts", "raw_get", "read_stream_slowly"]
+from bench.common import summary as stats_of
+from bench.service_proc import ServiceProcess
+
+__all__ = [
+    "BOUNDARY",
+    "Flood",
+    "HealthProbe",
+    "closed_by_peer",
+    "fd_count",
+    "flood_headers",
+    "flooded",
+    "health_doc",
+    "hold_and_leave",
+    "malloc_in_use_mb",
+    "open_sockets",
+    "parse_parts",
+    "raw_get",
+    "read_stream_slowly",
+    "read_until_closed",
+]
 
 BOUNDARY = b"--frame\r\n"
 HEALTH_TIMEOUT_S = 5.0
+
+
+def fd_count(pid: int) -> int:
+    """Open file descriptors of ``pid`` (-1 when it cannot be read)."""
+    try:
+        return len(os.listdir(f"/proc/{pid}/fd"))
+    except OSError:
+        return -1
+
+
+def closed_by_peer(sock: socket.socket) -> bool:
+    """Whether the server has closed ``sock`` (reads and drops whatever it sent first)."""
+    try:
+        while sock.recv(1 << 20, socket.MSG_DONTWAIT):
+            pass
+        return True
+    except BlockingIOError:
+        return False
+    except OSError:
+        return True
+
+
+def read_until_closed(sock: socket.socket, timeout_s: float) -> bytes:
+    """Everything the server sends until it closes, prefixed ``(still open)`` if it does not
+    within ``timeout_s`` of quiet (and ended with ``(reset)`` if it resets)."""
+    sock.settimeout(timeout_s)
+    data = b""
+    try:
+        while chunk := sock.recv(65536):
+            data += chunk
+    except TimeoutError:
+        return b"(still open) " + data
+    except ConnectionResetError:
+        return data + b"(reset)"
+    return data
 
 
 async def raw_get(host: str, port: int, path: str, timeout_s: float = HEALTH_TIMEOUT_S) -> tuple[int, float]:
@@ -158,3 +215,143 @@ async def read_stream_slowly(
     finally:
         sock.close()
     return ages
+
+
+async def health_doc(url: str) -> dict[str, Any]:
+    """``/health``'s document, or what came instead (``status`` says so)."""
+    try:
+        async with httpx.AsyncClient(timeout=30.0) as c:
+            r = await c.get(url + "/health")
+        doc: dict[str, Any] = r.json()
+        if "cameras" in doc:
+            return doc
+        return {"status": f"HTTP {r.status_code}", "reasons": [str(doc)[:300]], "cameras": {}}
+    except (httpx.HTTPError, ValueError) as err:
+        return {"status": "no answer", "reasons": [f"{type(err).__name__}: {err}"], "cameras": {}}
+
+
+async def malloc_in_use_mb(url: str) -> float | None:
+    """What malloc has handed out and not had back (RSS keeps freed memory for reuse)."""
+    async with httpx.AsyncClient(timeout=30.0) as c:
+        text = (await c.get(url + "/metrics")).text
+    for line in text.splitlines():
+        if line.startswith("rig_malloc_in_use_bytes "):
+            return float(line.split()[1]) / 2**20
+    return None
+
+
+def _corrupt_frames(doc: dict[str, Any]) -> int:
+    return sum(int(c.get("frames_corrupt") or 0) for c in doc["cameras"].values())
+
+
+@dataclass
+class Flood:
+    """What a descriptor flood measured: the attacker adds its sockets to ``socks`` and keeps
+    ``fds_peak`` (the server's descriptors) up to date; :func:`flooded` does the rest."""
+
+    pid: int
+    socks: list[socket.socket] = field(default_factory=list)
+    fds_peak: int = 0
+    figures: dict[str, Any] = field(default_factory=dict)
+
+    def sample(self) -> None:
+        self.fds_peak = max(self.fds_peak, fd_count(self.pid))
+
+
+@contextlib.asynccontextmanager
+async def flooded(pid: int, url: str, host: str, port: int, limit: int = 1024) -> AsyncIterator[Flood]:
+    """A flood of connections against the service ``pid`` (HTTP at ``url``, ``host:port``) with its
+    descriptor limit lowered to ``limit`` (a systemd service's default): ``/health`` probed
+    meanwhile; on leaving, how many sockets the server closed, ``/health`` during and 2 s after
+    the sockets closed, and the frames counted corrupt, in ``Flood.figures``."""
+    soft, hard = resource.prlimit(pid, resource.RLIMIT_NOFILE)
+    resource.prlimit(pid, resource.RLIMIT_NOFILE, (min(limit, hard), hard))
+    flood = Flood(pid)
+    try:
+        before = await health_doc(url)
+        probe = HealthProbe(host, port).start()
+        yield flood
+        closed = sum(closed_by_peer(s) for s in flood.socks)
+        health = await probe.stop()
+        during = await health_doc(url)
+        for s in flood.socks:
+            s.close()
+        await asyncio.sleep(2.0)
+        after = await health_doc(url)
+    finally:
+        resource.prlimit(pid, resource.RLIMIT_NOFILE, (soft, hard))
+    flood.figures = {
+        "server_fds_peak": flood.fds_peak,
+        "closed_by_server": closed,
+        "corrupt_frames_counted": _corrupt_frames(after) - _corrupt_frames(before),
+        "status_during": during["status"],
+        "reasons_during": during["reasons"][:3],
+        "status_after_leave": after["status"],
+        "health": health,
+    }
+
+
+async def open_sockets(host: str, port: int, n: int, first: bytes = b"") -> tuple[list[socket.socket], int]:
+    """``n`` connections (100 at a time) that send ``first`` and then nothing: the open sockets
+    and how many could not connect within 10 s."""
+    loop = asyncio.get_running_loop()
+    socks: list[socket.socket] = []
+    failed = 0
+
+    async def one() -> None:
+        nonlocal failed
+        s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        s.setblocking(False)
+        try:
+            async with asyncio.timeout(10.0):
+                await loop.sock_connect(s, (host, port))
+                if first:
+                    await loop.sock_sendall(s, first)
+            socks.append(s)
+        except (OSError, TimeoutError):
+            failed += 1
+            s.close()
+
+    for k in range(0, n, 100):
+        await asyncio.gather(*(one() for _ in range(min(100, n - k))))
+    return socks, failed
+
+
+async def hold_and_leave(
+    svc: ServiceProcess,
+    open_clients: Callable[[], Awaitable[list[socket.socket]]],
+    hold_s: float,
+    after_s: float,
+    ended: Callable[[socket.socket], bool] = closed_by_peer,
+) -> dict[str, Any]:
+    """Clients opened by ``open_clients`` held ``hold_s`` and closed: the service's RSS before,
+    at its peak, while held and ``after_s`` after they left, what malloc had in use then, the
+    server's peak descriptors, how many clients it had closed (``ended``), ``/health`` meanwhile."""
+    rss0, in_use0 = svc.rss_mb(), await malloc_in_use_mb(svc.url)
+    probe = HealthProbe("127.0.0.1", svc.port).start()
+    socks = await open_clients()
+    peak, fds_peak = svc.rss_mb(), fd_count(svc.pid)
+    until = time.monotonic() + hold_s
+    while time.monotonic() < until:
+        await asyncio.sleep(0.5)
+        peak, fds_peak = max(peak, svc.rss_mb()), max(fds_peak, fd_count(svc.pid))
+    held, in_use_held = svc.rss_mb(), await malloc_in_use_mb(svc.url)
+    closed = sum(ended(s) for s in socks)
+    health = await probe.stop()
+    for s in socks:
+        s.close()
+    await asyncio.sleep(after_s)
+    return {
+        "rss_before_mb": rss0,
+        "rss_peak_mb": peak,
+        "rss_held_mb": held,
+        "rss_after_leave_mb": svc.rss_mb(),
+        "malloc_in_use_mb": {
+            "before": in_use0,
+            "held": in_use_held,
+            "after_leave": await malloc_in_use_mb(svc.url),
+        },
+        "server_fds_peak": fds_peak,
+        "closed_by_server": closed,
+        "health": health,
+    }

@@ -7,6 +7,9 @@ frames; its OCamCalib models and poses, read by the test helper :mod:`tests.help
 2. Today's defaults: every adjacent pair through the depth pipeline on every frame; per couple
    of pairs sharing a camera the consistency figures (:mod:`rig.evaluate.consistency`), per pair
    the coverage of its view.
+2b. With the coarse-to-fine search (the default; not with ``--quick``): the exact search
+   (``coarse_to_fine: false``) on the same frames, and both searches' figures on the points
+   both give range for.
 3. The same after ``rig calibrate refine``'s refinement of each pair on the ring's frames
    (:func:`rig.rectification.refine.refine_frames`, the library behind the command: it turns
    each pair's right camera; each pair then runs on its own refined calibration).
@@ -14,6 +17,9 @@ frames; its OCamCalib models and poses, read by the test helper :mod:`tests.help
    (:mod:`bench.ring_analysis`).
 5. ``--renders``: the ring's own calibration rendered in the demo room (about 3 minutes), the
    measure with the exact calibration and with errors of known kinds.
+6. The joint refinement of the whole ring (:func:`rig.ring_refine.refine_ring`: one rotation per
+   camera fitted to every pair's matches at once), measured before and after, and whether its
+   gate applies it.
 
 Run: ``.venv/bin/python -m bench.ring_consistency`` (``--quick``: one frame, no refinement or
 analysis). Not a speed benchmark: it prints accuracy figures.
@@ -59,6 +65,7 @@ from rig.rectification import EpipolarViews, RayMatches, VerticalDisparity, matc
 from rig.rectification.refine import refine_frames
 from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from rig.ring import PairNames, adjacent_pairs
+from rig.ring_refine import RingRefineOptions, refine_ring
 from rig.sim import room_scene
 from rig.sim.simulate import room_path
 from rig.stereo import StereoParams
@@ -343,6 +350,29 @@ def _renders(ring: RealRing, pairs: Sequence[PairNames], cache: str) -> dict[str
     return out
 
 
+def _ring_refined(ring: RealRing, cache: str) -> dict[str, Any]:
+    result = refine_ring(ring.rig, ring.frames, options=RingRefineOptions(cache_dir=cache))
+    table = Table(title="6. the whole ring refined at once: vertical disparity p50 and coverage")
+    for col in ("pair", "camera turned deg", "|vert. disp.| before → after px", "coverage before → after"):
+        table.add_column(col, justify="right")
+    for a, b in result.vertical_before:
+        turn = np.linalg.norm(result.corrections_deg[b])
+        v0, v1 = result.vertical_before[(a, b)].p50_px, result.vertical_after[(a, b)].p50_px
+        c0, c1 = result.coverage_before[(a, b)], result.coverage_after[(a, b)]
+        table.add_row(f"{a}|{b}", f"{b} {turn:.3f}", f"{v0:.2f} → {v1:.2f}", f"{c0:.3f} → {c1:.3f}")
+    console.print(table)
+    for label, before in result.agreement_before.items():
+        after = result.agreement_after[label]
+        console.print(f"  {label}: median disagreement {100 * before:.2f} → {100 * after:.2f} %")
+    console.print(f"  applied: {result.applied}" + (f" ({result.reason})" if result.reason else ""))
+    return {
+        "applied": result.applied,
+        "reason": result.reason,
+        "corrections_deg": {k: v.tolist() for k, v in result.corrections_deg.items()},
+        "agreement": {k: [v, result.agreement_after[k]] for k, v in result.agreement_before.items()},
+    }
+
+
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -392,6 +422,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         rigs, results["refinement"] = _refined(ring, pairs, matches)
         refined = consistency_study(ring.rig, ring.frames, pairs, stereo=stereo, cache_dir=cache, rigs=rigs)
         results["refined"] = _print_study(f"3. {settings}, each pair refined", refined)
+        results["ring_refined"] = _ring_refined(ring, cache)
     if keep:
         results["analysis"] = _analysis(ring, study, pairs, cache)
     if args.renders:

@@ -16,12 +16,22 @@ import sys
 import threading
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
 
 import httpx
 
-__all__ = ["ServiceProcess", "free_port", "proc_cpu_s", "proc_rss_mb", "quick_serve_args", "serve_args_for"]
+__all__ = [
+    "RigRun",
+    "ServiceProcess",
+    "free_port",
+    "proc_cpu_s",
+    "proc_rss_mb",
+    "quick_serve_args",
+    "run_rig",
+    "serve_args_for",
+]
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -143,3 +153,32 @@ def serve_args_for(quick: bool, recording: Path | None) -> list[str]:
     if recording is not None:
         return ["--recording", str(recording)]
     return ["--demo"]
+
+
+@dataclass(frozen=True)
+class RigRun:
+    """A finished ``rig`` command: exit status (negative: the signal that ended it), the child's
+    own peak RSS (``ru_maxrss`` from ``wait4``), wall time and its output lines."""
+
+    exit_status: int
+    peak_rss_mb: float
+    seconds: float
+    lines: list[str]
+
+
+def run_rig(args: Sequence[str], env: Mapping[str, str] | None = None, timeout_s: float = 600.0) -> RigRun:
+    """``python -m cli ARGS`` to its end (killed after ``timeout_s``), measured."""
+    child_env = {**os.environ, **(env or {})}
+    child_env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), child_env.get("PYTHONPATH")]))
+    t0 = time.monotonic()
+    cmd = [sys.executable, "-m", "cli", *args]
+    proc = subprocess.Popen(cmd, cwd=REPO, env=child_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    killer = threading.Timer(timeout_s, proc.kill)
+    killer.start()
+    assert proc.stdout is not None
+    output = proc.stdout.read()  # to the end of the child's output
+    _, status, usage = os.wait4(proc.pid, 0)  # the child's own peak RSS
+    killer.cancel()
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    lines = [ln for ln in output.decode(errors="replace").splitlines() if ln.strip()]
+    return RigRun(proc.returncode, usage.ru_maxrss / 1024, time.monotonic() - t0, lines)

@@ -28,10 +28,11 @@ from cli.pipeline_options import StereoOption, load_stereo_params
 from cli.sim import PresetOption, parse_distances
 from rig.evaluate import DEFAULT_MODELS, EvaluationRun, make_config, run_evaluation, write_outputs
 from rig.evaluate.agreement import mean_ratio
-from rig.evaluate.config import FULL_DISTANCES, QUICK_DISTANCES
+from rig.evaluate.config import FULL_DISTANCES, QUICK_DISTANCES, default_lens
 from rig.evaluate.depth_quality import REFERENCE, THEORY
 from rig.evaluate.wide_pair import WideStudy, make_wide_config, run_wide_study, study_steps
 from rig.evaluate.wide_pair_report import write_wide_outputs
+from rig.sim.lens_effects import LENS_CHOICES
 from rig.sim.presets import PRESETS
 
 __all__ = ["register"]
@@ -135,6 +136,15 @@ def register(app: typer.Typer) -> None:
             ),
         ] = "paper",
         stereo_file: StereoOption = None,
+        lens: Annotated[
+            str | None,
+            typer.Option(
+                metavar="LENS",
+                help="The fisheye renders' lens: honest (fitted to real fisheyes: blur, rim darkening, "
+                "exposure, noise) or ideal (none).",
+                show_default="ideal for paper-sim, honest otherwise",
+            ),
+        ] = None,
     ) -> None:
         """Reproduce the paper's evaluation on a simulated rig (or the wide-pair study).
 
@@ -145,6 +155,8 @@ def register(app: typer.Typer) -> None:
             fail(f"--preset must be one of {', '.join(PRESETS)}, got {preset!r}")
         if study not in ("paper", "wide-pair"):
             fail(f"--study must be paper or wide-pair, got {study!r}")
+        if lens is not None and lens not in LENS_CHOICES:
+            fail(f"--lens must be one of {', '.join(LENS_CHOICES)}, got {lens!r}")
         _check_out(out, force)
         if study == "wide-pair":
             given = [
@@ -154,7 +166,7 @@ def register(app: typer.Typer) -> None:
             ]
             if given:
                 fail(f"{', '.join(given)} apply to --study paper, not wide-pair")
-            _wide_pair(out, preset, quick, seed, stereo_file)
+            _wide_pair(out, preset, quick, seed, lens or default_lens(preset), stereo_file)
             return
         if stereo_file is not None:
             fail("--stereo applies to --study wide-pair, not paper")
@@ -165,6 +177,7 @@ def register(app: typer.Typer) -> None:
             distances=parse_distances(distances) if distances is not None else None,
             textures=textures,
             seed=seed,
+            lens=lens,
         )
         # Calibrated models may end a hair before the VPC's edge (a few pixels invalid); the
         # pipeline's warning about it would interrupt the progress bar: the report lists it.
@@ -177,9 +190,9 @@ def register(app: typer.Typer) -> None:
         console.print(f"wrote {report} and the results next to it ({total:.0f} s)", highlight=False)
 
 
-def _wide_pair(out: Path, preset: str, quick: bool, seed: int, stereo_file: Path | None) -> None:
+def _wide_pair(out: Path, preset: str, quick: bool, seed: int, lens: str, stereo_file: Path | None) -> None:
     stereo = load_stereo_params(stereo_file) if stereo_file is not None else None
-    config = make_wide_config(preset, quick=quick, seed=seed, stereo=stereo)
+    config = make_wide_config(preset, quick=quick, seed=seed, lens=lens, stereo=stereo)
     logging.getLogger("rig.pipeline").setLevel(logging.ERROR)  # each variant's notes: in the report
     with progress_bar() as progress:
         task = progress.add_task("wide pair", total=study_steps(config))

@@ -13,7 +13,9 @@ likely cause named:
   otherwise rows apart mean the calibration does not fit the mount or the lenses, most matches
   at negative disparity a swap in the calibration itself, too few matches views that do not
   overlap (or a plain scene);
-* **valid fraction** — the share of the VPC with depth on the first pair.
+* **valid fraction** — the share of the VPC both cameras see (both lookup tables valid) with depth
+  on the first pair: the rest of the VPC cannot have depth whatever the calibration (a lat-lon
+  pair's is about 40 %), so counting it would call a correct calibration suspect.
 
 :func:`check_calibration` returns :class:`Finding` s (``error``: stop; ``warning``: say once)
 and the figures; ``rig process`` and ``rig export mcap`` run it on a recording's first readable
@@ -60,7 +62,7 @@ VERTICAL_WARN_PX = 1.0
 VERTICAL_ERROR_PX = 4.0
 #: Share of matches at negative disparity that means the two views are swapped.
 SWAPPED_SHARE = 0.6
-#: Depth on less than this share of the VPC on the first pair is worth a warning.
+#: Depth on less than this share of the VPC both cameras see, on the first pair, is worth a warning.
 LOW_VALID = 0.25
 #: A camera whose table covers less than this share of the VPC barely overlaps the other.
 LOW_OVERLAP = 0.5
@@ -83,7 +85,7 @@ class CalibrationCheck:
     vertical_px: float | None = None  # median |y_left - y_right| of the matches
     disparity_px: float | None = None  # median x_left - x_right
     negative_share: float | None = None  # share of matches at negative disparity
-    valid_fraction: float | None = None
+    valid_fraction: float | None = None  # of the VPC both cameras see
     overlap: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -233,8 +235,9 @@ def check_calibration(
             )
     mask = None
     left_lut, right_lut = (pipeline.luts[n] for n in pipeline.names)
+    seen = left_lut.valid & right_lut.valid
     if overlap and min(overlap.values()) < 1.0:
-        mask = ((left_lut.valid & right_lut.valid) * 255).astype(np.uint8)
+        mask = (seen * 255).astype(np.uint8)
     dx, dy = matched_disparities(_gray(frame.left_rect), _gray(frame.right_rect), mask)
     if _fits(dx, dy):
         problems = []
@@ -242,13 +245,14 @@ def check_calibration(
         swapped = _swapped(pipeline, left, right, mask, dy)
         problems = [swapped] if swapped is not None else _feature_findings(dx, dy)
     findings += problems
-    valid = float(np.count_nonzero(frame.valid)) / max(1, frame.valid.size)
+    counted = frame.valid[seen] if seen.shape == frame.valid.shape and seen.any() else frame.valid
+    valid = float(np.count_nonzero(counted)) / max(1, counted.size)
     if valid < LOW_VALID and not any(f.severity == "error" for f in findings):
         findings.append(
             Finding(
                 "warning",
-                f"only {100 * valid:.0f} % of the VPC has depth on the first pair: a calibration that does "
-                "not fit, a scene without texture, or covered lenses",
+                f"only {100 * valid:.0f} % of the VPC both cameras see has depth on the first pair: a "
+                "calibration that does not fit, a scene without texture, or covered lenses",
             )
         )
     return CalibrationCheck(
@@ -269,18 +273,21 @@ def check_recording(pipeline: DepthPipeline, recording: RecordedPairs) -> list[F
     :func:`check_calibration`, each of its messages naming the pair. What ``rig process`` and
     ``rig export mcap`` check before processing."""
     for pair in recording.pairs[:CHECK_TRIES]:
-        try:
-            left = recording.read_frame(pair, "left").pipeline_image()
-            right = recording.read_frame(pair, "right").pipeline_image()
+        try:  # the sizes from the headers: nothing of another size is decoded
+            stored = recording.read_frame(pair, "left"), recording.read_frame(pair, "right")
+            sizes = {
+                pipeline.pair.left: stored[0].declared_size(),
+                pipeline.pair.right: stored[1].declared_size(),
+            }
         except RecordingError:
             continue
-        sizes = {
-            pipeline.pair.left: (int(left.shape[1]), int(left.shape[0])),
-            pipeline.pair.right: (int(right.shape[1]), int(right.shape[0])),
-        }
         wrong_size = check_frame_sizes(pipeline.rig, sizes, f"frames of {recording.root}")
         if wrong_size:
             return wrong_size
+        try:
+            left, right = (s.pipeline_image(sizes[n]) for s, n in zip(stored, pipeline.names, strict=True))
+        except RecordingError:
+            continue
         check = check_calibration(pipeline, left, right)
         return [
             Finding(f.severity, f"calibration check on pair {pair.seq}: {f.message}") for f in check.findings

@@ -16,15 +16,19 @@ Layout of an output directory::
 Every file is written atomically (:func:`calibration.atomic.write_atomic`: a temporary, fsynced, renamed
 into place), so a file that exists is complete, and a pair is complete when every product of it
 exists. ``--resume`` (:meth:`OutputLayout.prepare` with ``resume``) trusts those files only when
-``run.json`` names the same settings; a run without it first removes what an earlier run wrote
-for the pairs it is about to process, so a crashed run never leaves two runs' files mixed.
+``run.json`` names the same settings and the same recording (:func:`recording_identity`: its
+pair index and its first and last frames, wherever it lies now); a run without it first removes
+what an earlier run wrote for the pairs it is about to process, so a crashed run never leaves two
+runs' files mixed.
 """
 
 from __future__ import annotations
 
 import errno
+import hashlib
 import json
 import os
+import struct
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,8 +39,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from calibration.atomic import fsync_directory, is_temporary, sweep_temporaries, write_atomic
+from rig.capture.recorded import RecordedPairs
 from rig.depth import depth_to_png_mm, ply_bytes
-from rig.errors import ConfigError, OutputError, PipelineError
+from rig.errors import ConfigError, OutputError, PipelineError, RigError
 from rig.pipeline import DepthFrame, DepthPipeline
 
 __all__ = [
@@ -47,6 +52,7 @@ __all__ = [
     "OutputLayout",
     "Product",
     "depth_preview",
+    "recording_identity",
     "run_settings",
 ]
 
@@ -105,6 +111,25 @@ def run_settings(pipeline: DepthPipeline, products: Sequence[str]) -> dict[str, 
     }
 
 
+def recording_identity(recording: RecordedPairs) -> str:
+    """What tells a recording from another, wherever it lies: a SHA-256 of its pair index (each
+    pair's seq and both capture times) and of the bytes of its first and last pairs' frames (two
+    renders of one scene can share the index)."""
+    digest = hashlib.sha256()
+    for pair in recording.pairs:
+        digest.update(struct.pack("<qqq", pair.seq, pair.left_ts_ns, pair.right_ts_ns))
+    for pair in {id(p): p for p in (recording.pairs[:1] + recording.pairs[-1:])}.values():
+        for camera in ("left", "right"):
+            try:
+                stored = recording.read_frame(pair, camera)
+            except RigError:
+                digest.update(b"unreadable")
+                continue
+            data = stored.raw if stored.raw is not None else stored.image
+            digest.update(b"" if data is None else bytes(data))
+    return digest.hexdigest()
+
+
 def _differing_key(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> str | None:
     """The first key (dotted) whose value differs between two documents, or None."""
     for key in sorted(set(a) | set(b)):
@@ -136,24 +161,34 @@ class OutputLayout:
 
     # ----- before a run ------------------------------------------------------------------------
     def prepare(
-        self, pipeline: DepthPipeline, recording: Path, seqs: Iterable[int], *, resume: bool
+        self,
+        pipeline: DepthPipeline,
+        recording: Path,
+        seqs: Iterable[int],
+        *,
+        resume: bool,
+        recording_id: str | None = None,
     ) -> set[int]:
         """Make the directories and write ``vpc.json`` and ``run.json``; returns the pairs of
-        ``seqs`` already complete (``resume`` with the same settings), after removing what an
-        earlier run left for the others (see the module doc). ConfigError when ``resume`` meets a
-        ``run.json`` of other settings; OutputError/DiskFullError when the directory cannot be
-        written."""
+        ``seqs`` already complete (``resume`` with the same settings and recording:
+        ``recording_id`` is its :func:`recording_identity`), after removing what an earlier run
+        left for the others (see the module doc). ConfigError when ``resume`` meets a
+        ``run.json`` of other settings or another recording; OutputError/DiskFullError when the
+        directory cannot be written."""
         seqs = list(seqs)
         settings = run_settings(pipeline, [p.name for p in self.products])
+        source = {"recording": str(recording.resolve())}
+        if recording_id is not None:
+            source["recording_id"] = recording_id
         try:
             self.root.mkdir(parents=True, exist_ok=True)
-            trusted = resume and self._same_settings(settings)
+            trusted = resume and self._same_run(settings, source)
             names = self._present()
             complete = self._complete(seqs, names) if trusted else set()
             self._remove(set(seqs) - complete, names)
             for product in self.products:
                 (self.root / product.name).mkdir(exist_ok=True)
-            run = {"recording": str(recording.resolve()), **settings}
+            run = {**source, **settings}
             self._write_json(VPC_FILE, pipeline.pair.as_json())
             self._write_json(RUN_FILE, run)
             fsync_directory(self.root)
@@ -161,9 +196,9 @@ class OutputLayout:
             raise self.write_error(err, self.root) from err
         return complete
 
-    def _same_settings(self, settings: dict[str, Any]) -> bool:
-        """Whether the existing ``run.json`` names ``settings`` (False when there is none);
-        ConfigError when it names others."""
+    def _same_run(self, settings: dict[str, Any], source: dict[str, str]) -> bool:
+        """Whether the existing ``run.json`` names ``settings`` and the recording of ``source``
+        (False when there is none); ConfigError when it names others."""
         path = self.root / RUN_FILE
         try:
             doc = json.loads(path.read_text(encoding="utf-8"))
@@ -171,11 +206,19 @@ class OutputLayout:
             return False
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
             raise ConfigError(f"{path}: unreadable ({err}); rerun without --resume to start over") from err
-        earlier = {k: v for k, v in doc.items() if k != "recording"} if isinstance(doc, dict) else {}
-        key = _differing_key(earlier, settings)
-        if key is not None:
+        doc = doc if isinstance(doc, dict) else {}
+        # An earlier run.json without the identity (older versions) is judged by the path.
+        key = "recording_id" if "recording_id" in doc and "recording_id" in source else "recording"
+        if doc.get(key) != source[key]:
             raise ConfigError(
-                f"{path}: the files there were made with other settings ({key} differs); rerun "
+                f"{path}: the files there were made from another recording ({doc.get('recording')}); "
+                "rerun without --resume to replace them, or write to another --out"
+            )
+        earlier = {k: v for k, v in doc.items() if k not in ("recording", "recording_id")}
+        differing = _differing_key(earlier, settings)
+        if differing is not None:
+            raise ConfigError(
+                f"{path}: the files there were made with other settings ({differing} differs); rerun "
                 "without --resume to replace them, or write to another --out"
             )
         return True

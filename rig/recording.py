@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 
 from calibration.atomic import write_atomic as _atomic_write
 from rig.errors import DiskFullError, RecordingError, ResourceExhausted
+from rig.image_size import declared_size, size_problem
 
 __all__ = [
     "FRAMES_HEADER",
@@ -88,21 +89,36 @@ class StoredFrame:
     image: NDArray[Any] | None = None
     source: str = ""
 
-    def decoded(self) -> NDArray[Any]:
+    def declared_size(self) -> tuple[int, int]:
+        """(width, height) of the frame, from its header when encoded (nothing is decoded);
+        RecordingError naming the source when the header cannot be read."""
+        if self.image is not None:
+            return int(self.image.shape[1]), int(self.image.shape[0])
+        try:
+            return declared_size(self.raw or b"", self.format)
+        except ValueError as err:
+            raise RecordingError(f"{self.source or 'frame'}: not a readable image ({err})") from None
+
+    def decoded(self, expected_size: tuple[int, int] | None = None) -> NDArray[Any]:
         """The image as OpenCV decodes it (``IMREAD_UNCHANGED``); RecordingError naming the
-        source when the bytes are not an image."""
+        source when the bytes are not an image, or their header declares another size than
+        ``expected_size`` (width, height; without one, beyond any camera's): checked before
+        decoding, so a small file declaring a huge image is never allocated."""
         if self.image is not None:
             return self.image
         data = self.raw or b""
-        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+        problem = size_problem(data, self.format, expected_size) if data else "empty"
+        if problem is not None:
+            raise RecordingError(f"{self.source or 'frame'}: not a readable image ({problem})")
+        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
         if img is None:
             raise RecordingError(f"{self.source or 'frame'}: not a readable image")
         return np.asarray(img)
 
-    def pipeline_image(self) -> NDArray[np.uint8]:
+    def pipeline_image(self, expected_size: tuple[int, int] | None = None) -> NDArray[np.uint8]:
         """The image as the depth pipeline takes frames: uint8 gray or BGR (16-bit scaled to
-        8, alpha dropped)."""
-        img = self.decoded()
+        8, alpha dropped); ``expected_size`` as for :meth:`decoded`."""
+        img = self.decoded(expected_size)
         if img.dtype == np.uint16:
             img = (img >> 8).astype(np.uint8)
         if img.ndim == 3 and img.shape[2] == 4:
@@ -244,9 +260,12 @@ class Recording:
         return StoredFrame(fmt, raw=self.read_bytes(pair, camera), source=str(path))
 
     def read_image(self, pair: PairRecord, camera: str, flags: int = cv2.IMREAD_UNCHANGED) -> NDArray[Any]:
-        """Decoded frame; RecordingError naming the file and seq if it is missing or corrupt."""
+        """Decoded frame; RecordingError naming the file and seq if it is missing or corrupt (or
+        its header declares a frame larger than any camera's)."""
         data = self.read_bytes(pair, camera)
-        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags) if data else None
+        fmt = "png" if pair.file(camera).lower().endswith(".png") else "jpeg"
+        ok = bool(data) and size_problem(data, fmt, None) is None
+        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), flags) if ok else None
         if img is None:
             raise RecordingError(
                 f"{self.path(pair.file(camera))}: {camera} frame of seq {pair.seq} is not a readable image"

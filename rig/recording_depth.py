@@ -14,6 +14,7 @@ run, and every pair it took before stays complete.
 
 from __future__ import annotations
 
+import functools
 import queue
 import threading
 from collections.abc import Callable, Container, Sequence
@@ -82,8 +83,15 @@ class RecordingReader:
     ahead of the pipeline; :meth:`take` is the staged executor's source. A pair whose frame
     cannot be read becomes a job whose loader raises that error (reported in order)."""
 
-    def __init__(self, recording: RecordedPairs, pairs: Sequence[PairRecord], readahead: int = 4) -> None:
+    def __init__(
+        self,
+        recording: RecordedPairs,
+        pairs: Sequence[PairRecord],
+        readahead: int = 4,
+        sizes: dict[str, tuple[int, int]] | None = None,
+    ) -> None:
         self._recording = recording
+        self._sizes = sizes or {}  # camera -> (width, height) its frames must declare
         self._pairs = list(pairs)
         self._queue: queue.Queue[PairJob[RecordedPair] | EndOfPairs] = queue.Queue(maxsize=max(1, readahead))
         self._stop = threading.Event()
@@ -128,9 +136,19 @@ class RecordingReader:
                 loaders.append(_raiser(err))
             else:
                 frames.append(stored)
-                loaders.append(stored.pipeline_image)
+                loaders.append(functools.partial(stored.pipeline_image, self._sizes.get(camera)))
         key = RecordedPair(pair, frames[0], frames[1])
         return PairJob(key, pair.seq, pair.left_ts_ns, loaders[0], loaders[1])
+
+
+def frame_sizes(pipeline: DepthPipeline) -> dict[str, tuple[int, int]]:
+    """The (width, height) the calibration gives the left and right camera's frames: what a
+    frame's header must declare before it is decoded (an image bomb never is)."""
+    cameras = pipeline.rig.cameras
+    return {
+        side: (cameras[name].width, cameras[name].height)
+        for side, name in (("left", pipeline.pair.left), ("right", pipeline.pair.right))
+    }
 
 
 def _raiser(err: Exception) -> Callable[[], NDArray[Any]]:
@@ -189,7 +207,7 @@ def process_pairs(
             on_pair(pair.seq, failure)
 
     pipeline.restore_temporal_state(temporal_state)
-    reader = RecordingReader(recording, pairs, readahead)
+    reader = RecordingReader(recording, pairs, readahead, frame_sizes(pipeline))
     stages = StagedExecutor(
         pipeline, reader.take, deliver, on_error=on_error, deliver_thread=True, prefix="rig-process"
     )

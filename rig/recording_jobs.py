@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rig.capture.recorded import RecordedPairs, open_recording
-from rig.outputs import BASE_PRODUCTS, OutputLayout
+from rig.outputs import BASE_PRODUCTS, OutputLayout, recording_identity
 from rig.pipeline import DepthPipeline
 from rig.recording import PairRecord
 from rig.recording_depth import PairFailure
@@ -109,7 +109,13 @@ def plan_recording(job: RecordingJob, options: ProcessOptions) -> None:
     """Get ``job``'s output directory ready and decide which pairs to compute and write."""
     layout = OutputLayout(job.out, options.products, fsync=options.fsync)
     pairs = list(job.recording.pairs)
-    complete = layout.prepare(job.pipeline, job.source.path, [p.seq for p in pairs], resume=options.resume)
+    complete = layout.prepare(
+        job.pipeline,
+        job.source.path,
+        [p.seq for p in pairs],
+        resume=options.resume,
+        recording_id=recording_identity(job.recording),
+    )
     todo = [p for p in pairs if p.seq not in complete]
     job.layout = layout
     job.write = {p.seq for p in todo}

@@ -16,8 +16,9 @@ its next repeat gives a disparity one period too large, a near surface that is n
 disparities leave fewer wrong periods within reach, and the left-right check removes most of
 the rest; the price is the nearest depth (fx·B/96 at the VPC's fx) and a second matcher run
 (both measured in docs/stereo.md). The temporal filter is off (it lags moving scenes). The
-coarse-to-fine search gives the same coverage and error on the wide-pair study for about half the
-matching's CPU (docs/stereo.md, "Coarse-to-fine search").
+coarse-to-fine search costs about half the matching's CPU; since the normalised match input it
+is measurably worse than the exact search on the real ring and the lat-lon renders' phantoms
+(docs/stereo.md, "Coarse-to-fine search").
 """
 
 from __future__ import annotations
@@ -95,6 +96,12 @@ class StereoParams(SettingsModel):
     disparity_range: int = Field(
         96, ge=16, le=4096, description="disparities searched (multiple of 16); nearest depth fx·B/range"
     )
+    min_range_m: float | None = Field(
+        None,
+        gt=0.0,
+        le=1000.0,
+        description="nearest range to reach: the search widens to it (rig.reach); null = off",
+    )
     # OpenCV 5.0 SGBM_3WAY divides by zero (SIGFPE, the process dies) at a ratio of 100 (rounded):
     # this bound is the only guard against it, for the settings, the command line and PATCH /config.
     uniqueness_ratio: float = Field(10.0, ge=0.0, lt=99.5, description="best must beat 2nd by this %")
@@ -105,6 +112,15 @@ class StereoParams(SettingsModel):
     P1: float = Field(0.0, ge=0.0, le=1e7, description="SGBM smoothness penalty, ±1 px steps (0 = 8·w²)")
     P2: float = Field(0.0, ge=0.0, le=1e7, description="SGBM smoothness penalty, larger steps (0 = 32·w²)")
     full_dp: bool = Field(False, description="SGBM full 8-direction dynamic programming (= mode hh)")
+    match_blur_sigma: float = Field(
+        0.0, ge=0.0, le=8.0, description="blur of both views before matching (px; 0 = off; rig.match_input)"
+    )
+    match_normalise_window: int = Field(
+        31, ge=0, le=255, description="local contrast normalisation before matching (odd px; 0 = off)"
+    )
+    match_normalise_eps: float = Field(
+        16.0, gt=0.0, le=255.0, description="grey levels added to the local σ: flat regions stay flat"
+    )
     subpixel: bool = Field(True, description="gradient-based subpixel refinement (rig.subpixel)")
     subpixel_window: int = Field(15, ge=3, le=31, description="refinement window (odd, px)")
     lr_check: bool = Field(True, description="full left-right consistency check (2nd matcher run)")
@@ -133,6 +149,8 @@ class StereoParams(SettingsModel):
             for name in ("correlation_window_size", "prefilter_size", "subpixel_window")
             if getattr(self, name) % 2 == 0
         ]
+        if self.match_normalise_window and self.match_normalise_window % 2 == 0:
+            problems.append(f"match_normalise_window must be 0 or odd, got {self.match_normalise_window}")
         if self.disparity_range % 16:
             problems.append(f"disparity_range must be a multiple of 16, got {self.disparity_range}")
         if self.stereo_algorithm == 0 and self.correlation_window_size < 5:
@@ -205,6 +223,7 @@ class StereoParams(SettingsModel):
         return self.model_copy(
             update={
                 "coarse_to_fine": False,
+                "min_range_m": None,  # the range is already widened (rig.reach)
                 "min_disparity": lo,
                 "disparity_range": core + beyond,
                 "speckle_size": self.speckle_size // (s * s),

@@ -11,8 +11,11 @@ The depth worker never waits for it: a publisher thread takes the newest result 
 :class:`~service.store.ResultStore` (the worker's publish is a reference swap), at most
 ``max_fps`` times a second, so frames published meanwhile are skipped, not queued. Messages are
 only made for topics someone subscribed to. The SDK's server runs on its own threads and queues
-at most ``message_backlog`` messages per viewer, dropping the oldest: a slow or dead viewer gets
-fewer frames and costs bounded memory. Transforms and health go out once a second.
+at most ``message_backlog`` messages per viewer, dropping the oldest: a slow viewer gets fewer
+frames. Viewers reach it through :class:`~service.foxglove_gate.FoxgloveGate` on the configured
+address (the SDK itself listens on an ephemeral loopback port), which bounds connections, the
+handshake, idle and stalled viewers and asks for the token beyond loopback. Transforms and health
+go out once a second.
 """
 
 from __future__ import annotations
@@ -60,11 +63,12 @@ from rig.ros.messages import (
 )
 from rig.ros.names import RosNames
 from service.errors import SettingsError
+from service.foxglove_gate import FoxgloveGate, GateLimits
 from service.runtime import Runtime
-from service.settings import FoxgloveSettings
+from service.settings import FoxgloveSettings, is_loopback
 from service.store import PublishedResult, ResultStore
 
-__all__ = ["FoxgloveLive", "FoxgloveStats", "start_foxglove", "to_foxglove"]
+__all__ = ["FoxgloveLive", "FoxgloveStats", "gate_limits", "start_foxglove", "to_foxglove"]
 
 log = logging.getLogger("service.foxglove")
 
@@ -162,12 +166,16 @@ def _kind_of(topic: str, names: RosNames) -> type:
 @dataclass(frozen=True)
 class FoxgloveStats:
     """``published``: results sent; ``skipped``: results the worker made that were never sent
-    (rate limit, or newer ones arrived first); ``errors``: results that failed to publish."""
+    (rate limit, or newer ones arrived first); ``errors``: results that failed to publish;
+    ``viewers``, ``refused``, ``dropped``: the gate's (:class:`~service.foxglove_gate.GateStats`)."""
 
     port: int
     published: int
     skipped: int
     errors: int
+    viewers: int = 0
+    refused: int = 0
+    dropped: int = 0
 
 
 def _stored(frame: Any, want_pixels: bool) -> StoredFrame:
@@ -189,8 +197,11 @@ class FoxgloveLive:
         store: ResultStore,
         health: Callable[[], bytes],
         health_schema: dict[str, Any] | None = None,
+        *,
+        limits: GateLimits | None = None,
     ) -> None:
         self.settings = settings
+        self.limits = limits or gate_limits(settings)
         self.builder = builder
         self.names = builder.names
         self.store = store
@@ -201,6 +212,7 @@ class FoxgloveLive:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._server: Any = None
+        self._gate: FoxgloveGate | None = None
         self._lock = threading.Lock()
         self._published = self._skipped = self._errors = 0
         self._last_stamp: int | None = None
@@ -211,13 +223,19 @@ class FoxgloveLive:
         try:
             self._server = foxglove.start_server(
                 name="odfc-rig",
-                host=s.host,
-                port=s.port,
+                host="127.0.0.1",
+                port=0,
                 context=self._ctx,
                 message_backlog_size=s.message_backlog,
             )
         except RuntimeError as err:
-            raise SettingsError(f"server.foxglove: cannot listen on {s.host}:{s.port} ({err})") from err
+            raise SettingsError(f"server.foxglove: cannot start foxglove-sdk's server ({err})") from err
+        self._gate = FoxgloveGate(s.host, s.port, int(self._server.port), self.limits)
+        try:
+            self._gate.start()
+        except SettingsError:
+            self._server.stop()
+            raise
         self._health_channel = foxglove.Channel(
             self.names.health, schema=self._health_schema or None, message_encoding="json", context=self._ctx
         )
@@ -227,19 +245,26 @@ class FoxgloveLive:
 
     @property
     def port(self) -> int:
-        return int(self._server.port) if self._server is not None else 0
+        """The port viewers connect to (the gate's)."""
+        return self._gate.port if self._gate is not None else 0
 
     def stop(self) -> None:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(5.0)
+        if self._gate is not None:
+            self._gate.stop()
         if self._server is not None:
             self._server.stop()
             self._server = None
 
     def stats(self) -> FoxgloveStats:
+        gate = self._gate.stats() if self._gate is not None else None
         with self._lock:
-            return FoxgloveStats(self.port, self._published, self._skipped, self._errors)
+            counts = (self._published, self._skipped, self._errors)
+        if gate is None:
+            return FoxgloveStats(self.port, *counts)
+        return FoxgloveStats(self.port, *counts, gate.viewers, gate.refused, gate.dropped)
 
     # ----- publishing --------------------------------------------------------------------------
     def _channel(self, topic: str) -> Any:
@@ -312,13 +337,28 @@ class FoxgloveLive:
                 self._stop.wait(0.1)
 
 
+def gate_limits(fox: FoxgloveSettings, token: str | None = None, max_header_bytes: int = 16384) -> GateLimits:
+    """The gate's limits of ``fox``; ``token`` is asked of viewers only beyond loopback."""
+    return GateLimits(
+        max_viewers=fox.max_viewers,
+        max_header_bytes=max_header_bytes,
+        handshake_timeout_s=fox.handshake_timeout_s,
+        idle_timeout_s=fox.idle_timeout_s,
+        stall_s=fox.stall_s,
+        token=None if is_loopback(fox.host) else token,
+    )
+
+
 def start_foxglove(
     runtime: Runtime, health: Callable[[], bytes], health_schema: dict[str, Any]
 ) -> FoxgloveLive:
     """The Foxglove server of ``runtime``'s settings (``server.foxglove``), started."""
     settings = runtime.settings
-    fox = settings.server.foxglove
+    server = settings.server
+    fox = server.foxglove
+    token = server.api_token.get_secret_value() if server.api_token is not None else None
+    limits = gate_limits(fox, token, server.max_header_bytes)
     builder = MessageBuilder(runtime.pipeline, settings.ros, cloud_stride=fox.cloud_stride)
-    live = FoxgloveLive(fox, builder, runtime.store, health, health_schema)
+    live = FoxgloveLive(fox, builder, runtime.store, health, health_schema, limits=limits)
     live.start()
     return live

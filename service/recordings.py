@@ -17,7 +17,6 @@ from __future__ import annotations
 import errno
 import json
 import logging
-import os
 import queue
 import re
 import shutil
@@ -75,7 +74,7 @@ class RecordingStatus:
     path: str
     active: bool
     pairs: int
-    bytes: int
+    bytes: int | None  # None: not noted (a recording not stopped cleanly; the listing walks no files)
     dropped: int
     started_at: str | None
     stopped_at: str | None
@@ -125,17 +124,6 @@ class _Active:
         self.last_seq = pair.seq
 
 
-def _dir_bytes(path: Path) -> int:
-    total = 0
-    for dirpath, _, files in os.walk(path):
-        for f in files:
-            try:
-                total += os.stat(os.path.join(dirpath, f)).st_size
-            except OSError:
-                continue
-    return total
-
-
 def _count(value: Any) -> int | None:
     """``value`` if it is a count (an int ≥ 0), else None."""
     return value if isinstance(value, int) and not isinstance(value, bool) and value >= 0 else None
@@ -149,13 +137,57 @@ def _recorded_bytes(path: Path, data_bytes: int) -> int:
         return data_bytes
 
 
-def _count_pairs(path: Path) -> int:
+_COUNTS = ("pairs", "bytes", "dropped")
+_TEXTS = ("started_at", "stopped_at", "error")
+
+
+def _noted(path: Path) -> tuple[dict[str, Any], list[str]]:
+    """The fields a stopped recording noted in its recording.json, each checked (a wrong one is
+    left out), and what is wrong with the file."""
+    meta = path / "recording.json"
     try:
-        with open(path / "frames.csv", "rb") as f:
-            lines = sum(1 for line in f if line.strip())
-    except OSError:
-        return 0
-    return max(0, lines - 1)
+        doc = json.loads(meta.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:
+        return {}, [f"{meta}: unreadable ({type(err).__name__}: {str(err)[:80]})"]
+    if not isinstance(doc, dict):
+        return {}, [f"{meta}: not a JSON object"]
+    noted: dict[str, Any] = {}
+    problems = []
+    for key in (*_COUNTS, *_TEXTS):
+        value = doc.get(key)
+        ok = _count(value) is not None if key in _COUNTS else isinstance(value, str)
+        if ok:
+            noted[key] = value
+        elif value is not None:
+            kind = "a count" if key in _COUNTS else "text"
+            problems.append(f"{meta}: field '{key}' must be {kind}, got {json.dumps(value)[:40]}")
+    return noted, problems
+
+
+class _PairCounts:
+    """Pairs in each frames.csv, counted once per version of the file (a recording that was not
+    stopped cleanly noted no count; 100 000 pairs are 6 MB of index to read)."""
+
+    def __init__(self) -> None:
+        self._known: dict[Path, tuple[int, int, int]] = {}
+        self._lock = threading.Lock()
+
+    def __call__(self, path: Path) -> int:
+        index = path / "frames.csv"
+        try:
+            st = index.stat()
+            with self._lock:
+                known = self._known.get(index)
+            if known is not None and known[:2] == (st.st_mtime_ns, st.st_size):
+                return known[2]
+            with open(index, "rb") as f:
+                lines = sum(1 for line in f if line.strip())
+        except OSError:
+            return 0
+        count = max(0, lines - 1)
+        with self._lock:
+            self._known[index] = (st.st_mtime_ns, st.st_size, count)
+        return count
 
 
 class RecordingManager:
@@ -167,6 +199,7 @@ class RecordingManager:
         self.rig = rig
         self._lock = threading.Lock()
         self._active: _Active | None = None
+        self._pair_counts = _PairCounts()
 
     def start(self, name: str, meta: dict[str, Any] | None = None) -> RecordingStatus:
         """Start recording into ``root/name``. A recording that cannot start leaves nothing
@@ -302,7 +335,11 @@ class RecordingManager:
         return None if active is None else self._status_of(active)
 
     def list(self) -> list[RecordingStatus]:
-        """Every recording directory under ``root`` (those with a recording.json), by name."""
+        """Every recording directory under ``root`` (those with a recording.json), by name. What
+        a recording noted at its stop is read from its recording.json, never from its frames: a
+        recording that was not stopped cleanly has its pairs counted from its index and no
+        ``bytes``. A recording.json that cannot be read, or a field of the wrong kind, is named
+        in the entry's ``error`` instead of failing the listing."""
         active = self._active
         out: list[RecordingStatus] = []
         if not self.root.is_dir():
@@ -311,24 +348,21 @@ class RecordingManager:
             if active is not None and path.name == active.name:
                 out.append(self._status_of(active))
                 continue
-            try:
-                doc = json.loads((path / "recording.json").read_text(encoding="utf-8"))
-            except (OSError, ValueError):
-                doc = {}
-            doc = doc if isinstance(doc, dict) else {}
-            pairs, size = _count(doc.get("pairs")), _count(doc.get("bytes"))
-            out.append(
-                RecordingStatus(
-                    name=path.name,
-                    path=str(path),
-                    active=False,
-                    # Noted at the stop; counted for recordings that were never stopped cleanly.
-                    pairs=pairs if pairs is not None else _count_pairs(path),
-                    bytes=_recorded_bytes(path, size) if size is not None else _dir_bytes(path),
-                    dropped=int(doc.get("dropped") or 0),
-                    started_at=doc.get("started_at"),
-                    stopped_at=doc.get("stopped_at"),
-                    error=doc.get("error"),
-                )
-            )
+            out.append(self._stored_status(path))
         return out
+
+    def _stored_status(self, path: Path) -> RecordingStatus:
+        noted, problems = _noted(path)
+        pairs, size = noted.get("pairs"), noted.get("bytes")
+        errors = [noted["error"]] if "error" in noted else []
+        return RecordingStatus(
+            name=path.name,
+            path=str(path),
+            active=False,
+            pairs=pairs if pairs is not None else self._pair_counts(path),
+            bytes=_recorded_bytes(path, size) if size is not None else None,
+            dropped=noted.get("dropped", 0),
+            started_at=noted.get("started_at"),
+            stopped_at=noted.get("stopped_at"),
+            error="; ".join(errors + problems) or None,
+        )

@@ -229,11 +229,17 @@ class RecordingInfo(BaseModel):
     path: str
     active: bool
     pairs: int
-    bytes: int
+    bytes: int | None = Field(
+        description="bytes on disk; null for a recording that was not stopped cleanly (the listing "
+        "reads what recordings noted, it does not walk their files)"
+    )
     dropped: int = Field(description="pairs the writer could not keep up with (queue full)")
     started_at: str | None
     stopped_at: str | None
-    error: str | None
+    error: str | None = Field(
+        description="what went wrong: the writer's error, or why the recording's recording.json "
+        "cannot be read (a field of the wrong kind is left out)"
+    )
 
 
 class HealthModel(BaseModel):
@@ -310,6 +316,9 @@ class ServerPublicModel(BaseModel):
 class ConfigModel(BaseModel):
     revision: int = Field(description="the configuration's revision, also the ETag: one more at each change")
     stereo: StereoParams = Field(description="the stereo parameters in effect")
+    nearest_range_m: float = Field(
+        description="the nearest range straight ahead the search reaches (stereo.min_range_m widens it)"
+    )
     rectified: RectifiedPairModel = Field(
         description="the rectified pair in effect: projection and real size"
     )

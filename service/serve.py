@@ -30,6 +30,7 @@ __all__ = [
     "LOG_LEVELS",
     "bind_socket",
     "ensure_fd_room",
+    "fds_needed",
     "run_server",
     "uvicorn_config",
 ]
@@ -79,11 +80,18 @@ class _Server(uvicorn.Server):
                 signal.signal(sig, handler)
 
 
+def fds_needed(settings: Settings) -> int:
+    """Descriptors ``rig serve`` may hold: one per HTTP connection, three per Foxglove viewer (its
+    connection, the gate's to the SDK and the SDK's end of it) and :data:`FD_RESERVE`."""
+    fox = settings.server.foxglove
+    return settings.server.max_connections + (3 * fox.max_viewers if fox.enabled else 0) + FD_RESERVE
+
+
 def ensure_fd_room(settings: Settings) -> int:
-    """Make sure ``server.max_connections`` connections leave :data:`FD_RESERVE` descriptors free
-    (raising the soft ``RLIMIT_NOFILE`` up to the hard one if needed): the process's limit, or
-    ServiceError naming the setting."""
-    need = settings.server.max_connections + FD_RESERVE
+    """Make sure ``server.max_connections`` connections (and Foxglove's viewers) leave
+    :data:`FD_RESERVE` descriptors free (raising the soft ``RLIMIT_NOFILE`` up to the hard one if
+    needed): the process's limit, or ServiceError naming the setting."""
+    need = fds_needed(settings)
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     if soft != resource.RLIM_INFINITY and soft < need:
         if hard != resource.RLIM_INFINITY and hard < need:

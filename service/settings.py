@@ -105,15 +105,39 @@ class FoxgloveSettings(SettingsModel):
     model_config = ConfigDict(extra="forbid")
 
     enabled: bool = Field(False, description="run the Foxglove WebSocket server")
-    host: str = Field("127.0.0.1", min_length=1, description="bind address; non-loopback needs api_token set")
+    host: str = Field(
+        "127.0.0.1",
+        min_length=1,
+        description="bind address; non-loopback needs api_token, which viewers present",
+    )
     port: int = Field(8765, ge=0, le=65535, description="TCP port (0 = any free port)")
     max_fps: float = Field(10.0, gt=0.0, le=60.0, description="most depth frames per second sent to viewers")
     cloud_stride: int = Field(2, ge=1, le=64, description="every n-th pixel of each axis in the point cloud")
     message_backlog: int = Field(
-        64,
+        16,
         ge=4,
         le=4096,
-        description="messages queued per viewer; a viewer that falls behind loses the oldest",
+        description="messages queued per viewer (every topic of about one frame); a viewer that falls "
+        "behind loses the oldest",
+    )
+    max_viewers: int = Field(
+        8,
+        ge=1,
+        le=1000,
+        description="open connections to the Foxglove port; beyond, the one waiting longest for its "
+        "request is closed, or the new one answered 503 if all are viewers",
+    )
+    handshake_timeout_s: float = Field(
+        10.0, gt=0.0, le=600.0, description="a connection's upgrade request must arrive within this: 408"
+    )
+    idle_timeout_s: float = Field(
+        60.0, gt=0.0, le=86400.0, description="a viewer that sends and receives nothing for this is closed"
+    )
+    stall_s: float = Field(
+        10.0,
+        gt=0.0,
+        le=600.0,
+        description="a viewer that has not taken what was sent to it within this is closed",
     )
 
 

@@ -1,20 +1,24 @@
 """Shared fixtures (the helpers they use are in :mod:`tests.helpers`). Real third-party data
-lives in ../shared/data (never copied into the repo); tests that need it skip with the reason
-when it is absent."""
+lives in ../shared/data (never copied into the repo); tests that need it, or a tool .ci/run
+installs (the ``needs_tool`` marker), skip with the reason when it is absent, and fail instead
+under ``RIG_REQUIRE_TEST_INPUTS=1`` (:mod:`tests.helpers.inputs`)."""
 
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import pytest
 
+from tests.helpers.inputs import missing_input, missing_inputs_line, require_tool, skip_reason
 from tests.helpers.recordings import jpeg_copy
 from tests.helpers.service import (
+    InProcessServer,
     LiveServer,
     SmallRecording,
+    StartApp,
     StartServer,
     render_small_recording,
     service_settings,
@@ -22,28 +26,49 @@ from tests.helpers.service import (
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("RIG_SHARED_DATA", REPO.parent / "shared" / "data"))
-
-
-@pytest.fixture(scope="session")
-def shared_data() -> Path:
-    """Root of the shared third-party data set; skips the test if it is not present."""
-    if not SHARED_DATA.is_dir():
-        pytest.skip(f"shared test data not found at {SHARED_DATA} (set RIG_SHARED_DATA)")
-    return SHARED_DATA
+REAL_DATA = "the real third-party data"
 
 
 def shared_file(relative: str) -> Path:
-    """Path of one shared data file; skips the calling test if it is missing."""
+    """Path of one shared data file; skips the calling test if it is missing (fails it under
+    ``RIG_REQUIRE_TEST_INPUTS=1``)."""
     p = SHARED_DATA / relative
+    if not SHARED_DATA.is_dir():
+        missing_input(REAL_DATA, f"no directory {SHARED_DATA} (set RIG_SHARED_DATA)")
     if not p.exists():
-        pytest.skip(f"shared test data file {p} not present")
+        missing_input(REAL_DATA, f"{p} not present")
     return p
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers", "needs_tool(tool, install): needs a program .ci/run installs (skip or fail if absent)"
+    )
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    for mark in item.iter_markers("needs_tool"):
+        require_tool(*mark.args)
+
+
+def pytest_terminal_summary(terminalreporter: Any) -> None:
+    """One line counting the tests skipped for a missing input, and how to fail them instead."""
+    line = missing_inputs_line(skip_reason(r) for r in terminalreporter.stats.get("skipped", []))
+    if line is not None:
+        terminalreporter.write_line(line, yellow=True, bold=True)
 
 
 @pytest.fixture(scope="session")
 def lut_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """One LUT cache directory for the whole session: a table is built once, then loaded."""
     return tmp_path_factory.mktemp("lut-cache")
+
+
+@pytest.fixture(scope="session")
+def bench_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The benchmarks' generated inputs (recordings) for the session, where tests that use the
+    same recordings find them too."""
+    return tmp_path_factory.mktemp("bench-cache")
 
 
 @pytest.fixture(scope="session")
@@ -65,20 +90,36 @@ def replayed_recording(small_recording: SmallRecording) -> Path:
     return small_recording.loop
 
 
-@pytest.fixture
-def start_server(replayed_recording: Path, lut_cache: Path, tmp_path: Path) -> Iterator[StartServer]:
-    """Factory: a fresh server replaying :func:`replayed_recording` (keyword arguments as for
-    ``service_settings``: ``server:`` fields, ``camera_faults``, ...), waited for until it serves
-    depth unless ``ready=False``; stopped at teardown."""
-    servers: list[LiveServer] = []
+Served = TypeVar("Served", LiveServer, InProcessServer)
 
-    def start(ready: bool = True, **kw: Any) -> LiveServer:
-        live = LiveServer(service_settings(replayed_recording, tmp_path, lut_cache, **kw)).start()
-        servers.append(live)
+
+def _served(
+    kind: type[Served], recording: Path, lut_cache: Path, tmp_path: Path
+) -> Iterator[Callable[..., Served]]:
+    servers: list[Served] = []
+
+    def start(ready: bool = True, **kw: Any) -> Served:
+        served = kind(service_settings(recording, tmp_path, lut_cache, **kw)).start()
+        servers.append(served)
         if ready:
-            live.wait_ready()
-        return live
+            served.wait_ready()
+        return served
 
     yield start
-    for live in servers:
-        live.stop()
+    for served in servers:
+        served.stop()
+
+
+@pytest.fixture
+def start_server(replayed_recording: Path, lut_cache: Path, tmp_path: Path) -> Iterator[StartServer]:
+    """Factory: a fresh real server (uvicorn on loopback) replaying :func:`replayed_recording`
+    (keyword arguments as for ``service_settings``: ``server:`` fields, ``camera_faults``, ...),
+    waited for until it serves depth unless ``ready=False``; stopped at teardown. For tests of
+    what needs the socket; the others use :func:`start_app`."""
+    yield from _served(LiveServer, replayed_recording, lut_cache, tmp_path)
+
+
+@pytest.fixture
+def start_app(replayed_recording: Path, lut_cache: Path, tmp_path: Path) -> Iterator[StartApp]:
+    """Factory: as :func:`start_server`, the app run in process (``InProcessServer``)."""
+    yield from _served(InProcessServer, replayed_recording, lut_cache, tmp_path)

@@ -8,20 +8,17 @@ malformed value raises one :class:`CalibrationFileError` naming the file and the
 
 from __future__ import annotations
 
-import json
 import math
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
 from calibration.errors import CalibrationFileError
+from calibration.formats.parse import MAX_FILE_BYTES, TaggedMatrix, parse_text
 from calibration.geometry import is_rotation
 from calibration.models.base import MAX_IMAGE_SIZE_PX
 from calibration.rig import translation_problem
@@ -30,17 +27,8 @@ __all__ = ["MAX_FILE_BYTES", "Document", "Field", "TaggedMatrix", "read_document
 
 F64 = NDArray[np.float64]
 
-# Calibration files are a few kB; anything this big is an image or a recording picked by mistake.
-MAX_FILE_BYTES = 16 * 1024 * 1024
 # Rotation blocks must be orthonormal to this (published calibrations print ~16 digits).
 _ROTATION_TOL = 1e-6
-
-
-@dataclass(frozen=True)
-class TaggedMatrix:
-    """An OpenCV ``!!opencv-matrix`` node as parsed, validated later by :meth:`Field.matrix`."""
-
-    content: Any
 
 
 @dataclass(frozen=True)
@@ -77,116 +65,8 @@ def read_document(path: str | Path) -> Document:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as err:
         raise CalibrationFileError(p, f"not UTF-8 text (byte {err.start}), not a calibration file") from err
-    head = text.lstrip()
-    if head.startswith("{"):
-        return Document(p, "json", text, _parse_json(p, text))
-    if head.startswith("<"):
-        return Document(p, "xml", text, _parse_opencv_xml(p, head))
-    if _looks_like_ocamcalib(text):
-        return Document(p, "text", text, None)
-    return Document(p, "yaml", text, _parse_yaml(p, text))
-
-
-# ----- parsers ------------------------------------------------------------------------------------
-def _parse_json(path: Path, text: str) -> Any:
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as err:
-        raise CalibrationFileError(path, f"not valid JSON: {err.msg} at line {err.lineno}") from err
-    except RecursionError as err:
-        raise CalibrationFileError(path, "not a calibration file: nesting too deep") from err
-
-
-class _Loader(yaml.SafeLoader):
-    """SafeLoader plus OpenCV's matrix tags and YAML 1.2 floats such as ``1e-05``."""
-
-
-# Own copy of the resolver table so the extra float pattern does not leak into yaml.SafeLoader.
-_Loader.yaml_implicit_resolvers = {k: list(v) for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
-    list("-+0123456789."),
-)
-
-
-def _construct_opencv_matrix(loader: yaml.SafeLoader, node: yaml.Node) -> TaggedMatrix:
-    if not isinstance(node, yaml.MappingNode):
-        return TaggedMatrix(loader.construct_object(node, deep=True))
-    return TaggedMatrix(loader.construct_mapping(node, deep=True))
-
-
-_Loader.add_constructor("tag:yaml.org,2002:opencv-matrix", _construct_opencv_matrix)
-_Loader.add_constructor("tag:yaml.org,2002:opencv-nd-matrix", _construct_opencv_matrix)
-
-# OpenCV writes "%YAML:1.0" (not a valid YAML directive) or "%YAML 1.2" on the first line.
-_YAML_DIRECTIVE = re.compile(r"\A\s*%YAML[: ][^\n]*")
-
-
-def _parse_yaml(path: Path, text: str) -> Any:
-    # Keep the line count so parser messages point at the right line.
-    body = _YAML_DIRECTIVE.sub("", text, count=1)
-    try:
-        return yaml.load(body, Loader=_Loader)  # _Loader derives from SafeLoader
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
-        raise CalibrationFileError(path, f"not valid YAML: {problem}{where}") from err
-    except RecursionError as err:
-        raise CalibrationFileError(path, "not a calibration file: nesting too deep") from err
-
-
-def _parse_opencv_xml(path: Path, text: str) -> Any:
-    if not text.startswith("<?xml"):
-        text = '<?xml version="1.0"?>\n' + text
-    try:
-        storage = cv2.FileStorage(text, cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
-    except (cv2.error, SystemError) as err:
-        # OpenCV's Python binding reports parse failures as SystemError wrapping cv2.error.
-        cause = err.__cause__ if isinstance(err, SystemError) and err.__cause__ else err
-        detail = str(cause).strip().splitlines()[-1] if str(cause).strip() else type(cause).__name__
-        raise CalibrationFileError(path, f"not valid OpenCV FileStorage XML: {detail}") from err
-    try:
-        if not storage.isOpened():
-            raise CalibrationFileError(path, "not valid OpenCV FileStorage XML")
-        return _filenode_to_tree(storage.root())
-    finally:
-        storage.release()
-
-
-def _filenode_to_tree(node: cv2.FileNode) -> Any:
-    if node.isMap():
-        keys = list(node.keys())
-        tree = {k: _filenode_to_tree(node.getNode(k)) for k in keys}
-        if {"dt", "data"} <= set(keys) and ({"rows", "cols"} <= set(keys) or "sizes" in keys):
-            try:
-                return TaggedMatrix(np.asarray(node.mat(), dtype=np.float64))
-            except cv2.error:
-                return TaggedMatrix(tree)  # inconsistent sizes: Field.matrix names the problem
-        return tree
-    if node.isSeq():
-        return [_filenode_to_tree(node.at(i)) for i in range(node.size())]
-    if node.isInt():
-        return int(node.real())
-    if node.isReal():
-        return float(node.real())
-    if node.isString():
-        return node.string()
-    return None
-
-
-_NUMBER_LINE = re.compile(r"^[-+0-9.eE\s]+$")
-
-
-def _looks_like_ocamcalib(text: str) -> bool:
-    """OCamCalib's export: its ``#polynomial coefficients`` header, or only ``#`` comments and
-    lines of numbers (the header decides even when a number is garbled, for a precise error)."""
-    stripped = [ln.strip() for ln in text.splitlines() if ln.strip()]
-    if stripped and stripped[0].lower().startswith("#polynomial coefficients"):
-        return True
-    lines = [ln for ln in stripped if not ln.startswith("#")]
-    return len(lines) >= 5 and all(_NUMBER_LINE.match(ln) for ln in lines) and lines[0].split()[0].isdigit()
+    kind, tree = parse_text(p, text)
+    return Document(p, kind, text, tree)
 
 
 # ----- typed field access -------------------------------------------------------------------------

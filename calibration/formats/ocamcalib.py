@@ -26,6 +26,7 @@ from calibration.formats.content import CalibrationContent
 from calibration.formats.document import Document
 from calibration.models import MODELS, CameraModel
 from calibration.models.base import MAX_IMAGE_SIZE_PX
+from calibration.models.scaramuzza import ScaramuzzaModel
 
 __all__ = ["OCamCalibFile", "parse_ocamcalib", "read_ocamcalib", "to_scaramuzza"]
 
@@ -34,6 +35,11 @@ _FIELDS = ("pol", "invpol", "center", "affine", "image size")
 _PARAM_FIELDS = {"poly": "pol", "invpol": "invpol", "cx": "center", "cy": "center", "c": "affine"}
 _PARAM_FIELDS |= {"d": "affine", "e": "affine", "width": "image size", "height": "image size"}
 _ONE_BASED = re.compile(r"starting from 1|matlab convention", re.IGNORECASE)
+# The most numbers each line may hold (the polynomials: the count, then the coefficients; the
+# others are checked exactly after): checked before any is converted, so a line of a million does
+# not cost a million floats.
+_MOST_NUMBERS = dict.fromkeys(_FIELDS, 64)
+_MOST_NUMBERS |= {"pol": 1 + ScaramuzzaModel.MAX_POLY_COEFFS, "invpol": 1 + ScaramuzzaModel.MAX_INVPOL_COEFFS}
 
 
 @dataclass(frozen=True)
@@ -65,8 +71,13 @@ def parse_ocamcalib(doc: Document) -> OCamCalibFile:
         if len(rows) == len(_FIELDS):
             raise CalibrationFileError(doc.path, f"unexpected extra line {lineno}: {stripped[:40]!r}")
         field = _FIELDS[len(rows)]
+        tokens = stripped.split(None, _MOST_NUMBERS[field])  # stops splitting past the bound
+        if len(tokens) > _MOST_NUMBERS[field]:
+            most = _MOST_NUMBERS[field]
+            what = f" (the count and at most {most - 1} coefficients)" if field in ("pol", "invpol") else ""
+            raise CalibrationFileError(doc.path, f"line {lineno}: more than {most} numbers{what}", field)
         values = []
-        for token in stripped.split():
+        for token in tokens:
             try:
                 value = float(token)
             except ValueError:

@@ -85,12 +85,23 @@ class ScaramuzzaModel(CameraModel):
     # Smallest field (degrees off axis) a model may cover: far below any real lens, even on a
     # 1-pixel image; the coefficients of a smaller one are nonsense (e.g. a0 = 1e300).
     MIN_FIELD_DEG = 0.01
+    # Most coefficients of poly and invpol (real files: 5 and up to 33): poly's root finding costs
+    # the cube of its degree (97 s at degree 2000; degree 50 000 ran out of memory).
+    MAX_POLY_COEFFS = 32
+    MAX_INVPOL_COEFFS = 64
 
     def _setup(self) -> None:
         poly = self._lists["poly"]
         v = self._values
         if len(poly) < 1:
             raise ModelError(f"{self.name}: parameter poly must have at least one coefficient", param="poly")
+        for name, most in (("poly", self.MAX_POLY_COEFFS), ("invpol", self.MAX_INVPOL_COEFFS)):
+            if len(self._lists[name]) > most:
+                raise ModelError(
+                    f"{self.name}: parameter {name} may have at most {most} coefficients, "
+                    f"got {len(self._lists[name])}",
+                    param=name,
+                )
         if poly[0] <= 0.0:
             raise ModelError(
                 f"{self.name}: poly[0] (a0) must be > 0 (z forward); OCamCalib files store a0 < 0 "

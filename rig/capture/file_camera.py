@@ -26,8 +26,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-import cv2
-
 from rig.capture.config import FileCameraConfig
 from rig.capture.faults import Fault, FaultPlan, parse_fault
 from rig.capture.frame import Frame, FrameFormat
@@ -279,16 +277,19 @@ class FileCamera:
         elif mangled == "truncate":
             self._stats = replace(self._stats, truncated=self._stats.truncated + 1)
         fmt: FrameFormat = "png" if stored.format == "png" else "jpeg"
-        return Frame(self.name, seq, ts, fmt, self._clock(), raw=data, source=stored.source)
+        expected = self._size if all(self._size) else None
+        return Frame(
+            self.name, seq, ts, fmt, self._clock(), raw=data, source=stored.source, expected_size=expected
+        )
 
     def _probe(self) -> tuple[str, tuple[int, int]]:
-        """The first frame's format and size ((0, 0) when it does not decode)."""
+        """The first frame's format and the size its header declares, read without decoding it
+        ((0, 0) when it cannot be read)."""
         try:
             stored = self._rec.read_frame(self._rec.pairs[0], self._cam)
         except RecordingError:
             return "unknown", (0, 0)
         try:
-            img = stored.decoded()
-        except (RecordingError, cv2.error):
+            return stored.format, stored.declared_size()
+        except RecordingError:
             return stored.format, (0, 0)
-        return stored.format, (int(img.shape[1]), int(img.shape[0]))

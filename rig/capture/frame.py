@@ -3,7 +3,10 @@
 A frame is decoded at most once per view: the first access to :attr:`Frame.gray` (the luma image
 depth is computed from) or :attr:`Frame.image` (the full colour image, for clients asking for
 it) decodes and caches, and a frame that cannot be decoded raises
-:class:`~rig.errors.CorruptFrameError` every time it is asked (the supervisor counts those).
+:class:`~rig.errors.CorruptFrameError` every time it is asked (the supervisor counts those). So
+does a frame whose header declares another size than the camera's (``expected_size``, or beyond
+:data:`~rig.image_size.MAX_FRAME_SIDE` where the camera has none): read from the header before
+decoding, so a small file declaring a huge image never allocates it.
 :func:`encoded_problem` is the cheap structural check (markers only, no decode) used when
 decoding in the capture thread is not wanted (recording).
 """
@@ -19,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rig.errors import CorruptFrameError
+from rig.image_size import size_problem
 
 __all__ = ["FORMAT_EXTENSIONS", "Frame", "FrameFormat", "FramePair", "encoded_problem", "format_of_path"]
 
@@ -72,7 +76,8 @@ class Frame:
     time (CLOCK_MONOTONIC ns for live cameras, the recorded value for verbatim replays);
     ``host_ns`` is when the frame reached this process (``time.monotonic_ns()``). ``raw`` holds
     the bytes exactly as delivered (MJPEG/PNG); ``source`` names where they came from, for
-    error messages.
+    error messages; ``expected_size`` is the camera's (width, height), which the raw bytes'
+    header must declare to be decoded.
     """
 
     camera: str
@@ -82,6 +87,7 @@ class Frame:
     host_ns: int
     raw: bytes | None = None
     source: str | None = None
+    expected_size: tuple[int, int] | None = None
     _image: NDArray[Any] | None = field(default=None, repr=False)
     _gray: NDArray[np.uint8] | None = field(default=None, repr=False)
     _error: str | None = field(default=None, repr=False)
@@ -146,7 +152,8 @@ class Frame:
         """The raw bytes decoded with ``flags`` (under the lock); a failure is remembered."""
         if self._error is None:
             data = self.raw or b""
-            problem = encoded_problem(data, self.format)
+            fmt = self.format
+            problem = encoded_problem(data, fmt) or size_problem(data, fmt, self.expected_size)
             img = None
             if problem is None:
                 try:

@@ -191,7 +191,11 @@ class V4L2Camera:
             raise CorruptFrameError(f"camera {self.name}: frame {seq}: retrieve() returned no data")
         source = str(self._target)
         if self.config.fourcc == "MJPG" and data.ndim == 2 and data.shape[0] == 1:
-            return Frame(self.name, seq, ts_ns, "jpeg", host_ns, raw=data.tobytes(), source=source)
+            c = self.config
+            size = self._negotiated[1:3] if self._negotiated else (c.width, c.height)
+            return Frame(
+                self.name, seq, ts_ns, "jpeg", host_ns, raw=data.tobytes(), source=source, expected_size=size
+            )
         return Frame.from_image(self.name, seq, ts_ns, data, host_ns, source=source)
 
     def controls(self) -> dict[str, float]:

@@ -1,4 +1,5 @@
-"""The benchmarks' generated inputs go to a per-session directory, not the user's cache."""
+"""The benchmarks' generated inputs go to the session's bench cache (tests/conftest.py), not the
+user's cache."""
 
 from __future__ import annotations
 
@@ -8,11 +9,6 @@ from pathlib import Path
 import pytest
 
 from bench.common import BENCH_CACHE_ENV
-
-
-@pytest.fixture(scope="session")
-def bench_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("bench-cache")
 
 
 @pytest.fixture()

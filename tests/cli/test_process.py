@@ -86,7 +86,8 @@ def small(rec: Path) -> list[str | Path]:
 def test_process_a_rig_sim_recording(tmp_path: Path) -> None:
     rec = tmp_path / "rec"
     sim_args = ["--preset", "prototype", "--scale", "0.5", "--scene", "plane", "--distances", "4.5,9"]
-    sim_args += ["--supersample", "2", "--noise", "1", "--vignetting", "0"]
+    # The honest lens's optics and exposures, 1 grey level of gaussian noise, no rim darkening.
+    sim_args += ["--supersample", "2", "--lens", "honest", "--noise", "1", "--vignetting", "0"]
     sim = run("sim", *sim_args, "--out", rec, *VPC_ARGS, tmp=tmp_path)
     assert sim.returncode == 0, sim.stderr
     # At 320 px wide, 64 disparities (Z > 2.5 B at fx = 160) keep the left band of unmatched

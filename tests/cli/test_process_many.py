@@ -62,6 +62,16 @@ def test_several_recordings_on_a_local_cluster_equal_single_runs(recs: Path, tmp
     assert files_of(out / "b") == files_of(tmp_path / "b")
 
 
+def test_resume_into_the_output_of_another_recording_is_refused(recs: Path, tmp_path: Path) -> None:
+    out, cache = tmp_path / "out", tmp_path / "c"
+    assert run("process", recs / "a", "--out", out, *_options(recs), cache=cache).returncode == 0
+    before = files_of(out)
+    other = run("process", recs / "b", "--out", out, *_options(recs), "--resume", cache=cache)
+    line = assert_one_line_error(other)
+    assert "run.json: the files there were made from another recording" in line and "--resume" in line
+    assert files_of(out) == before  # a's files and run.json untouched
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

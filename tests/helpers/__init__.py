@@ -8,10 +8,13 @@
 - :mod:`~tests.helpers.ring`: the real ring of four fisheyes in the shared data, read into a
   ``Rig`` and its frames (also used by ``bench.ring_consistency``);
 - :mod:`~tests.helpers.service`: service settings for a replayed recording and ``create_app``
-  under a real uvicorn server in a thread;
+  run in process (``InProcessServer``) or under a real uvicorn server in a thread
+  (``LiveServer``);
 - :mod:`~tests.helpers.offline`: noisy recordings of a rendered plane for the offline-processing
   tests, and output trees by file;
 - :mod:`~tests.helpers.disks`: a real full disk (a small tmpfs);
+- :mod:`~tests.helpers.inputs`: what a test needs from outside the repo (the real data, tools CI
+  installs): skipped locally and counted in one line, a failure under ``RIG_REQUIRE_TEST_INPUTS``;
 - :mod:`~tests.helpers.command`: the ``rig`` console command in subprocesses (one-shot runs and
   ``rig serve`` waited for until it answers).
 

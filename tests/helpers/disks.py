@@ -10,7 +10,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-import pytest
+from tests.helpers.inputs import missing_input
 
 __all__ = ["SmallDisk", "tmpfs_disk"]
 
@@ -44,7 +44,7 @@ def tmpfs_disk(where: Path, size: int) -> Iterator[SmallDisk]:
     where.mkdir(parents=True)
     why = _mount_tmpfs(where, size)
     if why is not None:
-        pytest.skip(f"no real full disk here ({why})")
+        missing_input("a tmpfs mount", f"no real full disk here ({why})")
     try:
         yield SmallDisk(where, size, {})
     finally:

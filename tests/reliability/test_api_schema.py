@@ -24,7 +24,7 @@ from service.app import create_app
 from service.client import RigClient
 from service.errors import ApiError
 from tests.helpers.command import clean_env, start_serve
-from tests.helpers.service import AUTH, TOKEN, LiveServer, StartServer, service_settings, write_serve_config
+from tests.helpers.service import AUTH, TOKEN, LiveServer, StartApp, service_settings, write_serve_config
 from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.timeout(900)]
@@ -117,12 +117,12 @@ def test_schemathesis_saw_every_operation(api_server: LiveServer) -> None:
 
 
 def test_a_patch_opencv_refuses_only_when_matching_is_refused_up_front(
-    start_server: StartServer,
+    start_app: StartApp,
 ) -> None:
     """Found by the generated PATCHes: full SGBM with 304 disparities from 10 and a 19 px window
     passes every static check on a 320 px VPC, then OpenCV refused every frame in the worker."""
-    live = start_server()
-    with RigClient(live.base_url, token=TOKEN) as client:
+    live = start_app()
+    with live.rig_client(TOKEN) as client:
         before = client.config().stereo
         errors = client.health().worker.errors
         with pytest.raises(ApiError) as refused:
@@ -162,7 +162,13 @@ def test_a_patch_that_would_crash_opencv_is_refused_and_the_service_lives(
                 detail = str(refused.value.detail)
                 assert refused.value.status == 422
                 assert "uniqueness_ratio" in detail
-            assert client.patch_config(uniqueness_ratio=99.0).stereo.uniqueness_ratio == 99.0
+            # 99.0 is inside the bound: the matcher runs it; on this scene it gives depth on far
+            # less than the parameters in effect, so the trial on the newest frame refuses it.
+            with pytest.raises(ApiError) as collapsed:
+                client.patch_config(uniqueness_ratio=99.0)
+            assert collapsed.value.status == 422
+            assert str(collapsed.value.detail).startswith("stereo parameters refused: on the newest frame")
+            assert client.patch_config(uniqueness_ratio=20.0).stereo.uniqueness_ratio == 20.0
             seq = client.depth().seq
             wait_for(lambda: client.depth().seq > seq + 2, 15, "depth after the refused PATCH")
             assert served.proc.poll() is None

@@ -5,9 +5,11 @@ For every fault (stall 3 s, disconnect and reappear, corrupt JPEG, truncated fra
 timestamp jump forward and back, one camera at half rate):
 
 - the service never goes down: every ``/livez`` answers 200 and the worker keeps running;
-- ``/health`` names the camera and the reason within 1 s of the injection (polled at 20 Hz);
-- depth resumes (``/depth`` with a newer ``X-Frame-Seq`` and a timestamp after the fault) at
-  most 2 s after the fault clears;
+- ``/health`` names the camera and the reason (polled at 20 Hz; the stall and the disconnect
+  while they last, as the camera's state);
+- depth resumes: ``/depth`` gives a newer ``X-Frame-Seq`` with a timestamp after the fault;
+- how long each took is printed (``-s``), not asserted: on a loaded machine it is the machine's
+  figure (tests assert no wall-clock time; docs/development.md);
 - the counters of ``/health`` and ``/metrics`` change by exactly what the fault implies: at
   10 fps one frame is scheduled every 100 ms, so a 3 s stall loses 30 frames of that camera
   and leaves 30 frames of the other without a partner, 3 corrupt frames are 3 corrupt frames
@@ -39,8 +41,6 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
 
 PERIOD_S = 1.0 / REPLAY_FPS
 POLL_S = 0.05  # 20 Hz
-REPORT_WITHIN_S = 1.0
-RESUME_WITHIN_S = 2.0
 CAMERAS = ("left", "right")
 #: /health counter -> Prometheus sample of the same figure.
 METRIC_OF = {
@@ -296,7 +296,6 @@ def test_fault_is_reported_recovered_and_counted_exactly(watch: Watch, server: L
         return case.shows(cam_before, h.cameras[case.camera])
 
     reported_at = watch.until(reported, 10, f"/health to report {name}")
-    assert reported_at - t0 <= REPORT_WITHIN_S, f"{name} reported after {reported_at - t0:.2f} s"
 
     # Depth resumes: a newer frame captured after the fault was over for sure.
     clear_earliest = t0 + case.clears_s[0]
@@ -308,9 +307,6 @@ def test_fault_is_reported_recovered_and_counted_exactly(watch: Watch, server: L
         return seq > seq_before and ts > clear_latest_ns
 
     resumed_at = watch.until(fresh_depth, 15, f"depth to resume after {name}")
-    assert resumed_at - clear_earliest <= RESUME_WITHIN_S, (
-        f"{name}: depth resumed {resumed_at - clear_earliest:.2f} s after the fault cleared"
-    )
 
     # Back to normal; then every counter has settled and is compared exactly.
     after = watch.steady()

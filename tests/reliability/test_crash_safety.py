@@ -30,11 +30,10 @@ import pytest
 
 import rig.recording
 from rig.recording import Recording
-from service.client import RigClient
 from tests.helpers.command import RIG, assert_one_line_error, clean_env, run_rig
 from tests.helpers.disks import SmallDisk, tmpfs_disk
 from tests.helpers.recordings import write_recording
-from tests.helpers.service import TOKEN, StartServer
+from tests.helpers.service import TOKEN, StartApp
 from tests.helpers.waiting import wait_for
 from tests.reliability.fake_disk import limited_open
 
@@ -183,12 +182,12 @@ def test_full_disk_stops_rig_record_with_one_line_and_keeps_what_was_written(
 
 @pytest.mark.parametrize("kind", DISKS)
 def test_full_disk_under_the_running_service(
-    start_server: StartServer, jpeg_recording: Path, tmp_path: Path, kind: str
+    start_app: StartApp, jpeg_recording: Path, tmp_path: Path, kind: str
 ) -> None:
     src = Recording(jpeg_recording)
     with DISKS[kind](tmp_path / "disk", 2 * 1024 * 1024) as disk:
-        live = start_server(recordings_dir=str(disk.root))
-        with RigClient(live.base_url, token=TOKEN) as client:
+        live = start_app(recordings_dir=str(disk.root))
+        with live.rig_client(TOKEN) as client:
             client.start_recording("fills-the-disk")
             wait_for(lambda: client.recordings()[0].error is not None, 60, "the disk to fill")
             failing = client.recordings()[0]

@@ -17,7 +17,7 @@ import pytest
 
 from service.serve import FD_RESERVE
 from tests.helpers.command import assert_one_line_error, clean_env, run_rig, start_serve, wait_healthy
-from tests.helpers.service import write_serve_config
+from tests.helpers.service import LOAD_REASONS, write_serve_config
 
 pytestmark = [pytest.mark.timeout(300)]
 
@@ -87,7 +87,11 @@ def test_a_connection_flood_beyond_the_descriptor_limit_leaves_the_cameras_worki
         text = served.stop()
     print(f"\n{FLOOD} slowloris connections under ulimit -n {NOFILE}: server peak {peak} descriptors")
     assert [r.status_code for r in during] == [200] * 10, [r.text[:200] for r in during]
-    assert all(r.json()["status"] == "ok" for r in during), [r.json() for r in during]
+    # Never down, and degraded only for what the flood's CPU costs (frames dropped), not for a
+    # camera that could not open its frames.
+    docs = [r.json() for r in during]
+    assert all(d["status"] in ("ok", "degraded") for d in docs), docs
+    assert all(LOAD_REASONS.fullmatch(reason) for d in docs for reason in d["reasons"]), docs
     assert peak <= MAX_CONNECTIONS + FD_RESERVE, peak
     for name, camera in after["cameras"].items():
         assert camera["state"] == "available", camera

@@ -1,7 +1,9 @@
 """Load: 32 concurrent loopback clients for 30 s against ``rig serve`` (a real subprocess, so the
 clients do not share its interpreter) on ``/depth``, ``/health`` and ``/stream.mjpg``: no errors,
-health stays ok, the depth worker keeps producing, and the server's memory stays bounded and under
-the memory budget it exports (``rig_memory_budget_bytes``).
+every ``/health`` poll answered and never down (degraded only for what a starved machine causes:
+frames dropped, a depth frame late; never a worker, capture or calibration error), the depth worker
+keeps producing, and the server's memory stays bounded and under the memory budget it exports
+(``rig_memory_budget_bytes``).
 
 Memory bound: the service keeps the latest result and its encoded bodies (a few hundred kB at
 320x240), per-connection buffers and the allocator's working set; after a warm-up with every
@@ -14,15 +16,18 @@ even 1 kB would add at the request rates measured here (tens of thousands of req
 from __future__ import annotations
 
 import asyncio
+import re
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
 
 from tests.helpers.command import Served, clean_env, start_serve, wait_healthy
-from tests.helpers.service import write_serve_config
+from tests.helpers.service import LOAD_REASONS, write_serve_config
 from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
@@ -42,7 +47,8 @@ class Tally:
     requests: dict[str, int] = field(default_factory=lambda: {"depth": 0, "health": 0, "stream": 0})
     parts: int = 0
     errors: list[str] = field(default_factory=list)
-    statuses: set[str] = field(default_factory=set)
+    statuses: Counter[str] = field(default_factory=Counter)
+    reasons: Counter[str] = field(default_factory=Counter)
 
 
 def rss_mb(pid: int) -> float:
@@ -71,8 +77,10 @@ async def health_client(base: str, until: float, tally: Tally) -> None:
             try:
                 r = await c.get("/health")
                 doc = r.json()
-                tally.statuses.add(doc["status"])
-                if r.status_code != 200 or doc["status"] != "ok":
+                tally.statuses[doc["status"]] += 1
+                tally.reasons.update(re.sub(r"[\d.]+", "N", reason) for reason in doc["reasons"])
+                unexpected = [reason for reason in doc["reasons"] if not LOAD_REASONS.fullmatch(reason)]
+                if r.status_code != 200 or doc["status"] not in ("ok", "degraded") or unexpected:
                     tally.errors.append(f"/health {r.status_code} {doc['status']}: {doc['reasons']}")
                 tally.requests["health"] += 1
             except (httpx.HTTPError, KeyError, ValueError) as err:
@@ -114,6 +122,11 @@ async def run_clients(base: str, seconds: float) -> Tally:
     return tally
 
 
+def healthy(base: str) -> dict[str, Any] | None:
+    doc: dict[str, Any] = httpx.get(base + "/health", timeout=10).json()
+    return doc if doc["status"] == "ok" else None
+
+
 def monitor_checked(base: str) -> bool:
     rect = httpx.get(base + "/health", timeout=10).json()["rectification"]
     return rect is None or rect["checks"] >= 1
@@ -145,7 +158,8 @@ def test_32_clients_for_30_s(served: Served) -> None:
         worker_before = httpx.get(base + "/health", timeout=10).json()["worker"]["frames_processed"]
         tally = asyncio.run(run_clients(base, DURATION_S))
         after_mb = rss_mb(pid)
-        h = httpx.get(base + "/health", timeout=10).json()
+        # Once the load is over, a degraded episode ends (frame rates are judged over a window).
+        h = wait_for(lambda: healthy(base), 60, "/health ok after the load", poll_s=0.5)
         metrics = httpx.get(base + "/metrics", timeout=10).text
         budget_mb = next(
             float(line.split()[1]) / 2**20
@@ -157,12 +171,13 @@ def test_32_clients_for_30_s(served: Served) -> None:
         text = served.stop()
     print(
         f"\n{sum(tally.requests.values())} requests in {DURATION_S:.0f} s {tally.requests}, "
-        f"{tally.parts} stream parts, {len(tally.errors)} errors; RSS {before_mb:.1f} -> {after_mb:.1f} MiB "
+        f"{tally.parts} stream parts, {len(tally.errors)} errors; /health {dict(tally.statuses)} "
+        f"{dict(tally.reasons)}; RSS {before_mb:.1f} -> {after_mb:.1f} MiB "
         f"(budget {budget_mb:.0f} MiB); "
         f"worker {h['worker']['frames_processed'] - worker_before} frames at {h['worker']['fps']:.1f} fps"
     )
     assert not tally.errors, tally.errors[:10]
-    assert tally.statuses == {"ok"}
+    assert tally.statuses["ok"] > 0 and set(tally.statuses) <= {"ok", "degraded"}
     assert min(tally.requests.values()) > 0 and tally.parts > 0
     assert h["status"] == "ok" and h["worker"]["alive"] and h["worker"]["fps"] > 0
     assert h["worker"]["frames_processed"] > worker_before  # it kept producing under load

@@ -14,7 +14,7 @@ import pytest
 
 from service.settings import ServerSettings, Settings, is_loopback
 from tests.helpers.command import assert_one_line_error, clean_env, run_rig, start_serve, wait_answering
-from tests.helpers.service import AUTH, TOKEN, LiveServer, StartServer, write_serve_config
+from tests.helpers.service import AUTH, TOKEN, InProcessServer, StartApp, StartServer, write_serve_config
 from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.timeout(300)]
@@ -135,8 +135,8 @@ BAD_HEADERS = {
 }
 
 
-def state_changing_operations(base_url: str) -> set[tuple[str, str]]:
-    spec = httpx.get(base_url + "/openapi.json", timeout=10).json()
+def state_changing_operations(client: httpx.Client) -> set[tuple[str, str]]:
+    spec = client.get("/openapi.json", timeout=10).json()
     return {
         (m.upper(), path)
         for path, ops in spec["paths"].items()
@@ -145,21 +145,21 @@ def state_changing_operations(base_url: str) -> set[tuple[str, str]]:
     }
 
 
-def snapshot(live: LiveServer) -> dict[str, Any]:
+def snapshot(live: InProcessServer) -> dict[str, Any]:
     """What an accepted request would have changed: stereo parameters and recordings (a stall
     injected into the left camera is :func:`left_camera_delivers`' to see)."""
     return {
-        "stereo": httpx.get(live.base_url + "/config", timeout=10).json()["stereo"],
-        "recordings": httpx.get(live.base_url + "/recordings", timeout=10).json(),
+        "stereo": live.client.get("/config", timeout=10).json()["stereo"],
+        "recordings": live.client.get("/recordings", timeout=10).json(),
     }
 
 
-def left_seq(live: LiveServer) -> int:
-    seq: int = httpx.get(live.base_url + "/health", timeout=10).json()["cameras"]["left"]["last_seq"]
+def left_seq(live: InProcessServer) -> int:
+    seq: int = live.client.get("/health", timeout=10).json()["cameras"]["left"]["last_seq"]
     return seq
 
 
-def left_camera_delivers(live: LiveServer) -> bool:
+def left_camera_delivers(live: InProcessServer) -> bool:
     """The left camera keeps delivering frames (an injected 30 s stall would stop them). Its
     state or loss counter would not do: a camera thread starved on a loaded machine loses a
     frame or turns unavailable for a moment without any fault."""
@@ -168,30 +168,24 @@ def left_camera_delivers(live: LiveServer) -> bool:
 
 
 @pytest.mark.parametrize("token_configured", [True, False], ids=["with-token", "no-token-configured"])
-def test_every_state_changing_endpoint_needs_the_token(
-    start_server: StartServer, token_configured: bool
-) -> None:
-    live = start_server(**({} if token_configured else {"api_token": None}))
-    operations = state_changing_operations(live.base_url)
+def test_every_state_changing_endpoint_needs_the_token(start_app: StartApp, token_configured: bool) -> None:
+    live = start_app(**({} if token_configured else {"api_token": None}))
+    operations = state_changing_operations(live.client)
     assert operations == set(VALID_CALLS), "a new state-changing endpoint needs a row in VALID_CALLS"
     before = snapshot(live)
     for (method, _), (path, body) in VALID_CALLS.items():
         for label, headers in BAD_HEADERS.items():
             params = {"token": TOKEN, "access_token": TOKEN} if label == "query instead" else None
-            r = httpx.request(
-                method, live.base_url + path, json=body, headers=headers, params=params, timeout=10
-            )
+            r = live.client.request(method, path, json=body, headers=headers, params=params, timeout=10)
             assert r.status_code == 401, (method, path, label, r.status_code, r.text)
             assert r.headers["www-authenticate"] == "Bearer" and r.json()["detail"]
         # Even the right token is refused when the server has none configured.
-        r = httpx.request(method, live.base_url + path, json=body, headers=AUTH, timeout=10)
+        r = live.client.request(method, path, json=body, headers=AUTH, timeout=10)
         assert (r.status_code == 401) == (not token_configured), (method, path, r.status_code)
         if not token_configured:
             assert "no API token configured" in r.json()["detail"]
         # An invalid body does not reveal validation before authentication either.
-        r = httpx.request(
-            method, live.base_url + path, content=b"{", headers={"content-type": "application/json"}
-        )
+        r = live.client.request(method, path, content=b"{", headers={"content-type": "application/json"})
         assert r.status_code == 401, (method, path, "invalid body", r.status_code)
     if not token_configured:
         assert snapshot(live) == before  # nothing changed at all
@@ -230,18 +224,18 @@ def tree(root: Path) -> set[str]:
 
 @pytest.mark.parametrize("name", list(BAD_NAMES.values()), ids=list(BAD_NAMES))
 def test_recording_names_that_could_escape_are_rejected(
-    start_server: StartServer, tmp_path: Path, name: str
+    start_app: StartApp, tmp_path: Path, name: str
 ) -> None:
-    live = start_server(ready=False)
+    live = start_app(ready=False)
     recordings = live.settings.server.recordings_dir
     before = tree(tmp_path)
-    r = httpx.post(live.base_url + "/recordings", json={"name": name}, headers=AUTH, timeout=10)
+    r = live.client.post("/recordings", json={"name": name}, headers=AUTH, timeout=10)
     assert r.status_code == 422 and r.json()["detail"], (name, r.status_code, r.text)
     # The same name as a path segment of the stop endpoint (percent-encoded by the client).
     quoted = httpx.URL(live.base_url + "/recordings/").copy_with(
         raw_path=b"/recordings/" + _quote(name) + b"/stop"
     )
-    r = httpx.post(quoted, headers=AUTH, timeout=10)
+    r = live.client.post(quoted, headers=AUTH, timeout=10)
     assert 400 <= r.status_code < 500 and r.status_code != 401, (name, r.status_code)
     assert tree(tmp_path) == before  # nothing created anywhere under the test's directory
     assert not recordings.exists() or not any(recordings.iterdir())
@@ -255,14 +249,14 @@ def _quote(name: str) -> bytes:
     return quote(name, safe="").encode("ascii") or b"%20"
 
 
-def test_a_plain_name_is_created_directly_inside_recordings_dir(start_server: StartServer) -> None:
-    live = start_server()
+def test_a_plain_name_is_created_directly_inside_recordings_dir(start_app: StartApp) -> None:
+    live = start_app()
     recordings = live.settings.server.recordings_dir
-    r = httpx.post(live.base_url + "/recordings", json={"name": "Run_1.a-b"}, headers=AUTH, timeout=10)
+    r = live.client.post("/recordings", json={"name": "Run_1.a-b"}, headers=AUTH, timeout=10)
     assert r.status_code == 201, r.text
     assert Path(r.json()["path"]) == (recordings / "Run_1.a-b").resolve()
-    wait_for(lambda: httpx.get(live.base_url + "/recordings").json()[0]["pairs"] >= 1, 20, "a recorded pair")
-    r = httpx.post(live.base_url + "/recordings/Run_1.a-b/stop", headers=AUTH, timeout=30)
+    wait_for(lambda: live.client.get("/recordings").json()[0]["pairs"] >= 1, 20, "a recorded pair")
+    r = live.client.post("/recordings/Run_1.a-b/stop", headers=AUTH, timeout=30)
     assert r.status_code == 200 and [p.name for p in recordings.iterdir()] == ["Run_1.a-b"]
 
 

@@ -68,11 +68,46 @@ def test_swapped_cameras_are_named_either_way(room: StereoShot, cache: Path) -> 
 def test_a_moved_mount_shows_as_rows_apart(cache: Path, pitch_deg: float, severity: str) -> None:
     moved = room_shot(0, scale=0.5, vpc=VPC, pitch_deg=pitch_deg)  # rendered with the right camera pitched
     result = check_calibration(pipeline(prototype_rig(0.5), cache), moved.left, moved.right)
-    assert [f.severity for f in result.findings] == [severity], result.findings
+    assert result.findings[0].severity == severity, result.findings
     assert "rows are" in result.findings[0].message and "recalibrate" in result.findings[0].message
+    # Rows apart cost depth too: a low-depth warning may follow, and only when depth is low.
+    for later in result.findings[1:]:
+        assert later.severity == "warning" and "has depth on the first pair" in later.message
+        assert result.valid_fraction is not None and result.valid_fraction < 0.25
     # fx·tan(pitch) at the VPC's fx = 160: what the pitch moves a point at the centre.
     expected = 160 * np.tan(np.radians(pitch_deg))
     assert result.vertical_px == pytest.approx(expected, rel=0.3)
+
+
+@pytest.mark.parametrize(("blank", "warns"), [(0.6, False), (0.85, True)])
+def test_the_valid_fraction_counts_what_both_cameras_see(cache: Path, blank: float, warns: bool) -> None:
+    """The lat-lon pair with the right calibration, the top ``blank`` of both fisheye frames one grey
+    (an overcast sky, a blank ceiling): no depth there whatever the calibration. The share of depth
+    is counted over the directions both lookup tables cover (about 50 % of this pair's image, the
+    rest cannot have depth), so 60 % blank is no warning (it was: "only 19 % of the VPC has depth");
+    85 % blank still is."""
+    latlon = RectifiedPairConfig(projection="latlon", px_per_deg=5.585 / 2)
+    shot = room_shot(0, scale=0.5, vpc=latlon)
+    pipe = DepthPipeline(shot.rig, latlon, StereoParams(), cache_dir=cache)
+    left, right = shot.left.copy(), shot.right.copy()
+    rows = int(blank * left.shape[0])
+    left[:rows], right[:rows] = 128, 128
+    frame = pipe.process(left, right)
+    result = check_calibration(pipe, left, right, frame)
+    seen = pipe.luts["left"].valid & pipe.luts["right"].valid
+    whole = float(frame.valid.mean())
+    print(
+        f"blank {blank:.0%}: depth on {whole:.1%} of the image, {result.valid_fraction:.1%} of what both see"
+    )
+    assert 0.3 < seen.mean() < 0.7  # the part both lenses see: the share the check must count over
+    assert result.valid_fraction == pytest.approx(
+        np.count_nonzero(frame.valid & seen) / np.count_nonzero(seen)
+    )
+    low = [f.message for f in result.findings if "has depth on the first pair" in f.message]
+    assert bool(low) == warns, result.findings
+    assert [f.severity for f in result.findings] == (["warning"] if warns else [])
+    if not warns:
+        assert whole < 0.25 <= result.valid_fraction  # what the whole-image count called suspect
 
 
 def test_frames_of_another_size_are_named_with_the_likely_cause() -> None:

@@ -44,7 +44,8 @@ class FakeHardware:
     )
     present: bool = True
     pos_msec: Callable[[], float] = field(default_factory=lambda: lambda: time.monotonic_ns() / 1e6)
-    jpeg: bytes = field(default_factory=lambda: encode(frame_image("left", 0), ".jpg"))
+    # MJPEG frames of the size the default config negotiates (a frame of another size is refused).
+    jpeg: bytes = field(default_factory=lambda: encode(frame_image("left", 0, 1280, 960), ".jpg"))
     opened_targets: list[Any] = field(default_factory=list)
     calls: list[tuple[str, int, float]] = field(default_factory=list)
     empty_retrieve: bool = False

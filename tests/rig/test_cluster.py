@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import distributed
 import pytest
 
 from calibration.atomic import is_temporary
@@ -21,8 +22,6 @@ from rig.recording import Recording
 from rig.recording_jobs import ProcessOptions, RecordingJob, RecordingSource, RecordingSummary
 from rig.stereo import StereoParams
 from tests.helpers.offline import STEREO, TEMPORAL, files_of, make_pipeline, noisy_recording
-
-distributed = pytest.importorskip("distributed", reason="rig process --scheduler needs dask.distributed")
 
 
 @pytest.fixture(scope="module")

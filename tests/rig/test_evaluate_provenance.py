@@ -3,7 +3,6 @@ itself on real repositories (this checkout and throwaway ones)."""
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -11,7 +10,7 @@ import pytest
 
 from rig.evaluate.provenance import SOURCE_ROOT, SourceRevision, source_revision
 
-pytestmark = pytest.mark.skipif(shutil.which("git") is None, reason="git is not installed")
+pytestmark = pytest.mark.needs_tool("git", "apt-get install git")
 
 
 def git(root: Path, *args: str) -> str:

@@ -4,8 +4,9 @@ intrinsics of ``mrcal.rectified_system`` and the ranges of ``mrcal.stereo_range`
 
 mrcal is not on PyPI for this Python; Debian ships it (``apt-get install python3-mrcal``) for the
 system interpreter. ``RIG_MRCAL_PYTHON`` names an interpreter that imports it (default
-``/usr/bin/python3``); where none does these tests skip, saying so. The same conventions are
-tested without mrcal in tests/calibration/test_latlon.py and tests/rig/test_range.py.
+``/usr/bin/python3``); where none does these tests skip, saying so (they fail instead in CI, which
+installs it). The same conventions are tested without mrcal in tests/calibration/test_latlon.py
+and tests/rig/test_range.py.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from calibration.models import EquirectModel, LatLonModel, create
 from calibration.rig import Rig
 from rig.depth import latlon_range
 from rig.rectified import RectifiedPairConfig, design_rectified_pair
+from tests.helpers.inputs import missing_input
 
 _PYTHON = os.environ.get("RIG_MRCAL_PYTHON", "/usr/bin/python3")
 
@@ -31,9 +33,11 @@ def _mrcal_python() -> str:
     try:
         probe = subprocess.run([_PYTHON, "-c", "import mrcal"], capture_output=True, timeout=60)
     except (OSError, subprocess.TimeoutExpired) as err:
-        pytest.skip(f"no interpreter with mrcal ({_PYTHON}: {err}); set RIG_MRCAL_PYTHON")
+        missing_input("mrcal", f"no interpreter {_PYTHON} ({err}); set RIG_MRCAL_PYTHON")
     if probe.returncode != 0:
-        pytest.skip(f"{_PYTHON} cannot import mrcal (apt-get install python3-mrcal, or set RIG_MRCAL_PYTHON)")
+        missing_input(
+            "mrcal", f"{_PYTHON} cannot import it (apt-get install python3-mrcal, or set RIG_MRCAL_PYTHON)"
+        )
     return _PYTHON
 
 

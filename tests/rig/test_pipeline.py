@@ -18,6 +18,7 @@ from calibration.models import create
 from calibration.rig import Rig
 from rig.errors import ConfigError, LutError, PipelineError
 from rig.filters import TemporalFilter, median_filter
+from rig.match_input import matcher_input
 from rig.pipeline import DepthPipeline
 from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams, create_opencv_matcher
@@ -119,10 +120,15 @@ def test_finish_on_the_active_columns_is_exactly_the_whole_frame(
 def _finish_by_the_stage_functions(
     left: NDArray[np.uint8], right: NDArray[np.uint8], p: StereoParams, temporal: TemporalFilter, fx_b: float
 ) -> dict[str, NDArray[np.generic] | None]:
-    """The finish stage written out in one pass over the whole frame, from the references its
-    parts are tested against: the bare OpenCV matcher, the single-pass refinement, the median,
-    confidence exp(−σ/σ0) where valid, the temporal filter and depth fx·B/d."""
-    fixed = create_opencv_matcher(p).compute(left, right)
+    """The stages written out in one pass over the whole frame, from the references their parts
+    are tested against: the matcher's input (tests/rig/test_match_input.py), the bare OpenCV
+    matcher, the single-pass refinement (on the images as they are), the median, confidence
+    exp(−σ/σ0) where valid, the temporal filter and depth fx·B/d."""
+    seen = (
+        matcher_input(g, p.match_blur_sigma, p.match_normalise_window, p.match_normalise_eps)
+        for g in (left, right)
+    )
+    fixed = create_opencv_matcher(p).compute(*seen)
     valid = fixed >= p.min_disparity * 16
     disparity = np.where(valid, fixed / np.float32(16.0), np.float32(np.nan)).astype(np.float32)
     sigma = None

@@ -4,6 +4,7 @@ and what a run does with an earlier run's files."""
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import cv2
@@ -129,6 +130,24 @@ def test_resume_refuses_files_made_with_other_settings(rec: Path, tmp_path: Path
             resume=True,
             products=("range", "depth", "left", "right", "preview"),
         )
+
+
+def test_resume_refuses_the_files_of_another_recording(rec: Path, tmp_path: Path) -> None:
+    # Another recording with the same index (seqs, capture times) and other frames.
+    other = noisy_recording(tmp_path / "other", N_PAIRS, seed=7, first_seq=10)
+    out = tmp_path / "out"
+    _run(rec, out, STEREO, tmp_path / "c")
+    before = files_of(out)
+    with pytest.raises(
+        ConfigError, match=r"run\.json: the files there were made from another recording \(.*rec\)"
+    ):
+        _run(other, out, STEREO, tmp_path / "c", resume=True)
+    assert files_of(out) == before  # the files kept, run.json still naming the first recording
+    # The same recording elsewhere is the same recording: nothing to redo.
+    moved = tmp_path / "moved"
+    shutil.copytree(rec, moved)
+    (summary,) = _run(moved, out, STEREO, tmp_path / "c", resume=True)
+    assert (summary.written, summary.resumed) == (0, N_PAIRS)  # type: ignore[attr-defined]
 
 
 def test_a_new_run_first_removes_an_earlier_runs_files_of_its_pairs(rec: Path, tmp_path: Path) -> None:

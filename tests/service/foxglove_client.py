@@ -40,6 +40,9 @@ class FoxgloveClient:
             proxy=None,
             max_size=64 << 20,
             open_timeout=timeout_s,
+            # A client that stopped reading (websockets stops reading the socket once 16 messages
+            # wait) never sees the server's close frame: closing it waits this long, not 10 s.
+            close_timeout=1.0,
         )
         self.ws: ClientConnection = self._connection.__enter__()
         assert self.ws.subprotocol in SUBPROTOCOLS

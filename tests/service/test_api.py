@@ -1,4 +1,4 @@
-"""Read-only endpoints of a real server (uvicorn on loopback) replaying a rendered room: headers,
+"""Read-only endpoints of the service (the app in process) replaying a rendered room: headers,
 formats, depth against the renderer's ground truth, point cloud geometry, calibration, metrics."""
 
 from __future__ import annotations
@@ -7,7 +7,6 @@ import io
 from typing import Any
 
 import cv2
-import httpx
 import numpy as np
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
@@ -15,15 +14,15 @@ from prometheus_client.parser import text_string_to_metric_families
 from calibration import load_rig
 from calibration.geometry import invert_transform, transform_points
 from rig.rectified import design_rectified_pair
-from service.client import RigClient, parse_ply
-from tests.helpers.service import SMALL_SPEC, LiveServer, SmallRecording, same_frame
+from service.client import parse_ply
+from tests.helpers.service import SMALL_SPEC, InProcessServer, SmallRecording, same_frame
 from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.timeout(120)
 
 
-def test_depth_headers_and_formats(shared_server: LiveServer) -> None:
-    r = httpx.get(shared_server.base_url + "/depth")
+def test_depth_headers_and_formats(shared_app: InProcessServer) -> None:
+    r = shared_app.client.get("/depth")
     assert r.status_code == 200 and r.headers["content-type"] == "image/png"
     assert int(r.headers["X-Frame-Seq"]) >= 0 and int(r.headers["X-Timestamp-Ns"]) > 0
     # The frame's age, arrival to published, under its name and its first name.
@@ -31,15 +30,15 @@ def test_depth_headers_and_formats(shared_server: LiveServer) -> None:
     assert r.headers["X-Depth-Scale"] == "0.001"
     png = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_UNCHANGED)
     assert png.dtype == np.uint16 and png.shape == (SMALL_SPEC.vpc.height, SMALL_SPEC.vpc.width)
-    r = httpx.get(shared_server.base_url + "/depth", params={"format": "npy"})
+    r = shared_app.client.get("/depth", params={"format": "npy"})
     assert r.headers["content-type"] == "application/x-npy" and r.headers["X-Depth-Scale"] == "1"
     arr = np.load(io.BytesIO(r.content), allow_pickle=False)
     assert arr.dtype == np.float32 and arr.shape == png.shape
     assert np.isnan(arr).any() and np.isfinite(arr).any()
 
 
-def test_png_and_npy_agree(shared_server: LiveServer) -> None:
-    with RigClient(shared_server.base_url) as c:
+def test_png_and_npy_agree(shared_app: InProcessServer) -> None:
+    with shared_app.rig_client() as c:
         npy, png = same_frame(lambda: c.depth("npy"), lambda: c.depth("png"))
     ok = np.isfinite(npy.depth)
     fits = np.zeros_like(ok)
@@ -48,8 +47,8 @@ def test_png_and_npy_agree(shared_server: LiveServer) -> None:
     assert np.abs(png.depth[fits] - npy.depth[fits]).max() <= 0.0005 + 1e-6  # rounding to 1 mm
 
 
-def test_depth_matches_ground_truth(shared_server: LiveServer, small_recording: SmallRecording) -> None:
-    with RigClient(shared_server.base_url) as c:
+def test_depth_matches_ground_truth(shared_app: InProcessServer, small_recording: SmallRecording) -> None:
+    with shared_app.rig_client() as c:
         d = c.depth("npy").depth
         cal = c.calibration()
     gt = small_recording.gt_depth
@@ -62,8 +61,8 @@ def test_depth_matches_ground_truth(shared_server: LiveServer, small_recording: 
     assert np.mean(err_px < 1.0) > 0.85
 
 
-def test_disparity_formats_and_relation_to_depth(shared_server: LiveServer) -> None:
-    with RigClient(shared_server.base_url) as c:
+def test_disparity_formats_and_relation_to_depth(shared_app: InProcessServer) -> None:
+    with shared_app.rig_client() as c:
         disp, depth = same_frame(lambda: c.disparity("npy"), lambda: c.depth("npy"))
         cal = c.calibration()
         png = c.disparity("png")
@@ -75,13 +74,13 @@ def test_disparity_formats_and_relation_to_depth(shared_server: LiveServer) -> N
 
 
 def test_confidence_is_aligned_with_depth_and_ranks_its_errors(
-    shared_server: LiveServer, small_recording: SmallRecording
+    shared_app: InProcessServer, small_recording: SmallRecording
 ) -> None:
-    with RigClient(shared_server.base_url) as c:
+    with shared_app.rig_client() as c:
         conf, depth = same_frame(lambda: c.confidence("npy"), lambda: c.depth("npy"))
         png, npy = same_frame(lambda: c.confidence("png"), lambda: c.confidence("npy"))
         cal = c.calibration()
-    r = httpx.get(shared_server.base_url + "/confidence")
+    r = shared_app.client.get("/confidence")
     assert r.headers["content-type"] == "image/png" and float(
         r.headers["X-Confidence-Scale"]
     ) == pytest.approx(1 / 255)
@@ -104,32 +103,32 @@ def test_confidence_is_aligned_with_depth_and_ranks_its_errors(
     assert np.mean(err[high]) < 0.8 * np.mean(err[~high])
 
 
-def test_frames_raw_and_vpc(shared_server: LiveServer, small_recording: SmallRecording) -> None:
+def test_frames_raw_and_vpc(shared_app: InProcessServer, small_recording: SmallRecording) -> None:
     rig = load_rig(small_recording.loop / "calibration.yaml")
-    with RigClient(shared_server.base_url) as c:
+    with shared_app.rig_client() as c:
         for cam in ("left", "right"):
             raw = c.frames(cam, "raw")
             assert raw.image.shape[:2] == (rig.cameras[cam].height, rig.cameras[cam].width)
             vpc = c.frames(cam, "vpc")
             assert vpc.image.shape[:2] == (SMALL_SPEC.vpc.height, SMALL_SPEC.vpc.width)
             assert vpc.image.std() > 10  # a textured room, not a blank image
-    r = httpx.get(shared_server.base_url + "/frames/left", params={"view": "raw"})
+    r = shared_app.client.get("/frames/left", params={"view": "raw"})
     assert r.headers["content-type"] == "image/jpeg" and r.content[:2] == b"\xff\xd8"
     assert r.headers["X-Camera"] == "left" and int(r.headers["X-Frame-Seq"]) >= 0
 
 
-def test_colorized_depth_is_a_jpeg_of_the_vpc_size(shared_server: LiveServer) -> None:
-    with RigClient(shared_server.base_url) as c:
+def test_colorized_depth_is_a_jpeg_of_the_vpc_size(shared_app: InProcessServer) -> None:
+    with shared_app.rig_client() as c:
         img = c.depth_colorized().image
     assert img.shape == (SMALL_SPEC.vpc.height, SMALL_SPEC.vpc.width, 3)
 
 
-def test_pointcloud_geometry(shared_server: LiveServer) -> None:
+def test_pointcloud_geometry(shared_app: InProcessServer) -> None:
     stride = 4
-    with RigClient(shared_server.base_url) as c:
+    with shared_app.rig_client() as c:
         cloud, depth = same_frame(lambda: c.pointcloud(stride), lambda: c.depth("npy"))
         cal = c.calibration()
-    r = httpx.get(shared_server.base_url + "/pointcloud", params={"stride": stride})
+    r = shared_app.client.get("/pointcloud", params={"stride": stride})
     assert r.headers["content-type"] == "application/x-ply" and r.content.startswith(b"ply\n")
     pts, cols = parse_ply(r.content)
     assert cols is not None and pts.shape[1] == 3
@@ -146,10 +145,12 @@ def test_pointcloud_geometry(shared_server: LiveServer) -> None:
     assert cloud.points.shape[0] == expected_n
 
 
-def test_calibration_matches_the_rig_file(shared_server: LiveServer, small_recording: SmallRecording) -> None:
+def test_calibration_matches_the_rig_file(
+    shared_app: InProcessServer, small_recording: SmallRecording
+) -> None:
     rig = load_rig(small_recording.loop / "calibration.yaml")
     pair = design_rectified_pair(rig, SMALL_SPEC.vpc)
-    with RigClient(shared_server.base_url) as c:
+    with shared_app.rig_client() as c:
         cal = c.calibration()
     assert cal.baseline_m == pytest.approx(rig.baseline())
     assert (cal.vpc.width, cal.vpc.height) == (320, 240)
@@ -165,8 +166,8 @@ def test_calibration_matches_the_rig_file(shared_server: LiveServer, small_recor
     assert cal.depth_scale_m == 0.001
 
 
-def test_config_hides_the_token(shared_server: LiveServer) -> None:
-    r = httpx.get(shared_server.base_url + "/config")
+def test_config_hides_the_token(shared_app: InProcessServer) -> None:
+    r = shared_app.client.get("/config")
     assert r.status_code == 200
     doc = r.json()
     assert doc["server"]["api_token_set"] is True and "api_token" not in doc["server"]
@@ -175,11 +176,11 @@ def test_config_hides_the_token(shared_server: LiveServer) -> None:
     assert doc["cameras"]["left"]["kind"] == "file"
 
 
-def test_health_ok_and_contract_fields(shared_server: LiveServer) -> None:
+def test_health_ok_and_contract_fields(shared_app: InProcessServer) -> None:
     # A camera thread starved on a loaded machine turns /health degraded for a second, and a
     # server just started has no frame rate yet; the contract is about the steady state.
     def steady() -> dict[str, Any] | None:
-        r = httpx.get(shared_server.base_url + "/health")
+        r = shared_app.client.get("/health")
         h: dict[str, Any] = r.json()
         return h if r.status_code == 200 and h["status"] == "ok" and h["worker"]["fps"] > 0 else None
 
@@ -199,9 +200,9 @@ def test_health_ok_and_contract_fields(shared_server: LiveServer) -> None:
     assert h["host"]["disk_free_bytes"] > 0
 
 
-def test_probes(shared_server: LiveServer) -> None:
-    assert httpx.get(shared_server.base_url + "/livez").json()["status"] == "ok"
-    r = httpx.get(shared_server.base_url + "/readyz")
+def test_probes(shared_app: InProcessServer) -> None:
+    assert shared_app.client.get("/livez").json()["status"] == "ok"
+    r = shared_app.client.get("/readyz")
     assert r.status_code == 200 and r.json()["status"] == "ready"
 
 
@@ -213,15 +214,15 @@ def metric_values(text: str) -> dict[tuple[str, tuple[tuple[str, str], ...]], fl
     return out
 
 
-def test_metrics(shared_server: LiveServer) -> None:
+def test_metrics(shared_app: InProcessServer) -> None:
     # Camera rates need two frames in their window: right after the first depth frame they are 0.
     right_fps = ("rig_camera_fps", (("camera", "right"),))
     wait_for(
-        lambda: metric_values(httpx.get(shared_server.base_url + "/metrics").text)[right_fps] > 0,
+        lambda: metric_values(shared_app.client.get("/metrics").text)[right_fps] > 0,
         10.0,
         "camera fps",
     )
-    r = httpx.get(shared_server.base_url + "/metrics")
+    r = shared_app.client.get("/metrics")
     assert r.status_code == 200 and r.headers["content-type"].startswith("text/plain")
     m = metric_values(r.text)
     assert m[("rig_camera_connected", (("camera", "left"),))] == 1.0
@@ -240,8 +241,8 @@ def test_metrics(shared_server: LiveServer) -> None:
     assert m[("rig_python_allocated_blocks", ())] > 10_000
 
 
-def test_errors_are_json_with_the_right_status(shared_server: LiveServer) -> None:
-    base = shared_server.base_url
+def test_errors_are_json_with_the_right_status(shared_app: InProcessServer) -> None:
+    client = shared_app.client
     cases = [
         ("/frames/middle", {}, 404),
         ("/frames/left", {"view": "thermal"}, 422),
@@ -251,28 +252,28 @@ def test_errors_are_json_with_the_right_status(shared_server: LiveServer) -> Non
         ("/no-such-endpoint", {}, 404),
     ]
     for path, params, status in cases:
-        r = httpx.get(base + path, params=params)
+        r = client.get(path, params=params)
         assert r.status_code == status, path
         assert r.headers["content-type"] == "application/json" and "detail" in r.json()
-    r = httpx.delete(base + "/depth")
+    r = client.delete("/depth")
     assert r.status_code == 405 and "detail" in r.json() and r.headers["allow"] == "GET, HEAD"
     # Methods are separate routes; Allow still lists every method of the path (HEAD with GET).
-    assert httpx.put(base + "/config").headers["allow"] == "GET, HEAD, PATCH"
-    assert httpx.delete(base + "/recordings").headers["allow"] == "GET, HEAD, POST"
+    assert client.put("/config").headers["allow"] == "GET, HEAD, PATCH"
+    assert client.delete("/recordings").headers["allow"] == "GET, HEAD, POST"
 
 
-def test_cors_off_by_default(shared_server: LiveServer) -> None:
-    r = httpx.get(shared_server.base_url + "/health", headers={"Origin": "http://evil.test"})
+def test_cors_off_by_default(shared_app: InProcessServer) -> None:
+    r = shared_app.client.get("/health", headers={"Origin": "http://evil.test"})
     assert "access-control-allow-origin" not in r.headers
-    pre = httpx.options(
-        shared_server.base_url + "/config",
+    pre = shared_app.client.options(
+        "/config",
         headers={"Origin": "http://evil.test", "Access-Control-Request-Method": "PATCH"},
     )
     assert "access-control-allow-origin" not in pre.headers
 
 
-def test_openapi_lists_every_endpoint(shared_server: LiveServer) -> None:
-    spec = httpx.get(shared_server.base_url + "/openapi.json").json()
+def test_openapi_lists_every_endpoint(shared_app: InProcessServer) -> None:
+    spec = shared_app.client.get("/openapi.json").json()
     paths = set(spec["paths"])
     assert paths >= {
         "/health", "/livez", "/readyz", "/depth", "/disparity", "/confidence", "/depth/colorized",
@@ -284,8 +285,8 @@ def test_openapi_lists_every_endpoint(shared_server: LiveServer) -> None:
     assert {"X-Frame-Seq", "X-Timestamp-Ns", "X-Depth-Scale"} <= set(depth["headers"])
 
 
-def test_dashboard_page_and_assets(shared_server: LiveServer) -> None:
-    r = httpx.get(shared_server.base_url + "/")
+def test_dashboard_page_and_assets(shared_app: InProcessServer) -> None:
+    r = shared_app.client.get("/")
     assert r.status_code == 200 and r.headers["content-type"].startswith("text/html")
     for element in (
         'id="depth-img"',
@@ -295,6 +296,6 @@ def test_dashboard_page_and_assets(shared_server: LiveServer) -> None:
         "/dashboard/app.js",
     ):
         assert element in r.text
-    js = httpx.get(shared_server.base_url + "/dashboard/app.js")
+    js = shared_app.client.get("/dashboard/app.js")
     assert js.status_code == 200 and "javascript" in js.headers["content-type"] and "/health" in js.text
-    assert httpx.get(shared_server.base_url + "/dashboard/../settings.py").status_code == 404
+    assert shared_app.client.get("/dashboard/../settings.py").status_code == 404

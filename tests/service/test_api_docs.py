@@ -7,26 +7,25 @@ from __future__ import annotations
 import re
 from urllib.parse import urlparse
 
-import httpx
 import pytest
 
 from tests.helpers.browser import CHROMIUM, CHROMIUM_ARGS, needs_chromium
-from tests.helpers.service import StartServer
+from tests.helpers.service import StartApp, StartServer
 
 
-def test_docs_page_loads_everything_from_the_service(start_server: StartServer) -> None:
-    live = start_server(ready=False)
-    html = httpx.get(live.base_url + "/docs").text
+def test_docs_page_loads_everything_from_the_service(start_app: StartApp) -> None:
+    live = start_app(ready=False)
+    html = live.client.get("/docs").text
     urls = re.findall(r"""(?:src|href|url)\s*[=:(]\s*['"]([^'"]+)['"]""", html)
     assert urls and all(u.startswith("/") for u in urls), urls  # no CDN, no fonts from outside
     assert "/openapi.json" in urls
     for url in urls:
-        r = httpx.get(live.base_url + url)
+        r = live.client.get(url)
         assert r.status_code == 200 and len(r.content) > 100, url
-    kinds = {u.rsplit(".", 1)[-1]: httpx.get(live.base_url + u).headers["content-type"] for u in urls}
+    kinds = {u.rsplit(".", 1)[-1]: live.client.get(u).headers["content-type"] for u in urls}
     assert kinds["js"].startswith("text/javascript") and kinds["png"] == "image/png"
-    assert httpx.get(live.base_url + "/docs-assets/../pyproject.toml").status_code == 404
-    assert httpx.get(live.base_url + "/redoc").status_code == 404
+    assert live.client.get("/docs-assets/../pyproject.toml").status_code == 404
+    assert live.client.get("/redoc").status_code == 404
 
 
 @pytest.mark.browser

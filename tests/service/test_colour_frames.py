@@ -1,6 +1,6 @@
 """Colour cameras: depth from luma, colour VPC images and point cloud colours made on request.
 
-A real server replays colour 4:2:2 MJPEG frames (what UVC cameras send). The worker decodes and
+The app (in process) replays colour 4:2:2 MJPEG frames (what UVC cameras send). The worker decodes and
 remaps only the luma; ``/frames/{camera}?view=vpc`` and ``/pointcloud`` still give colour, made
 from the raw frame of the same result with OpenCV's own decode and the pipeline's LUT.
 """
@@ -15,17 +15,19 @@ import httpx
 import numpy as np
 import pytest
 
-from bench.recordings import MjpegSpec, ensure_mjpeg_recording
-from service.client import RigClient
-from tests.helpers.service import LiveServer, same_frame, service_settings
+from bench.recordings import ensure_mjpeg_recording
+from tests.helpers.service import QUICK_MJPEG, InProcessServer, same_frame, service_settings
 
 
 @pytest.fixture(scope="module")
-def colour_server(tmp_path_factory: pytest.TempPathFactory, lut_cache: Path) -> Iterator[LiveServer]:
+def colour_server(
+    tmp_path_factory: pytest.TempPathFactory, lut_cache: Path, bench_cache: Path
+) -> Iterator[InProcessServer]:
     tmp = tmp_path_factory.mktemp("colour")
-    # 3 pairs of the prototype rig at half size (640×480 fisheyes), colour JPEG 4:2:2.
-    recording = ensure_mjpeg_recording(MjpegSpec(frames=3, views=1, scale=0.5), cache_dir=tmp / "cache")
-    live = LiveServer(service_settings(recording, tmp, lut_cache)).start()
+    # 4 pairs of the prototype rig at quarter size (320×240 fisheyes), colour JPEG 4:2:2: the quick
+    # benchmarks' recording, rendered once per session.
+    recording = ensure_mjpeg_recording(QUICK_MJPEG, cache_dir=bench_cache)
+    live = InProcessServer(service_settings(recording, tmp, lut_cache)).start()
     live.wait_ready()
     yield live
     live.stop()
@@ -42,7 +44,9 @@ class Fetched:
         self.content = r.content
 
 
-def test_depth_is_computed_from_luma_and_colour_is_made_once_on_request(colour_server: LiveServer) -> None:
+def test_depth_is_computed_from_luma_and_colour_is_made_once_on_request(
+    colour_server: InProcessServer,
+) -> None:
     runtime = colour_server.runtime
     pipeline = runtime.pipeline
     result = runtime.store.latest
@@ -64,25 +68,24 @@ def test_depth_is_computed_from_luma_and_colour_is_made_once_on_request(colour_s
         assert np.abs(colour[..., 0].astype(int) - colour[..., 2].astype(int)).mean() > 3.0
 
 
-def test_vpc_endpoint_serves_colour_of_the_same_frame(colour_server: LiveServer) -> None:
+def test_vpc_endpoint_serves_colour_of_the_same_frame(colour_server: InProcessServer) -> None:
     runtime = colour_server.runtime
-    base = colour_server.base_url
-    with httpx.Client(base_url=base) as client:
-        for cam, name in zip(("left", "right"), runtime.pipeline.names, strict=True):
-            vpc, raw = same_frame(
-                lambda c=cam: Fetched(client.get(f"/frames/{c}", params={"view": "vpc"})),
-                lambda c=cam: Fetched(client.get(f"/frames/{c}", params={"view": "raw"})),
-            )
-            served = decode(vpc.content, cv2.IMREAD_UNCHANGED)
-            expected = runtime.pipeline.rectify_camera(name, decode(raw.content, cv2.IMREAD_COLOR))[0]
-            assert served.shape == expected.shape and served.ndim == 3
-            # Only the JPEG encoding of the response (quality 85, noisy texture) between them.
-            assert np.abs(served.astype(int) - expected.astype(int)).mean() < 6.0
+    client = colour_server.client
+    for cam, name in zip(("left", "right"), runtime.pipeline.names, strict=True):
+        vpc, raw = same_frame(
+            lambda c=cam: Fetched(client.get(f"/frames/{c}", params={"view": "vpc"})),
+            lambda c=cam: Fetched(client.get(f"/frames/{c}", params={"view": "raw"})),
+        )
+        served = decode(vpc.content, cv2.IMREAD_UNCHANGED)
+        expected = runtime.pipeline.rectify_camera(name, decode(raw.content, cv2.IMREAD_COLOR))[0]
+        assert served.shape == expected.shape and served.ndim == 3
+        # Only the JPEG encoding of the response (quality 85, noisy texture) between them.
+        assert np.abs(served.astype(int) - expected.astype(int)).mean() < 6.0
 
 
-def test_point_cloud_colours_are_the_colour_vpc_image(colour_server: LiveServer) -> None:
+def test_point_cloud_colours_are_the_colour_vpc_image(colour_server: InProcessServer) -> None:
     stride = 4
-    with RigClient(colour_server.base_url) as c:
+    with colour_server.rig_client() as c:
         for _ in range(30):  # three responses of one frame (the worker keeps publishing)
             cloud, depth, vpc = c.pointcloud(stride), c.depth("npy"), c.frames("left", "vpc")
             if cloud.seq == depth.seq == vpc.seq:

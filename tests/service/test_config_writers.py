@@ -8,14 +8,14 @@ from typing import Any
 import httpx
 
 from bench.hostile import FIELD_CHANGES
-from tests.helpers.service import AUTH, StartServer
+from tests.helpers.service import AUTH, StartApp
 
 
-def _patch_all(base: str, bodies: list[dict[str, Any]]) -> list[httpx.Response]:
-    """All PATCHes at once, one thread and connection each."""
+def _patch_all(client: httpx.Client, bodies: list[dict[str, Any]]) -> list[httpx.Response]:
+    """All PATCHes at once, one thread each (concurrent calls of the app)."""
 
     def patch(stereo: dict[str, Any]) -> httpx.Response:
-        return httpx.patch(base + "/config", json={"stereo": stereo}, headers=AUTH, timeout=60)
+        return client.patch("/config", json={"stereo": stereo}, headers=AUTH, timeout=60)
 
     with ThreadPoolExecutor(len(bodies)) as pool:
         return list(pool.map(patch, bodies))
@@ -25,17 +25,17 @@ def _revision(response: httpx.Response) -> int:
     return int(response.headers["etag"].strip('"'))
 
 
-def test_concurrent_writers_lose_no_update(start_server: StartServer) -> None:
-    live = start_server()
-    base = live.base_url
-    first = httpx.get(base + "/config")
+def test_concurrent_writers_lose_no_update(start_app: StartApp) -> None:
+    live = start_app()
+    client = live.client
+    first = client.get("/config")
     changes = [(f, v) for f, v in FIELD_CHANGES if first.json()["stereo"][f] != v]
     assert len(changes) >= 10
 
     # Writers of different fields: every acknowledged change is in the final state.
-    replies = _patch_all(base, [{f: v} for f, v in changes])
+    replies = _patch_all(client, [{f: v} for f, v in changes])
     assert [r.status_code for r in replies] == [200] * len(changes), [r.text for r in replies]
-    final = httpx.get(base + "/config")
+    final = client.get("/config")
     lost = [f for f, v in changes if final.json()["stereo"][f] != v]
     assert lost == []
     start = _revision(first)
@@ -49,44 +49,42 @@ def test_concurrent_writers_lose_no_update(start_server: StartServer) -> None:
 
     # Writers of one field: the final value is the last write in the server's order.
     values = [200 + k for k in range(12)]
-    replies = _patch_all(base, [{"speckle_size": v} for v in values])
+    replies = _patch_all(client, [{"speckle_size": v} for v in values])
     assert [r.status_code for r in replies] == [200] * len(values)
     last = max(zip((_revision(r) for r in replies), values, strict=True))[1]
-    assert httpx.get(base + "/config").json()["stereo"]["speckle_size"] == last
+    assert client.get("/config").json()["stereo"]["speckle_size"] == last
     assert live.runtime.pipeline.stereo.speckle_size == last
 
 
-def test_if_match_applies_a_change_only_to_the_revision_it_names(start_server: StartServer) -> None:
-    base = start_server().base_url
-    read = httpx.get(base + "/config")
+def test_if_match_applies_a_change_only_to_the_revision_it_names(start_app: StartApp) -> None:
+    client = start_app().client
+    read = client.get("/config")
     size = read.json()["stereo"]["speckle_size"]
 
     # Two clients read the same revision and both add 10 to speckle_size: one wins, one is told.
-    first = httpx.patch(
-        base + "/config",
+    first = client.patch(
+        "/config",
         json={"stereo": {"speckle_size": size + 10}},
         headers={**AUTH, "If-Match": read.headers["etag"]},
     )
-    second = httpx.patch(
-        base + "/config",
+    second = client.patch(
+        "/config",
         json={"stereo": {"speckle_size": size + 10}},
         headers={**AUTH, "If-Match": read.headers["etag"]},
     )
     assert first.status_code == 200 and _revision(first) == _revision(read) + 1
     assert second.status_code == 412, second.text
     assert f"revision {first.headers['etag']}" in second.json()["detail"]
-    after = httpx.get(base + "/config")
+    after = client.get("/config")
     assert after.json()["stereo"]["speckle_size"] == size + 10
     assert after.headers["etag"] == first.headers["etag"]  # the refused change made no revision
 
     # The current revision (or *) is accepted.
-    again = httpx.patch(
-        base + "/config",
+    again = client.patch(
+        "/config",
         json={"stereo": {"speckle_size": size + 20}},
         headers={**AUTH, "If-Match": f'"0", {after.headers["etag"]}'},
     )
     assert again.status_code == 200 and again.json()["stereo"]["speckle_size"] == size + 20
-    star = httpx.patch(
-        base + "/config", json={"stereo": {"speckle_size": size}}, headers={**AUTH, "If-Match": "*"}
-    )
+    star = client.patch("/config", json={"stereo": {"speckle_size": size}}, headers={**AUTH, "If-Match": "*"})
     assert star.status_code == 200

@@ -27,7 +27,7 @@ from service.schemas import (
     WorkerHealthBase,
 )
 from tests.helpers.browser import CHROMIUM, CHROMIUM_ARGS, needs_chromium
-from tests.helpers.service import LiveServer, SmallRecording, service_overrides
+from tests.helpers.service import InProcessServer, SmallRecording, service_overrides
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -69,11 +69,11 @@ def _sample_key(spec: CounterSpec, labels: tuple[tuple[str, str], ...]) -> tuple
     return spec.metric_sample, tuple(sorted((*labels, *spec.metric_labels)))
 
 
-def check_against_table(base_url: str, openapi: dict[str, Any]) -> tuple[dict[str, Any], Samples]:
+def check_against_table(client: httpx.Client, openapi: dict[str, Any]) -> tuple[dict[str, Any], Samples]:
     """Every figure the table declares is in /health, /metrics, /counters and the OpenAPI
     schema, described as declared, and nothing undeclared is; returns /health and the samples."""
-    health = httpx.get(base_url + "/health").json()
-    families, samples = _scrape(httpx.get(base_url + "/metrics").text)  # after /health: counters >=
+    health = client.get("/health").json()
+    families, samples = _scrape(client.get("/metrics").text)  # after /health: counters >=
 
     for group, doc, labels in _group_docs(health):
         assert set(doc) - set(BASES[group].model_fields) == {c.name for c in counters_of(group)}, group
@@ -94,7 +94,7 @@ def check_against_table(base_url: str, openapi: dict[str, Any]) -> tuple[dict[st
         assert (family.type, family.documentation) == (declared[name].kind, declared[name].help), name
     assert {name for name, _ in samples} <= {c.metric_sample for c in table}
 
-    served = httpx.get(base_url + "/counters").json()
+    served = client.get("/counters").json()
     assert served == [CounterModel.of(c).model_dump() for g in GROUPS for c in counters_of(g)]
 
     schemas = openapi["components"]["schemas"]
@@ -112,8 +112,8 @@ def check_against_table(base_url: str, openapi: dict[str, Any]) -> tuple[dict[st
     return health, samples
 
 
-def test_every_declared_figure_and_nothing_else(shared_server: LiveServer) -> None:
-    health, samples = check_against_table(shared_server.base_url, shared_server.app.openapi())
+def test_every_declared_figure_and_nothing_else(shared_app: InProcessServer) -> None:
+    health, samples = check_against_table(shared_app.client, shared_app.app.openapi())
     left = health["cameras"]["left"]
     assert left["connected"] is True and left["frames_received"] > 0 and left["fps"] > 0
     assert samples[("rig_camera_connected", (("camera", "left"),))] == 1.0
@@ -222,7 +222,8 @@ def test_a_figure_added_to_the_table_shows_everywhere(
     extended_service: dict[str, Any], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(rig.counters, "COUNTERS", (*COUNTERS, *added_specs(ADDED)))  # what it runs
-    health, samples = check_against_table(extended_service["base_url"], extended_service["openapi"])
+    with httpx.Client(base_url=extended_service["base_url"]) as client:
+        health, samples = check_against_table(client, extended_service["openapi"])
 
     left, right = health["cameras"]["left"], health["cameras"]["right"]
     assert (left["frames_seen_by_test"], right["frames_seen_by_test"]) == (2, 0)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import configparser
 import os
 import re
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -57,9 +56,7 @@ def test_unit_contents() -> None:
     assert u["Install"]["WantedBy"] == ["multi-user.target"]
 
 
-@pytest.mark.skipif(
-    shutil.which("systemd-analyze") is None, reason="systemd-analyze not installed (apt systemd)"
-)
+@pytest.mark.needs_tool("systemd-analyze", "apt-get install systemd; .ci/run does")
 def test_unit_passes_systemd_analyze_verify(tmp_path: Path) -> None:
     # As shipped, the only complaint here is the not-yet-installed venv executable.
     r = subprocess.run(["systemd-analyze", "verify", str(UNIT)], capture_output=True, text=True)
@@ -144,7 +141,7 @@ def test_install_script_syntax() -> None:
     assert "set -euo pipefail" in INSTALL.read_text()
 
 
-@pytest.mark.skipif(shutil.which("shellcheck") is None, reason="shellcheck not installed (apt shellcheck)")
+@pytest.mark.needs_tool("shellcheck", "apt-get install shellcheck; .ci/run does")
 def test_install_script_shellcheck() -> None:
     r = subprocess.run(["shellcheck", str(INSTALL)], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout

@@ -1,7 +1,7 @@
 """Depth that stops coming is a verdict, not a silent "ok": cameras swapped mid-stream make the
 service degraded with the figures and the likely cause, and it recovers when they are back; a
 stereo change that breaks the matcher on the scene is refused with the figures. In process (the
-app under Starlette's TestClient); the swapped stream is a recording whose later rows exchange
+app in process, tests.helpers.service.in_process); the swapped stream is a recording whose later rows exchange
 the two cameras' files, replayed in a loop."""
 
 from __future__ import annotations
@@ -11,12 +11,10 @@ import shutil
 from pathlib import Path
 
 import pytest
-from fastapi.testclient import TestClient
 
 from rig.depth_watch import DepthWatch, SettingsTrial
-from service.app import create_app
 from service.settings import load_settings
-from tests.helpers.service import AUTH, SmallRecording, service_overrides
+from tests.helpers.service import AUTH, SmallRecording, in_process, service_overrides
 from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.timeout(180)
@@ -79,8 +77,8 @@ def test_swapped_cameras_mid_stream_are_a_verdict_and_recovery_is_seen(
     rec = _swapping_recording(small_recording.loop, tmp_path / "swapping", normal=60, swapped=60)
     doc = service_overrides(rec, tmp_path, lut_cache)
     doc["depth_watch"] = {"recent_s": 1.5, "reference_s": 3.0}
-    app = create_app(load_settings(None, doc))
-    with TestClient(app) as client:
+    with in_process(load_settings(None, doc)) as server:
+        client, app = server.client, server.app
         wait_for(lambda: client.get("/depth").status_code == 200, 60, "a depth frame")
 
         def degraded() -> list[str] | None:
@@ -107,8 +105,10 @@ def test_a_change_that_breaks_the_matcher_on_the_scene_is_refused(
 ) -> None:
     """Inside every field's bounds, and no 16-bit overflow: a search that starts beyond every
     disparity of the scene gives depth on almost nothing (and none of it right)."""
-    app = create_app(load_settings(None, service_overrides(small_recording.loop, tmp_path, lut_cache)))
-    with TestClient(app) as client:
+    with in_process(
+        load_settings(None, service_overrides(small_recording.loop, tmp_path, lut_cache))
+    ) as server:
+        client = server.client
         wait_for(lambda: client.get("/depth").status_code == 200, 60, "a depth frame")
         before = client.get("/config").json()
         r = client.patch(

@@ -1,6 +1,7 @@
-"""The hot requests answered ahead of FastAPI's routing (service.fast_path), on a real server: the
-same response as the route for the same frame or health document, every other request left to
-the app, and the app's middleware applied to its answers."""
+"""The hot requests answered ahead of FastAPI's routing (service.fast_path, the ASGI app's
+innermost middleware: run here in process): the same response as the route for the same frame or
+health document, every other request left to the app, and the app's middleware applied to its
+answers."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 import service.app
-from tests.helpers.service import SMALL_SPEC, LiveServer, StartServer
+from tests.helpers.service import SMALL_SPEC, InProcessServer, StartApp
 from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.timeout(120)
@@ -37,11 +38,14 @@ def fast_answers(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[str]]:
     yield answered
 
 
-def _frozen(start_server: StartServer, **server: Any) -> LiveServer:
-    """A ready server whose worker is stopped: its latest frame stays the latest."""
-    live = start_server(**server)
-    live.runtime.worker.stop()
-    return live
+@pytest.fixture
+def frozen(shared_app: InProcessServer) -> InProcessServer:
+    """This module's app with its worker stopped (its latest frame stays the latest) and the fast
+    path on."""
+    if shared_app.runtime.worker.is_alive():
+        shared_app.runtime.worker.stop()
+    shared_app.app.fast_path_on = True
+    return shared_app
 
 
 def _comparable(r: httpx.Response) -> tuple[int, dict[str, str], bytes]:
@@ -54,28 +58,28 @@ def _comparable(r: httpx.Response) -> tuple[int, dict[str, str], bytes]:
     ["/depth", "/depth?format=png", "/depth?format=npy", "/disparity", "/disparity?format=npy"],
 )
 def test_a_polled_frame_gets_the_routes_response(
-    start_server: StartServer, fast_answers: list[str], path: str
+    frozen: InProcessServer, fast_answers: list[str], path: str
 ) -> None:
-    live = _frozen(start_server)
-    with httpx.Client(base_url=live.base_url) as client:
-        live.app.fast_path_on = False
-        by_route = client.get(path)  # encodes the body into the frame's cache
-        assert by_route.status_code == 200 and fast_answers == []
-        live.app.fast_path_on = True
-        fast = client.get(path)
+    live = frozen
+    client = live.client
+    live.app.fast_path_on = False
+    by_route = client.get(path)  # encodes the body into the frame's cache
+    assert by_route.status_code == 200 and fast_answers == []
+    live.app.fast_path_on = True
+    fast = client.get(path)
     assert fast_answers == [path]
     assert _comparable(fast) == _comparable(by_route)
     seq = int(fast.headers["X-Frame-Seq"])
     assert seq == live.runtime.store.latest.seq  # type: ignore[union-attr]
 
 
-def test_the_fast_bodies_decode_to_the_frame(start_server: StartServer, fast_answers: list[str]) -> None:
-    live = _frozen(start_server)
+def test_the_fast_bodies_decode_to_the_frame(frozen: InProcessServer, fast_answers: list[str]) -> None:
+    live = frozen
     frame = live.runtime.store.latest.frame  # type: ignore[union-attr]
-    with httpx.Client(base_url=live.base_url) as client:
-        for _ in range(2):  # the first may encode (route), the second is cached (fast path)
-            png = client.get("/depth")
-            npy = client.get("/disparity", params={"format": "npy"})
+    client = live.client
+    for _ in range(2):  # the first may encode (route), the second is cached (fast path)
+        png = client.get("/depth")
+        npy = client.get("/disparity", params={"format": "npy"})
     assert fast_answers[-2:] == ["/depth", "/disparity?format=npy"]
     depth_mm = cv2.imdecode(np.frombuffer(png.content, np.uint8), cv2.IMREAD_UNCHANGED)
     assert depth_mm.shape == (SMALL_SPEC.vpc.height, SMALL_SPEC.vpc.width)
@@ -87,27 +91,25 @@ def test_the_fast_bodies_decode_to_the_frame(start_server: StartServer, fast_ans
 
 
 def test_a_fresh_health_document_is_answered_as_the_route_does(
-    start_server: StartServer, fast_answers: list[str]
+    start_app: StartApp, fast_answers: list[str]
 ) -> None:
-    live = start_server(health_max_age_s=1.0)  # one document for the three requests
-    with httpx.Client(base_url=live.base_url) as client:
-        live.app.fast_path_on = False
-        by_route = client.get("/health")  # builds the shared document
-        live.app.fast_path_on = True
-        fast = client.get("/health")
-        with_query = client.get("/health", params={"verbose": "1"})
+    live = start_app(health_max_age_s=1.0)  # one document for the three requests
+    client = live.client
+    live.app.fast_path_on = False
+    by_route = client.get("/health")  # builds the shared document
+    live.app.fast_path_on = True
+    fast = client.get("/health")
+    with_query = client.get("/health", params={"verbose": "1"})
     assert fast_answers == ["/health"]
     assert _comparable(fast) == _comparable(by_route)
     assert fast.headers["content-type"] == "application/json" and fast.json()["status"] == "ok"
     assert _comparable(with_query) == _comparable(by_route)  # by the route, from the same document
 
 
-def test_a_stale_health_document_is_left_to_the_route(
-    start_server: StartServer, fast_answers: list[str]
-) -> None:
-    live = start_server(health_max_age_s=0.0)  # never fresh: every request builds one
-    with httpx.Client(base_url=live.base_url) as client:
-        first, second = client.get("/health"), client.get("/health")
+def test_a_stale_health_document_is_left_to_the_route(start_app: StartApp, fast_answers: list[str]) -> None:
+    live = start_app(health_max_age_s=0.0)  # never fresh: every request builds one
+    client = live.client
+    first, second = client.get("/health"), client.get("/health")
     assert first.status_code == second.status_code == 200
     assert first.json()["uptime_s"] < second.json()["uptime_s"]
     assert fast_answers == []
@@ -125,34 +127,33 @@ def test_a_stale_health_document_is_left_to_the_route(
     ],
 )
 def test_other_requests_go_to_the_app(
-    start_server: StartServer,
+    frozen: InProcessServer,
     fast_answers: list[str],
     method: str,
     path: str,
     headers: dict[str, str],
     status: int,
 ) -> None:
-    live = _frozen(start_server)
-    with httpx.Client(base_url=live.base_url) as client:
-        client.get("/depth")
-        client.get("/depth")  # cached now: a plain poll would be answered fast
-        before = list(fast_answers)
-        content = b"abcd" if "Content-Length" in headers else None
-        r = client.request(method, path, headers=headers, content=content)
+    client = frozen.client
+    client.get("/depth")
+    client.get("/depth")  # cached now: a plain poll would be answered fast
+    before = list(fast_answers)
+    content = b"abcd" if "Content-Length" in headers else None
+    r = client.request(method, path, headers=headers, content=content)
     assert r.status_code == status
     assert fast_answers == before
     if status >= 400:
         assert "detail" in r.json()
 
 
-def test_the_fast_path_answers_through_cors(start_server: StartServer, fast_answers: list[str]) -> None:
+def test_the_fast_path_answers_through_cors(start_app: StartApp, fast_answers: list[str]) -> None:
     """The fast path is the app's innermost middleware: CORS wraps its answers too."""
     origin = "http://robot-ui.test"
-    live = start_server(cors_origins=[origin])
+    live = start_app(cors_origins=[origin])
     assert live.app.fast_path_on is True
-    with httpx.Client(base_url=live.base_url) as client:
-        wait_for(lambda: client.get("/depth").status_code == 200, 10.0, "a depth frame")
-        client.get("/depth")  # cached now
-        r = client.get("/depth", headers={"Origin": origin})
+    client = live.client
+    wait_for(lambda: client.get("/depth").status_code == 200, 10.0, "a depth frame")
+    client.get("/depth")  # cached now
+    r = client.get("/depth", headers={"Origin": origin})
     assert r.status_code == 200 and r.headers["access-control-allow-origin"] == origin
     assert "/depth" in fast_answers

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -14,7 +13,7 @@ import pytest
 
 from rig.ros.names import RosNames
 from service.store import PublishedResult
-from tests.helpers.service import LiveServer
+from tests.helpers.service import InProcessServer, StartApp
 from tests.helpers.waiting import wait_for
 from tests.service.foxglove_client import FoxgloveClient
 
@@ -22,7 +21,7 @@ N = RosNames()
 FOXGLOVE = {"enabled": True, "port": 0, "max_fps": 10.0, "cloud_stride": 2}
 
 
-def record_published(live: LiveServer) -> dict[int, PublishedResult]:
+def record_published(live: InProcessServer) -> dict[int, PublishedResult]:
     """Every result the worker publishes from now on, by capture time (the last 200)."""
     store = live.runtime.store
     published: dict[int, PublishedResult] = {}
@@ -49,8 +48,8 @@ def stamp_ns(msg: Any) -> int:
     return int(msg.timestamp.seconds) * 1_000_000_000 + int(msg.timestamp.nanos)
 
 
-def test_client_receives_decodable_depth_and_the_rest(start_server: Callable[..., LiveServer]) -> None:
-    live = start_server(foxglove=FOXGLOVE)
+def test_client_receives_decodable_depth_and_the_rest(start_app: StartApp) -> None:
+    live = start_app(foxglove=FOXGLOVE)
     published = record_published(live)
     fox = live.app.state.foxglove
     client = FoxgloveClient(fox.port)
@@ -116,9 +115,9 @@ def test_client_receives_decodable_depth_and_the_rest(start_server: Callable[...
 
 @pytest.mark.slow
 def test_a_viewer_that_stops_reading_does_not_stop_the_worker(
-    start_server: Callable[..., LiveServer],
+    start_app: StartApp,
 ) -> None:
-    live = start_server(foxglove={**FOXGLOVE, "message_backlog": 8})
+    live = start_app(foxglove={**FOXGLOVE, "message_backlog": 8})
     fox = live.app.state.foxglove
     stalled = FoxgloveClient(fox.port)
     reader = FoxgloveClient(fox.port)

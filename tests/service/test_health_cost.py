@@ -8,19 +8,18 @@ import threading
 from pathlib import Path
 from typing import Any
 
-import httpx
 import pytest
 
-from tests.helpers.service import AUTH, StartServer
+from tests.helpers.service import AUTH, StartApp
 
 FS_CALLS = ("stat", "lstat", "scandir", "listdir", "walk", "statvfs", "open")
 
 
 def test_health_costs_the_same_with_3000_recorded_files(
-    start_server: StartServer, monkeypatch: pytest.MonkeyPatch
+    start_app: StartApp, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    live = start_server()
-    r = httpx.post(live.base_url + "/recordings", json={"name": "long"}, headers=AUTH, timeout=30)
+    live = start_app()
+    r = live.client.post("/recordings", json={"name": "long"}, headers=AUTH, timeout=30)
     assert r.status_code == 201, r.text
     recording = Path(r.json()["path"])
     me = threading.get_ident()
@@ -45,4 +44,4 @@ def test_health_costs_the_same_with_3000_recorded_files(
         costs.append(calls["n"])
         assert report.recording is not None and report.recording.name == "long"
     assert costs[1] == costs[0], costs
-    httpx.post(live.base_url + "/recordings/long/stop", headers=AUTH, timeout=60)
+    live.client.post("/recordings/long/stop", headers=AUTH, timeout=60)

@@ -6,7 +6,6 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-import httpx
 import pytest
 
 import service.memory
@@ -15,7 +14,7 @@ from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from service.errors import SettingsError
 from service.memory import service_estimate
 from service.runtime import Runtime
-from tests.helpers.service import LiveServer, SmallRecording, service_settings
+from tests.helpers.service import InProcessServer, SmallRecording, service_settings
 
 
 def test_a_vpc_that_cannot_fit_is_refused_before_any_table_is_built(
@@ -103,13 +102,13 @@ def test_available_memory_reads_meminfo_and_the_cgroup_limit(tmp_path: Path) -> 
     assert available_memory(tmp_path / "none", tmp_path / "none") is None
 
 
-def test_the_running_service_exports_its_budget(shared_server: LiveServer) -> None:
+def test_the_running_service_exports_its_budget(shared_app: InProcessServer) -> None:
     """(The resident size of ``rig serve`` against it: tests/reliability/test_load.py; this
     process holds the tests too.)"""
-    metrics = httpx.get(shared_server.base_url + "/metrics").text
+    metrics = shared_app.client.get("/metrics").text
     values = {
         line.split()[0]: float(line.split()[1])
         for line in metrics.splitlines()
         if line and not line.startswith("#")
     }
-    assert values["rig_memory_budget_bytes"] == shared_server.runtime.memory_budget.total
+    assert values["rig_memory_budget_bytes"] == shared_app.runtime.memory_budget.total

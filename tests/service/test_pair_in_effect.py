@@ -3,24 +3,23 @@
 size, not a pinhole's defaults), a change is the pipeline's one path and re-estimates the memory
 budget (refused when it cannot fit), readers never wait for a change, and a middleware added to
 the app after it is built applies to every route, the fast path's answers included. In process
-(the app under Starlette's TestClient: the socket is not the subject)."""
+(tests.helpers.service.in_process: the socket is not the subject)."""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
 
+import httpx
 import pytest
-from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 import service.memory
 from rig.memory_budget import MIB
 from rig.rectified import RectifiedPairConfig
-from service.app import create_app
 from service.errors import SettingsError
-from tests.helpers.service import AUTH, SmallRecording, service_settings
+from tests.helpers.service import AUTH, InProcessServer, SmallRecording, in_process, service_settings
 from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.timeout(180)
@@ -41,22 +40,18 @@ class StampEveryResponse:
         await self.app(scope, receive, stamped)
 
 
-def _client(small_recording: SmallRecording, tmp_path: Path, lut_cache: Path, **server: object) -> TestClient:
-    return TestClient(create_app(service_settings(small_recording.loop, tmp_path, lut_cache, **server)))
-
-
 @pytest.fixture
-def latlon_client(small_recording: SmallRecording, tmp_path: Path, lut_cache: Path) -> Iterator[TestClient]:
+def latlon(small_recording: SmallRecording, tmp_path: Path, lut_cache: Path) -> Iterator[InProcessServer]:
     settings = service_settings(small_recording.loop, tmp_path, lut_cache).model_copy(
         update={"rectified": RectifiedPairConfig(px_per_deg=3.0)}
     )
-    with TestClient(create_app(settings)) as client:
-        wait_for(lambda: client.get("/depth").status_code == 200, 60, "a depth frame")
-        yield client
+    with in_process(settings) as server:
+        wait_for(lambda: server.client.get("/depth").status_code == 200, 60, "a depth frame")
+        yield server
 
 
-def test_config_and_calibration_report_the_lat_lon_pair_in_effect(latlon_client: TestClient) -> None:
-    runtime = latlon_client.app.state.runtime  # type: ignore[attr-defined]
+def test_config_and_calibration_report_the_lat_lon_pair_in_effect(latlon: InProcessServer) -> None:
+    latlon_client, runtime = latlon.client, latlon.app.state.runtime
     cam = runtime.pipeline.in_effect.camera
     config = latlon_client.get("/config")
     doc = config.json()
@@ -74,7 +69,7 @@ def test_config_and_calibration_report_the_lat_lon_pair_in_effect(latlon_client:
     assert depth.status_code == 200
 
 
-def _budget(client: TestClient) -> float:
+def _budget(client: httpx.Client) -> float:
     text = client.get("/metrics").text
     for family in text_string_to_metric_families(text):
         if family.name == "rig_memory_budget_bytes":
@@ -83,9 +78,9 @@ def _budget(client: TestClient) -> float:
 
 
 def test_a_change_is_in_effect_everywhere_and_re_estimates_the_budget(
-    latlon_client: TestClient, monkeypatch: pytest.MonkeyPatch
+    latlon: InProcessServer, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    runtime = latlon_client.app.state.runtime  # type: ignore[attr-defined]
+    latlon_client, runtime = latlon.client, latlon.app.state.runtime
     before = latlon_client.get("/config")
     budget = _budget(latlon_client)
     r = latlon_client.patch("/config", json={"stereo": {"disparity_range": 96}}, headers=AUTH)
@@ -110,7 +105,8 @@ def test_a_change_is_in_effect_everywhere_and_re_estimates_the_budget(
     assert now["revision"] == after["revision"] and now["stereo"]["disparity_range"] == 96
 
 
-def test_a_stale_revision_changes_nothing(latlon_client: TestClient) -> None:
+def test_a_stale_revision_changes_nothing(latlon: InProcessServer) -> None:
+    latlon_client = latlon.client
     revision = latlon_client.get("/config").json()["revision"]
     stale = latlon_client.patch(
         "/config",
@@ -124,11 +120,11 @@ def test_a_stale_revision_changes_nothing(latlon_client: TestClient) -> None:
 def test_a_middleware_added_later_applies_to_every_route(
     small_recording: SmallRecording, tmp_path: Path, lut_cache: Path
 ) -> None:
-    app = create_app(service_settings(small_recording.loop, tmp_path, lut_cache, health_max_age_s=1.0))
-    app.add_middleware(StampEveryResponse)
-    paths = app.openapi()["paths"]
-    routes = [path for path, ops in paths.items() if "get" in ops and "{" not in path]
-    with TestClient(app) as client:
+    settings = service_settings(small_recording.loop, tmp_path, lut_cache, health_max_age_s=1.0)
+    with in_process(settings, lambda app: app.add_middleware(StampEveryResponse)) as server:
+        client, app = server.client, server.app
+        paths = app.openapi()["paths"]
+        routes = [path for path, ops in paths.items() if "get" in ops and "{" not in path]
         wait_for(lambda: client.get("/depth").status_code == 200, 60, "a depth frame")
         client.get("/depth")  # cached now: the next plain poll is the fast path's
         client.get("/health")
@@ -159,9 +155,9 @@ def test_the_fast_path_answers_pass_through_the_middleware(
         return done
 
     monkeypatch.setattr(service.app, "answer_hot_request", spy)
-    app = create_app(service_settings(small_recording.loop, tmp_path, lut_cache, health_max_age_s=1.0))
-    app.add_middleware(StampEveryResponse)
-    with TestClient(app) as client:
+    settings = service_settings(small_recording.loop, tmp_path, lut_cache, health_max_age_s=1.0)
+    with in_process(settings, lambda app: app.add_middleware(StampEveryResponse)) as server:
+        client = server.client
         wait_for(lambda: client.get("/depth").status_code == 200, 60, "a depth frame")
         client.get("/health")
         stamped = [client.get(p).headers.get("x-stamp") for p in ("/depth", "/depth", "/health")]
@@ -172,9 +168,10 @@ def test_a_budget_that_does_not_fit_is_refused_at_start_in_pair_terms(
     small_recording: SmallRecording, tmp_path: Path, lut_cache: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(service.memory, "available_memory", lambda: 16 * MIB)
+    settings = service_settings(small_recording.loop, tmp_path, lut_cache)
     with (
         pytest.raises(SettingsError, match=r"pinhole pair with 64 disparities needs about") as refused,
-        _client(small_recording, tmp_path, lut_cache),
+        in_process(settings),
     ):
         pass
     assert "rectified.width/rectified.height" in str(refused.value)

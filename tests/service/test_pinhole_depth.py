@@ -2,7 +2,7 @@
 ``/depth/pinhole`` is z on a plumb_bob pinhole with zero distortion (``/camera_info/pinhole_depth``),
 checked as depth_image_proc would use it: against the renderer's exact depth of that pinhole, and
 its cloud (x = (u − cx)·z/fx, as depth_image_proc computes it) against the range along the
-lat-lon rays. In process (the app under Starlette's TestClient)."""
+lat-lon rays. In process (tests.helpers.service.in_process)."""
 
 from __future__ import annotations
 
@@ -11,12 +11,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from fastapi.testclient import TestClient
 
 from rig.rectified import RectifiedPairConfig
-from service.app import create_app
 from service.settings import load_settings
-from tests.helpers.service import SMALL_SPEC, SmallRecording, service_overrides
+from tests.helpers.service import SMALL_SPEC, SmallRecording, in_process, service_overrides
 from tests.helpers.waiting import wait_for
 
 pytestmark = pytest.mark.timeout(180)
@@ -30,7 +28,8 @@ def test_the_pinhole_depth_of_the_lat_lon_pair_is_the_pinholes_exact_depth(
     # The pinhole of the recording's ground truth: 320x240, 90° about the rectified z axis.
     width, height, hfov = SMALL_SPEC.vpc.pinhole_size
     doc["pinhole_depth"] = {"width": width, "height": height, "hfov_deg": hfov}
-    with TestClient(create_app(load_settings(None, doc))) as client:
+    with in_process(load_settings(None, doc)) as server:
+        client = server.client
         wait_for(lambda: client.get("/depth").status_code == 200, 60, "a depth frame")
         info = client.get("/camera_info/pinhole_depth").json()
 

@@ -13,19 +13,19 @@ from pypcd4 import PointCloud
 
 from calibration import load_rig
 from service.client import parse_ply
-from tests.helpers.service import SMALL_SPEC, LiveServer, SmallRecording
+from tests.helpers.service import SMALL_SPEC, InProcessServer, SmallRecording
 
 pytestmark = pytest.mark.timeout(120)
 
 
-def get(live: LiveServer, path: str, **params: Any) -> httpx.Response:
-    return httpx.get(live.base_url + path, params=params)
+def get(app: InProcessServer, path: str, **params: Any) -> httpx.Response:
+    return app.client.get(path, params=params)
 
 
-def test_camera_info_in_ros_layout(shared_server: LiveServer, small_recording: SmallRecording) -> None:
+def test_camera_info_in_ros_layout(shared_app: InProcessServer, small_recording: SmallRecording) -> None:
     rig = load_rig(small_recording.loop / "calibration.yaml")
-    vpc = shared_server.runtime.pipeline.pair
-    docs = {cam: get(shared_server, f"/camera_info/{cam}").json() for cam in ("left", "right")}
+    vpc = shared_app.runtime.pipeline.pair
+    docs = {cam: get(shared_app, f"/camera_info/{cam}").json() for cam in ("left", "right")}
     for cam, doc in docs.items():
         p = rig.cameras[cam].param_dict
         assert doc["distortion_model"] == "equidistant"  # the prototype's Kannala-Brandt lenses
@@ -38,21 +38,21 @@ def test_camera_info_in_ros_layout(shared_server: LiveServer, small_recording: S
         np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
     fx, B = vpc.camera.fx, vpc.baseline_m
     assert docs["left"]["p"][3] == 0.0 and docs["right"]["p"][3] == pytest.approx(-fx * B, rel=1e-12)
-    rect = get(shared_server, "/camera_info/rectified").json()
+    rect = get(shared_app, "/camera_info/rectified").json()
     assert rect["distortion_model"] == "plumb_bob" and rect["d"] == [0.0] * 5
     assert rect["r"] == np.eye(3).reshape(-1).tolist() and rect["p"] == docs["left"]["p"]
     assert (rect["width"], rect["height"]) == (SMALL_SPEC.vpc.width, SMALL_SPEC.vpc.height)
     assert rect["header"]["frame_id"] == "rig_left_rect_optical_frame"
-    right = get(shared_server, "/camera_info/rectified", side="right").json()
+    right = get(shared_app, "/camera_info/rectified", side="right").json()
     assert right["p"] == docs["right"]["p"] and right["header"]["frame_id"] == "rig_right_rect_optical_frame"
-    assert get(shared_server, "/camera_info/middle").status_code == 422
-    assert get(shared_server, "/camera_info/rectified", side="up").status_code == 422
+    assert get(shared_app, "/camera_info/middle").status_code == 422
+    assert get(shared_app, "/camera_info/rectified", side="up").status_code == 422
 
 
-def test_pointcloud_as_pcd_equals_the_ply(shared_server: LiveServer) -> None:
+def test_pointcloud_as_pcd_equals_the_ply(shared_app: InProcessServer) -> None:
     for _ in range(30):
-        ply = get(shared_server, "/pointcloud", stride=2)
-        pcd = get(shared_server, "/pointcloud", stride=2, format="pcd")
+        ply = get(shared_app, "/pointcloud", stride=2)
+        pcd = get(shared_app, "/pointcloud", stride=2, format="pcd")
         if ply.headers["X-Frame-Seq"] == pcd.headers["X-Frame-Seq"]:
             break
     else:
