@@ -24,6 +24,7 @@ from rich.table import Table
 
 from cli.console import console, progress_bar
 from cli.errors import fail
+from cli.pipeline_options import StereoOption, load_stereo_params
 from cli.sim import PresetOption, parse_distances
 from rig.evaluate import DEFAULT_MODELS, EvaluationRun, make_config, run_evaluation, write_outputs
 from rig.evaluate.agreement import mean_ratio
@@ -134,6 +135,7 @@ def register(app: typer.Typer) -> None:
                 "pinhole and lat-lon pairs over the lenses' overlap, in the room).",
             ),
         ] = "paper",
+        stereo_file: StereoOption = None,
         lens: Annotated[
             str | None,
             typer.Option(
@@ -164,8 +166,10 @@ def register(app: typer.Typer) -> None:
             ]
             if given:
                 fail(f"{', '.join(given)} apply to --study paper, not wide-pair")
-            _wide_pair(out, preset, quick, seed, lens or default_lens(preset))
+            _wide_pair(out, preset, quick, seed, lens or default_lens(preset), stereo_file)
             return
+        if stereo_file is not None:
+            fail("--stereo applies to --study wide-pair, not paper")
         config = make_config(
             preset,
             quick=quick,
@@ -186,8 +190,9 @@ def register(app: typer.Typer) -> None:
         console.print(f"wrote {report} and the results next to it ({total:.0f} s)", highlight=False)
 
 
-def _wide_pair(out: Path, preset: str, quick: bool, seed: int, lens: str) -> None:
-    config = make_wide_config(preset, quick=quick, seed=seed, lens=lens)
+def _wide_pair(out: Path, preset: str, quick: bool, seed: int, lens: str, stereo_file: Path | None) -> None:
+    stereo = load_stereo_params(stereo_file) if stereo_file is not None else None
+    config = make_wide_config(preset, quick=quick, seed=seed, lens=lens, stereo=stereo)
     logging.getLogger("rig.pipeline").setLevel(logging.ERROR)  # each variant's notes: in the report
     with progress_bar() as progress:
         task = progress.add_task("wide pair", total=study_steps(config))

@@ -9,7 +9,7 @@ with per-stage timings.
 
 ``process`` is three stages that a pipelined caller (:mod:`rig.staged`) may run on three
 threads, frame N+1's stage 1 while frame N is in stage 2 or 3: :meth:`rectify` (LUT remap + gray;
-thread-safe), :meth:`match` (the OpenCV matcher's parallel part; serialised) and
+thread-safe), :meth:`match` (the matcher's search; serialised) and
 :meth:`postprocess` (speckle removal, refinement, filters, confidence, depth; serialised, in
 frame order for the temporal filter).
 
@@ -45,7 +45,7 @@ from rig.in_effect import PairGeometry, PairInEffect
 from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
 from rig.match_input import matcher_input
-from rig.postprocess import PostprocessStage
+from rig.postprocess import PostprocessStage, refine_pool
 from rig.reach import reaching
 from rig.rectified import RectifiedPair, RectifiedPairConfig, pinhole_intrinsics
 from rig.stereo import MatchedDisparity, StereoMatcher, StereoParams, UnfilteredDisparity
@@ -142,10 +142,11 @@ def _width(in_effect: PairInEffect) -> int | None:
 
 
 def _check_params(params: StereoParams, width: int) -> None:
-    if params.disparity_range + max(params.min_disparity, 0) >= width:
+    if max(params.blind_band_px, params.disparity_range + max(params.min_disparity, 0)) >= width:
         raise ConfigError(
             f"stereo: disparity_range {params.disparity_range} + min_disparity {params.min_disparity} "
-            f"must be below the rectified view's width {width}"
+            f"(the coarse-to-fine search: {params.blind_band_px}) must be below the rectified view's "
+            f"width {width}"
         )
 
 
@@ -363,20 +364,27 @@ class DepthPipeline:
         ms = (time.perf_counter() - t0) * 1e3
         return RectifiedImages(left_rect, right_rect, left_gray, right_gray, ms, geometry)
 
-    def match(self, rect: RectifiedImages) -> MatchedImages:
-        """Stage 2 of :meth:`process`: the current matcher's OpenCV call (its parallel part; the
-        speckle removal after it is :meth:`postprocess`'s, so that it overlaps the next pair's call).
-        Callers are serialised (an OpenCV matcher keeps scratch buffers)."""
+    def match(self, rect: RectifiedImages, *, temporal_prior: bool = False) -> MatchedImages:
+        """Stage 2 of :meth:`process`: the current matcher's search (the speckle removal after it
+        is :meth:`postprocess`'s, so that it overlaps the next pair's search). Callers are
+        serialised (an OpenCV matcher keeps scratch buffers). ``temporal_prior``: the pairs are
+        a live stream in order, and the coarse-to-fine search may reuse the coarse level of rows
+        that did not change (``stereo.temporal_prior``; the service's worker)."""
         with self._match_lock:
             matcher = self._in_effect.matcher
             seen = (rect.geometry or self._in_effect.geometry).seen
             t0 = time.perf_counter()
             p = matcher.params
+            # Both searches see the same input: the views made alike (rig.match_input).
             left, right = (
                 matcher_input(g, p.match_blur_sigma, p.match_normalise_window, p.match_normalise_eps)
                 for g in (rect.left_gray, rect.right_gray)
             )
-            unfiltered = matcher.compute(left, right, seen)
+            unfiltered = matcher.compute(left, right, seen, pool=refine_pool(), temporal_prior=temporal_prior)
+            if left is not rect.left_gray:
+                # The coarse-to-fine search's normalisation is of its input; the refinement's
+                # is of the rectified images as they are (it makes its own).
+                unfiltered.normalised = None
             return MatchedImages(rect, matcher, unfiltered, (time.perf_counter() - t0) * 1e3)
 
     def _disparity(self, matched: MatchedImages) -> MatchedDisparity:
@@ -401,7 +409,11 @@ class DepthPipeline:
         rect = matched.rectified
         with self._postprocess_lock:
             out, speckle_ms, stage = self._postprocess(
-                matched.matcher, rect.left_gray, rect.right_gray, lambda: self._disparity(matched)
+                matched.matcher,
+                rect.left_gray,
+                rect.right_gray,
+                lambda: self._disparity(matched),
+                matched.unfiltered.normalised,
             )
         timings = {"remap": rect.remap_ms, "match": matched.match_ms + speckle_ms, **stage}
         # Processing time, not wall time: pipelined stages may wait between each other.

@@ -161,13 +161,17 @@ def _prepare(
     right_gray: U8,
     disparity_of: Callable[[], MatchedDisparity],
     pool: Executor | None,
+    made: tuple[F32, F32] | None = None,
 ) -> _Prepared:
-    """The refinement's preparation around the matcher's speckle removal (``disparity_of``)."""
+    """The refinement's preparation around the matcher's speckle removal (``disparity_of``);
+    ``made``: the images' normalisation if the matcher made it."""
     refine = p.subpixel or p.confidence
     t0 = time.perf_counter()
     # The refinement's image normalisation needs no disparity: it runs on the pool while this
     # thread removes the matcher's speckles (single-threaded).
-    normalised = Normalisation(left_gray, right_gray, pool) if refine else None
+    normalised = None
+    if refine:
+        normalised = Normalisation.ready(*made) if made else Normalisation(left_gray, right_gray, pool)
     t_norm = time.perf_counter()
     raw = disparity_of()
     t_raw = time.perf_counter()
@@ -284,14 +288,16 @@ class PostprocessStage:
         left_gray: U8,
         right_gray: U8,
         disparity_of: Callable[[], MatchedDisparity],
+        normalised: tuple[F32, F32] | None = None,
     ) -> tuple[PostprocessOutputs, float, StageTimes]:
         """The post-processing stage of the pair whose gray VPC images are ``left_gray``/``right_gray``,
         with the parameters of the ``matcher`` that matched it; ``disparity_of()`` removes its
-        speckles and gives its disparity. Returns the outputs, the speckle removal's time (ms)
-        and the stage's times (ms) by section: refine, filters, depth."""
+        speckles and gives its disparity; ``normalised``: the images' contrast normalisation if
+        the matcher made it. Returns the outputs, the speckle removal's time (ms) and the
+        stage's times (ms) by section: refine, filters, depth."""
         p = matcher.params
         pool = refine_pool()
-        prep = _prepare(p, left_gray, right_gray, disparity_of, pool)
+        prep = _prepare(p, left_gray, right_gray, disparity_of, pool, normalised)
         temporal = p.temporal_alpha > 0.0
         self._follow(matcher)
         out = PostprocessOutputs.empty(

@@ -46,15 +46,21 @@ def reaching(
     params: StereoParams, projection: str, fx: float, baseline_m: float, width: int | None = None
 ) -> StereoParams:
     """``params`` with the search widened to reach ``params.min_range_m`` (unchanged without
-    one); a pinhole pair's search stays ``_MIN_MATCH_COLUMNS`` narrower than its ``width``."""
+    one); a pinhole pair's unmatched band (:attr:`StereoParams.blind_band_px`) stays
+    ``_MIN_MATCH_COLUMNS`` narrower than its ``width``."""
     if params.min_range_m is None:
         return params
     need = math.ceil(axis_disparity_px(projection, fx, baseline_m, params.min_range_m)) + 1
     span = 16 * math.ceil(max(need - params.min_disparity, 16) / 16)
     if width is not None:
-        room = width - _MIN_MATCH_COLUMNS - max(params.min_disparity, 0)
-        span = min(span, max(16, 16 * (room // 16)))
-    return params.model_copy(update={"disparity_range": max(params.disparity_range, span)})
+        # The unmatched band (the coarse-to-fine search's rounds the range up) leaves room.
+        while span > 16 and _with_range(params, span).blind_band_px > width - _MIN_MATCH_COLUMNS:
+            span -= 16
+    return _with_range(params, max(params.disparity_range, span))
+
+
+def _with_range(params: StereoParams, span: int) -> StereoParams:
+    return params.model_copy(update={"disparity_range": span})
 
 
 def reach_note(name: str, projection: str, fx: float, baseline_m: float, params: StereoParams) -> str | None:

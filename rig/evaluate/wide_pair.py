@@ -164,14 +164,20 @@ def default_variants(
 
 
 def make_wide_config(
-    preset: str = "prototype", *, quick: bool = False, seed: int = 0, lens: str = "honest"
+    preset: str = "prototype",
+    *,
+    quick: bool = False,
+    seed: int = 0,
+    lens: str = "honest",
+    stereo: StereoParams | None = None,
 ) -> WideConfig:
     """Full run: the preset's own size, three poses along the room path, supersampling 3×3, the
-    default pinhole pair and stereo settings, lat-lon resolutions 4.5 and 7 px/deg besides the
-    budget ones. Quick (tests): a quarter-size rig, one pose, supersampling 2×2, a 160×120 pinhole
-    and a quarter of the disparities."""
+    default pinhole pair and stereo settings (or ``stereo``), lat-lon resolutions 4.5 and 7
+    px/deg besides the budget ones. Quick (tests): a quarter-size rig, one pose, supersampling
+    2×2, a 160×120 pinhole and a quarter of the disparities."""
     scale = 0.25 if quick else 1.0
-    stereo = StereoParams(disparity_range=32) if quick else StereoParams()
+    if stereo is None:
+        stereo = StereoParams(disparity_range=32) if quick else StereoParams()
     pinhole = (
         RectifiedPairConfig(width=160, height=120) if quick else RectifiedPairConfig(projection="pinhole")
     )

@@ -6,6 +6,7 @@ quotes."""
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -47,8 +48,24 @@ def ring4(tmp_path_factory: pytest.TempPathFactory) -> tuple[RigShot, Consistenc
     return _shot(str(tmp_path_factory.mktemp("lut")))
 
 
-def test_rendered_ring_agrees_with_itself_within_one_percent(ring4: tuple[RigShot, ConsistencyStudy]) -> None:
+#: Per search: the largest couple median |e| and the smallest within-10 % share allowed. The
+#: coarse-to-fine search (the default) agrees less with itself than the exact search on this render
+#: (measured 1.0-1.2 % against 0.74-0.84 %; docs/stereo.md, "Coarse-to-fine search").
+AGREEMENT_BARS = {"exact": (0.01, 0.95), "coarse-to-fine": (0.013, 0.87)}
+
+
+@pytest.mark.parametrize("search", ["coarse-to-fine", "exact"])
+def test_rendered_ring_agrees_with_itself_within_one_percent(
+    ring4: tuple[RigShot, ConsistencyStudy], search: str, tmp_path: Path
+) -> None:
     shot, study = ring4
+    if search == "exact":
+        rig = get_ring_preset("ring4").rig
+        exact = StereoParams(coarse_to_fine=False)
+        study = consistency_study(
+            rig, [shot.images], adjacent_pairs(rig), stereo=exact, cache_dir=str(tmp_path), keep_ranges=True
+        )
+    largest_median, smallest_within_10 = AGREEMENT_BARS[search]
     assert [p.names for p in study.pairs] == [
         ("cam1", "cam2"),
         ("cam2", "cam3"),
@@ -60,19 +77,25 @@ def test_rendered_ring_agrees_with_itself_within_one_percent(ring4: tuple[RigSho
         r, truth = p.ranges[0].range, shot.truth[p.names]
         ok = np.isfinite(r) & np.isfinite(truth)
         err = float(np.median(np.abs(r[ok] / truth[ok] - 1.0)))
-        print(f"ring4 {p.label}: coverage {p.coverage[0]:.3f}, median error against the truth {err:.4f}")
+        print(
+            f"ring4 {search} {p.label}: coverage {p.coverage[0]:.3f}, median error against the truth "
+            f"{err:.4f}"
+        )
         assert p.coverage[0] > 0.90  # measured 0.953-0.962
         assert err < 0.006  # measured 0.0036-0.0044
     for c in study.couples:
         f = c.figures
         print(
-            f"ring4 {c.couple.label}: both {f.both_share:.3f}, median |e| {f.median_abs:.4f}, signed "
+            f"ring4 {search} {c.couple.label}: both {f.both_share:.3f}, median |e| {f.median_abs:.4f}, "
+            f"signed "
             f"{f.median_signed:+.4f}, within 3 % {f.within_3:.3f}, 10 % {f.within_10:.3f}, "
             f"median |dd| {f.median_abs_px:.3f} px"
         )
+    for c in study.couples:
+        f = c.figures
         assert f.points > 20000 and f.both_share > 0.6  # measured 0.74-0.77
-        assert f.median_abs <= 0.01  # measured 0.0074-0.0084
-        assert abs(f.median_signed) < 0.002 and f.within_10 > 0.95
+        assert f.median_abs <= largest_median
+        assert abs(f.median_signed) < 0.002 and f.within_10 > smallest_within_10
 
 
 def test_rendered_truth_is_consistent_to_interpolation(ring4: tuple[RigShot, ConsistencyStudy]) -> None:
