@@ -24,12 +24,14 @@ from typing import Any
 import cv2
 import numpy as np
 import platformdirs
+import yaml
 from rich.console import Console
 from rich.table import Table
 
 __all__ = [
     "BENCH_CACHE_ENV",
     "add_common_arguments",
+    "add_stereo_argument",
     "bench_cache_dir",
     "console",
     "finish",
@@ -37,6 +39,7 @@ __all__ = [
     "median",
     "percentile",
     "print_machine",
+    "stereo_overrides",
     "summary",
     "time_calls",
 ]
@@ -100,6 +103,26 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="a run of seconds (keeps the script working)")
     parser.add_argument("--json", type=Path, default=None, metavar="FILE", help="also write results here")
     parser.add_argument("--repeat", type=int, default=None, help="runs per figure (the median is reported)")
+
+
+def add_stereo_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--stereo",
+        default=None,
+        metavar="KEY=VALUE,...",
+        help="stereo parameters over the defaults (YAML values), e.g. coarse_to_fine=false (the exact "
+        "search) or lr_check=false",
+    )
+
+
+def stereo_overrides(text: str | None) -> dict[str, Any]:
+    """``KEY=VALUE,...`` (``--stereo``) → a mapping (values read as YAML scalars: false, 20, 0.5)."""
+    out: dict[str, Any] = {}
+    for item in (text or "").split(","):
+        if item.strip():
+            key, _, value = item.partition("=")
+            out[key.strip()] = yaml.safe_load(value)
+    return out
 
 
 def percentile(values: Sequence[float], q: float) -> float:

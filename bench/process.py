@@ -50,16 +50,19 @@ from typing import Any
 
 import cv2
 import numpy as np
+import yaml
 from rich.table import Table
 
 from bench.common import (
     add_common_arguments,
+    add_stereo_argument,
     console,
     finish,
     machine_info,
     median,
     percentile,
     print_machine,
+    stereo_overrides,
 )
 from bench.recordings import MjpegSpec, ensure_mjpeg_recording
 from bench.worker import floor_match, floor_matcher
@@ -257,19 +260,23 @@ def _windows(data: BenchInput, windows: int) -> list[tuple[FloorRun, OursRun]]:
     return out
 
 
-def _configuration(projection: str, quick: bool) -> tuple[RectifiedPairConfig, StereoParams, list[str]]:
-    """The measured pair, its stereo parameters and the ``rig process`` options that choose it."""
+def _configuration(
+    projection: str, quick: bool, disparities: int | None = None, overrides: dict[str, Any] | None = None
+) -> tuple[RectifiedPairConfig, StereoParams, list[str]]:
+    """The measured pair, its stereo parameters (``disparities``, else the pair's own default:
+    96 for the lat-lon pair, 128 for the pinhole pair as measured first; ``overrides`` over
+    them) and the ``rig process`` options that choose the pair."""
     if projection == "latlon":
-        stereo = StereoParams(disparity_range=32) if quick else StereoParams()
+        stereo = StereoParams(disparity_range=32 if quick else disparities or 96, **(overrides or {}))
         return (
             RectifiedPairConfig(px_per_deg=1.5) if quick else RectifiedPairConfig(),
             stereo,
             ["--projection", "latlon"] + (["--px-per-deg", "1.5"] if quick else []),
         )
-    w, h, disp = (160, 120, 32) if quick else (640, 480, 128)
+    w, h, disp = (160, 120, 32) if quick else (640, 480, disparities or 128)
     return (
         RectifiedPairConfig(width=w, height=h),
-        StereoParams(disparity_range=disp),
+        StereoParams(disparity_range=disp, **(overrides or {})),
         ["--vpc-size", f"{w}x{h}"],
     )
 
@@ -285,10 +292,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         default="pinhole",
         help="the rectified pair: the pinhole pair (640×480, 128 disparities) or the default lat-lon pair",
     )
+    parser.add_argument("--disparities", type=int, default=None, help="disparity_range (default: the pair's)")
+    add_stereo_argument(parser)
     args = parser.parse_args(argv)
     quick = args.quick
     spec = MjpegSpec(frames=4, views=1, scale=0.25) if quick else MjpegSpec(frames=args.pairs or 24)
-    vpc, stereo, vpc_args = _configuration(args.projection, quick)
+    overrides = stereo_overrides(args.stereo)
+    vpc, stereo, vpc_args = _configuration(args.projection, quick, args.disparities, overrides)
     windows = args.windows or (2 if quick else 8)
     repeat = args.repeat or (1 if quick else 5)
     info = machine_info()
@@ -302,12 +312,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         label = f"{'lat-lon ' if data.pipeline.pair.projection == 'latlon' else ''}{w}×{h}"
         console.print(
             f"input: {data.recording} ({data.pairs} pairs, colour JPEG q{spec.quality}); VPC {label}, "
-            f"{disp} disparities; {windows} alternating window pairs, one run over the recording each"
+            f"{disp} disparities{', ' + args.stereo if args.stereo else ''}; {windows} alternating window "
+            "pairs, one run over the recording each"
         )
         run_floor(data, data.scratch / "warm")  # page cache, encoder and matcher warm for both
         pairs = _windows(data, windows)
         stereo_file = data.scratch / "stereo.yaml"
-        stereo_file.write_text(f"disparity_range: {disp}\n")
+        stereo_file.write_text(yaml.safe_dump({"disparity_range": disp, **overrides}))
         start = startup_figures(data, vpc_args, stereo_file, repeat)
     ratios = [o.pairs_per_s / f.pairs_per_s for f, o in pairs]
     floor_ms = median(median(f.pair_ms) for f, _ in pairs)
@@ -332,7 +343,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         },
     }
     table = Table(
-        title="rig process per pair: floor (bare OpenCV) vs ours (the staged pipeline, default stages)"
+        title="rig process per pair: floor (bare OpenCV) vs ours (the staged pipeline, default stages"
+        f"{', ' + args.stereo if args.stereo else ''})"
     )
     for col in (
         "VPC",

@@ -60,9 +60,11 @@ def _build(spec: MjpegSpec, out: Path) -> None:
     if spec.scale != 1.0:
         preset = preset.scaled(spec.scale)
     render_dir = out / "render"
+    # The renders the published figures were measured on: the ideal lens, the preset's vignetting.
     simulate_recording(
-        preset, "room", render_dir, frames=spec.views, noise_std=0.0, supersample=1, color=spec.color
-    )
+        preset, "room", render_dir, frames=spec.views, noise_std=0.0, supersample=1, color=spec.color,
+        lens="ideal", vignetting=preset.vignetting,
+    )  # fmt: skip
     render = Recording(render_dir)
     rng = np.random.default_rng(spec.seed)
     period_ns = round(1e9 / preset.fps)

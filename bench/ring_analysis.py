@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -44,6 +44,7 @@ from rig.stereo import StereoParams
 __all__ = [
     "PERTURBATIONS",
     "Bin",
+    "common_figures",
     "confidence_figures",
     "couple_bins",
     "coverage_bins",
@@ -308,3 +309,35 @@ PERTURBATIONS: tuple[tuple[str, Callable[[Rig], Rig]], ...] = (
     ("every distortion centre moved 2 px", lambda r: centre_shifted(r, 2.0, 1)),
     ("cam2's image scale +0.5 %", lambda r: focal_scaled(r, 1.005, ("cam2",))),
 )
+
+
+def common_figures(studies: Sequence[ConsistencyStudy]) -> list[dict[str, ConsistencyFigures]]:
+    """Each study's couples (the same pairs on the same frames, e.g. two stereo settings, with
+    ``keep_ranges``) measured on the pixels where every study has range: one matcher's figures
+    against another's on the same points, not each on its own."""
+    ranges = [{p.names: p.ranges for p in st.pairs} for st in studies]
+    frames = studies[0].frames
+    common = {
+        names: [
+            np.logical_and.reduce([np.isfinite(r[names][i].range) for r in ranges]) for i in range(frames)
+        ]
+        for names in ranges[0]
+    }
+
+    def masked(pr: PairRange, keep: NDArray[np.bool_]) -> PairRange:
+        return replace(pr, range=np.where(keep, pr.range, np.float32(np.nan)).astype(np.float32))
+
+    out = []
+    for r in ranges:
+        figures = {}
+        for c in studies[0].couples:
+            src, tgt = c.couple.source, c.couple.target
+            per = [
+                transfer_range(
+                    masked(r[src][i], common[src][i]), masked(r[tgt][i], common[tgt][i]), c.couple.shared
+                )
+                for i in range(frames)
+            ]
+            figures[c.couple.label] = ConsistencyFigures.of(TransferredRange.concat(per))
+        out.append(figures)
+    return out

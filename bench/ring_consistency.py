@@ -7,6 +7,9 @@ frames; its OCamCalib models and poses, read by the test helper :mod:`tests.help
 2. Today's defaults: every adjacent pair through the depth pipeline on every frame; per couple
    of pairs sharing a camera the consistency figures (:mod:`rig.evaluate.consistency`), per pair
    the coverage of its view.
+2b. With the coarse-to-fine search (the default; not with ``--quick``): the exact search
+   (``coarse_to_fine: false``) on the same frames, and both searches' figures on the points
+   both give range for.
 3. The same after ``rig calibrate refine``'s refinement of each pair on the ring's frames
    (:func:`rig.rectification.refine.refine_frames`, the library behind the command: it turns
    each pair's right camera; each pair then runs on its own refined calibration).
@@ -14,6 +17,9 @@ frames; its OCamCalib models and poses, read by the test helper :mod:`tests.help
    (:mod:`bench.ring_analysis`).
 5. ``--renders``: the ring's own calibration rendered in the demo room (about 3 minutes), the
    measure with the exact calibration and with errors of known kinds.
+6. The joint refinement of the whole ring (:func:`rig.ring_refine.refine_ring`: one rotation per
+   camera fitted to every pair's matches at once), measured before and after, and whether its
+   gate applies it.
 
 Run: ``.venv/bin/python -m bench.ring_consistency`` (``--quick``: one frame, no refinement or
 analysis). Not a speed benchmark: it prints accuracy figures.
@@ -32,9 +38,18 @@ import numpy as np
 from numpy.typing import NDArray
 from rich.table import Table
 
-from bench.common import bench_cache_dir, console, finish, machine_info, print_machine
+from bench.common import (
+    add_stereo_argument,
+    bench_cache_dir,
+    console,
+    finish,
+    machine_info,
+    print_machine,
+    stereo_overrides,
+)
 from bench.ring_analysis import (
     PERTURBATIONS,
+    common_figures,
     confidence_figures,
     couple_bins,
     coverage_bins,
@@ -50,6 +65,7 @@ from rig.rectification import EpipolarViews, RayMatches, VerticalDisparity, matc
 from rig.rectification.refine import refine_frames
 from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from rig.ring import PairNames, adjacent_pairs
+from rig.ring_refine import RingRefineOptions, refine_ring
 from rig.sim import room_scene
 from rig.sim.simulate import room_path
 from rig.stereo import StereoParams
@@ -142,6 +158,40 @@ def _print_study(title: str, study: ConsistencyStudy) -> dict[str, Any]:
         cov.add_row(p.label, " ".join(f"{c:.3f}" for c in p.coverage), f"{p.mean_coverage:.3f}")
     console.print(cov)
     return study.as_dict()
+
+
+def _versus_exact(
+    ring: RealRing, pairs: Sequence[PairNames], stereo: StereoParams, study: ConsistencyStudy, cache: str
+) -> dict[str, Any]:
+    """2b. The exact search (``coarse_to_fine: false``) on the same frames, and both searches'
+    figures on the pixels where both give range (each pair, each frame)."""
+    exact_params = stereo.model_copy(update={"coarse_to_fine": False})
+    exact = consistency_study(
+        ring.rig, ring.frames, pairs, stereo=exact_params, cache_dir=cache, keep_ranges=True
+    )
+    out = {
+        "exact": _print_study("2b. the exact search (coarse_to_fine: false), the ring's calibration", exact)
+    }
+    ours, theirs = common_figures([study, exact])
+    table = Table(title="2b. on the pixels where both searches give range: coarse-to-fine / exact")
+    table.add_column("couple (source → target)")
+    for col in ("points both range", "median |e|", "within 3 %", "within 10 %", "median |dd| px"):
+        table.add_column(col, justify="right")
+    for label, a in ours.items():
+        b = theirs[label]
+        table.add_row(
+            label,
+            f"{a.both} / {b.both}",
+            f"{100 * a.median_abs:.2f} / {100 * b.median_abs:.2f} %",
+            f"{a.within_3:.3f} / {b.within_3:.3f}",
+            f"{a.within_10:.3f} / {b.within_10:.3f}",
+            f"{a.median_abs_px:.2f} / {b.median_abs_px:.2f}",
+        )
+    console.print(table)
+    out["common"] = {
+        label: {"coarse_to_fine": ours[label].as_dict(), "exact": theirs[label].as_dict()} for label in ours
+    }
+    return out
 
 
 def _refined(
@@ -300,6 +350,29 @@ def _renders(ring: RealRing, pairs: Sequence[PairNames], cache: str) -> dict[str
     return out
 
 
+def _ring_refined(ring: RealRing, cache: str) -> dict[str, Any]:
+    result = refine_ring(ring.rig, ring.frames, options=RingRefineOptions(cache_dir=cache))
+    table = Table(title="6. the whole ring refined at once: vertical disparity p50 and coverage")
+    for col in ("pair", "camera turned deg", "|vert. disp.| before → after px", "coverage before → after"):
+        table.add_column(col, justify="right")
+    for a, b in result.vertical_before:
+        turn = np.linalg.norm(result.corrections_deg[b])
+        v0, v1 = result.vertical_before[(a, b)].p50_px, result.vertical_after[(a, b)].p50_px
+        c0, c1 = result.coverage_before[(a, b)], result.coverage_after[(a, b)]
+        table.add_row(f"{a}|{b}", f"{b} {turn:.3f}", f"{v0:.2f} → {v1:.2f}", f"{c0:.3f} → {c1:.3f}")
+    console.print(table)
+    for label, before in result.agreement_before.items():
+        after = result.agreement_after[label]
+        console.print(f"  {label}: median disagreement {100 * before:.2f} → {100 * after:.2f} %")
+    console.print(f"  applied: {result.applied}" + (f" ({result.reason})" if result.reason else ""))
+    return {
+        "applied": result.applied,
+        "reason": result.reason,
+        "corrections_deg": {k: v.tolist() for k, v in result.corrections_deg.items()},
+        "agreement": {k: [v, result.agreement_after[k]] for k, v in result.agreement_before.items()},
+    }
+
+
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -316,7 +389,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         "--renders", action="store_true", help="section 5: render the ring's calibration (minutes)"
     )
     parser.add_argument("--json", type=Path, default=None, metavar="FILE", help="also write results here")
+    add_stereo_argument(parser)
     args = parser.parse_args(argv)
+    stereo = StereoParams(**stereo_overrides(args.stereo))
+    settings = f"today's defaults{', ' + args.stereo if args.stereo else ''}"
     info = machine_info()
     print_machine(info, "the real ring's consistency (accuracy without ground truth)")
     ring = load_ring(args.data or _default_data())
@@ -328,14 +404,25 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     results: dict[str, Any] = {"pairs": ["|".join(p) for p in pairs], "frames": len(ring.frames)}
     results["loader"], matches = _loader_check(ring, pairs)
     keep = not (args.quick or args.no_analysis)
+    versus = stereo.coarse_to_fine and not args.quick  # against the exact search on the same points
     study = consistency_study(
-        ring.rig, ring.frames, pairs, cache_dir=cache, keep_ranges=keep, keep_points=keep
+        ring.rig,
+        ring.frames,
+        pairs,
+        stereo=stereo,
+        cache_dir=cache,
+        keep_ranges=keep or versus,
+        keep_points=keep,
     )
-    results["today"] = _print_study("2. today's defaults, the ring's calibration", study)
+    results["stereo"] = stereo.model_dump()
+    results["today"] = _print_study(f"2. {settings}, the ring's calibration", study)
+    if versus:
+        results["versus_exact"] = _versus_exact(ring, pairs, stereo, study, cache)
     if not args.quick:
         rigs, results["refinement"] = _refined(ring, pairs, matches)
-        refined = consistency_study(ring.rig, ring.frames, pairs, cache_dir=cache, rigs=rigs)
-        results["refined"] = _print_study("3. today's defaults, each pair refined", refined)
+        refined = consistency_study(ring.rig, ring.frames, pairs, stereo=stereo, cache_dir=cache, rigs=rigs)
+        results["refined"] = _print_study(f"3. {settings}, each pair refined", refined)
+        results["ring_refined"] = _ring_refined(ring, cache)
     if keep:
         results["analysis"] = _analysis(ring, study, pairs, cache)
     if args.renders:

@@ -37,7 +37,16 @@ import numpy as np
 from numpy.typing import NDArray
 from rich.table import Table
 
-from bench.common import add_common_arguments, console, finish, machine_info, median, print_machine
+from bench.common import (
+    add_common_arguments,
+    add_stereo_argument,
+    console,
+    finish,
+    machine_info,
+    median,
+    print_machine,
+    stereo_overrides,
+)
 from bench.recordings import MjpegSpec, ensure_mjpeg_recording, load_jpeg_pairs
 from bench.worker import floor_match
 from calibration import load_rig
@@ -169,6 +178,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(prog="python -m bench.wide_pair", description=__doc__.split("\n\n")[0])
     add_common_arguments(parser)
     parser.add_argument("--frames", type=int, default=None, help="frames per round of each side")
+    add_stereo_argument(parser)
     args = parser.parse_args(argv)
     quick = args.quick
     rounds = args.repeat or (2 if quick else 6)
@@ -180,15 +190,16 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     recording = ensure_mjpeg_recording(spec)
     frames = _decode(load_jpeg_pairs(recording))
     rig = load_rig(recording / "calibration.yaml")
-    stereo = StereoParams(disparity_range=32) if quick else StereoParams()
+    overrides = stereo_overrides(args.stereo)
+    stereo = StereoParams(**({"disparity_range": 32} if quick else {}), **overrides)
     pinhole = (
         RectifiedPairConfig(width=160, height=120) if quick else RectifiedPairConfig(projection="pinhole")
     )
     variants = default_variants(rig, stereo, pinhole, ())
     console.print(
         f"input: {recording} ({len(frames)} pairs decoded to gray up front); {rounds} alternating "
-        f"rounds of {per_round} frames per side and variant; stereo defaults, "
-        f"{stereo.disparity_range} disparities"
+        f"rounds of {per_round} frames per side and variant; stereo defaults"
+        f"{', ' + args.stereo if args.stereo else ''}, {stereo.disparity_range} disparities"
     )
     rows = []
     with tempfile.TemporaryDirectory(prefix="rig-bench-wide-") as tmp:

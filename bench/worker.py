@@ -51,19 +51,20 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 from rich.table import Table
 
 from bench.alternating import Window, WorkerSession
 from bench.common import (
     add_common_arguments,
+    add_stereo_argument,
     console,
     finish,
     machine_info,
     median,
     percentile,
     print_machine,
+    stereo_overrides,
     summary,
 )
 from bench.recordings import MjpegSpec, ensure_mjpeg_recording, load_jpeg_pairs
@@ -224,16 +225,6 @@ def bench_settings(
         # floor has the machine: both sides do the same work here; bench.rectification times it.
         rectification=RectificationConfig(enabled=False),
     )
-
-
-def _stereo_overrides(text: str | None) -> dict[str, Any]:
-    """``KEY=VALUE,...`` → a mapping (values read as YAML scalars: false, 20, 0.5)."""
-    out: dict[str, Any] = {}
-    for item in (text or "").split(","):
-        if item.strip():
-            key, _, value = item.partition("=")
-            out[key.strip()] = yaml.safe_load(value)
-    return out
 
 
 def _configs(quick: bool) -> list[tuple[RectifiedPairConfig, int]]:
@@ -455,11 +446,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         help="rectified pairs and disparities, e.g. 640x480/128,320x240/64 (pinhole pairs), latlon/128 "
         "(the lat-lon pair at its default resolution), latlon@4.5/128",
     )
+    add_stereo_argument(parser)
     parser.add_argument(
-        "--stereo",
-        default=None,
-        metavar="KEY=VALUE,...",
-        help="stereo parameters over the stages' (YAML values), e.g. lr_check=false: the defaults before",
+        "--static",
+        action="store_true",
+        help="a static scene (one rig pose, fresh sensor noise every frame): the live service's temporal "
+        "prior searches only what changes",
     )
     args = parser.parse_args(argv)
     quick = args.quick
@@ -475,7 +467,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     spec = (
         MjpegSpec(frames=4, views=1, scale=0.25, color=not args.gray)
         if quick
-        else MjpegSpec(color=not args.gray)
+        else MjpegSpec(views=1 if args.static else 2, color=not args.gray)
     )
     recording = ensure_mjpeg_recording(spec)
     pairs = load_jpeg_pairs(recording)
@@ -510,7 +502,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 tmp=Path(tmp_name),
                 m=m,
                 cpus=info["cpus_usable"],
-                overrides=_stereo_overrides(args.stereo),
+                overrides=stereo_overrides(args.stereo),
             )
             rows.append(row)
             table.add_row(*_table_row(row))

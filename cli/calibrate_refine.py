@@ -7,6 +7,7 @@ in degrees about the rectified pair's axes with its 1σ, what happened to the ba
 and the vertical disparity of the consistent matches before and after in the VPC pair of the
 ``--vpc-*`` options; writes the corrected calibration as rig.yaml atomically. ``--out`` may be
 the calibration file itself: its original is then kept as ``<name>.orig<suffix>`` first (once).
+With ``--floor-height M`` the vergence is found from the floor instead (:mod:`cli.calibrate_floor`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import typer
 from rich.table import Table
 
 from calibration.relative_pose import RelativePoseOptions
+from cli.calibrate_floor import refine_from_floor
 from cli.console import console, progress_bar
 from cli.errors import fail
 from cli.pair_options import (
@@ -85,8 +87,27 @@ def register_refine(cal: typer.Typer) -> None:
         vpc_hfov: PinholeHfovOption = 90.0,
         yaw: YawOption = 0.0,
         pitch: PitchOption = 0.0,
+        floor_height: Annotated[
+            float | None,
+            typer.Option(
+                "--floor-height",
+                metavar="M",
+                help="Instead: the vergence from a floor this far below the rig's origin (metres).",
+            ),
+        ] = None,
     ) -> None:
         """Refine the pair's relative rotation from the scene of a recording and write rig.yaml."""
+        if floor_height is not None:
+            scene_only = (baseline_direction, min_matches, vpc_size, vpc_hfov, yaw, pitch)
+            if scene_only != ("auto", 100, "640x480", 90.0, 0.0, 0.0):
+                fail(
+                    "--baseline-direction, --min-matches, --vpc-*, --yaw and --pitch do not apply with "
+                    "--floor-height (the floor is seen through today's pair)"
+                )
+            if not 1 <= frames <= 100_000:
+                fail(f"--frames must be in [1, 100000], got {frames}")
+            refine_from_floor(recording, calibration, out, floor_height, frames)
+            return
         if baseline_direction not in _DIRECTION:
             fail(f"--baseline-direction must be auto, estimate or keep, got {baseline_direction!r}")
         if not 1 <= frames <= 100_000:

@@ -6,6 +6,10 @@ Results go to stdout (``console``); progress, warnings and errors to stderr (``e
 
 from __future__ import annotations
 
+import os
+import sys
+from typing import NoReturn
+
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import (
@@ -20,10 +24,35 @@ from rich.progress import (
 )
 from rich.text import Text
 
-__all__ = ["RateColumn", "console", "err_console", "one_line", "progress_bar", "warn"]
+__all__ = [
+    "BROKEN_PIPE",
+    "RateColumn",
+    "console",
+    "err_console",
+    "exit_on_broken_pipe",
+    "one_line",
+    "progress_bar",
+    "warn",
+]
 
 console = Console()
 err_console = Console(stderr=True)
+#: Exit status when the reader of stdout went away (``rig ... | head``): rich's own.
+BROKEN_PIPE = 1
+
+
+def exit_on_broken_pipe() -> NoReturn:
+    """End quietly when stdout's reader has gone (``rig export mcap --help | head``): Python's
+    documented way (stdout pointed at /dev/null, so the interpreter's last flush cannot fail
+    again), as rich does for what it prints itself."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass  # no stdout file descriptor (embedded): nothing left to flush into the pipe
+    finally:
+        os.close(devnull)
+    raise SystemExit(BROKEN_PIPE)
 
 
 def one_line(message: object) -> str:

@@ -4,6 +4,7 @@ stderr and an exit status, here and nowhere else.
 * :class:`CommandError` (raised by :func:`fail`), ``CalibrationError``, ``RigError``,
   ``ServiceError``: ``error: <message>``, exit status 2 (bad input or a faulty device);
 * ``KeyboardInterrupt``: ``interrupted``, exit status 130;
+* ``BrokenPipeError`` (stdout's reader went away: ``rig ... | head``): nothing, exit status 1;
 * anything else (a bug): ``internal error: <type>: <message> (run with RIG_DEBUG=1 ...)``, 1.
 
 With ``RIG_DEBUG=1`` nothing is mapped: the exception propagates with its traceback. Commands
@@ -20,7 +21,7 @@ from typer.core import TyperGroup
 from typer.exceptions import TyperException
 
 from calibration.errors import CalibrationError
-from cli.console import err_console, one_line
+from cli.console import err_console, exit_on_broken_pipe, one_line
 from rig.errors import RigError
 from service.errors import ServiceError
 
@@ -93,6 +94,8 @@ class MappedErrorsGroup(TyperGroup):
             return super().invoke(ctx)
         except (TyperException, typer.Exit, typer.Abort):
             raise  # typer's own usage errors (with the usage line), --help, --version
+        except BrokenPipeError:
+            exit_on_broken_pipe()
         except (Exception, KeyboardInterrupt) as err:
             if debugging():
                 raise

@@ -29,14 +29,15 @@ from cli.console import console, progress_bar
 from cli.errors import fail
 from cli.evaluate_consistency import consistency_command
 from cli.pair_options import CacheDirOption, CalibrationOption
-from cli.pipeline_options import StereoOption
+from cli.pipeline_options import StereoOption, load_stereo_params
 from cli.sim import PresetOption, parse_distances
 from rig.evaluate import DEFAULT_MODELS, EvaluationRun, make_config, run_evaluation, write_outputs
 from rig.evaluate.agreement import mean_ratio
-from rig.evaluate.config import FULL_DISTANCES, QUICK_DISTANCES
+from rig.evaluate.config import FULL_DISTANCES, QUICK_DISTANCES, default_lens
 from rig.evaluate.depth_quality import REFERENCE, THEORY
 from rig.evaluate.wide_pair import WideStudy, make_wide_config, run_wide_study, study_steps
 from rig.evaluate.wide_pair_report import write_wide_outputs
+from rig.sim.lens_effects import LENS_CHOICES
 from rig.sim.presets import PRESETS
 
 __all__ = ["register"]
@@ -146,12 +147,21 @@ def register(app: typer.Typer) -> None:
             ),
         ] = "paper",
         calibration: CalibrationOption = None,
-        stereo: StereoOption = None,
+        stereo_file: StereoOption = None,
         cache_dir: CacheDirOption = None,
         json_path: Annotated[
             Path | None,
             typer.Option(
                 "--json", metavar="FILE", help="--study consistency: also write the figures as JSON."
+            ),
+        ] = None,
+        lens: Annotated[
+            str | None,
+            typer.Option(
+                metavar="LENS",
+                help="The fisheye renders' lens: honest (fitted to real fisheyes: blur, rim darkening, "
+                "exposure, noise) or ideal (none).",
+                show_default="ideal for paper-sim, honest otherwise",
             ),
         ] = None,
     ) -> None:
@@ -165,7 +175,7 @@ def register(app: typer.Typer) -> None:
         if study == "consistency":
             if out is not None:
                 fail("--out applies to --study paper and wide-pair; consistency prints (and --json writes)")
-            consistency_command(recording, calibration, stereo, cache_dir, json_path)
+            consistency_command(recording, calibration, stereo_file, cache_dir, json_path)
             return
         given = [
             o for o, v in (("REC", recording), ("--calibration", calibration), ("--json", json_path)) if v
@@ -176,6 +186,8 @@ def register(app: typer.Typer) -> None:
             fail(f"--study {study} needs --out DIR")
         if preset not in PRESETS:
             fail(f"--preset must be one of {', '.join(PRESETS)}, got {preset!r}")
+        if lens is not None and lens not in LENS_CHOICES:
+            fail(f"--lens must be one of {', '.join(LENS_CHOICES)}, got {lens!r}")
         _check_out(out, force)
         if study == "wide-pair":
             given = [
@@ -185,8 +197,10 @@ def register(app: typer.Typer) -> None:
             ]
             if given:
                 fail(f"{', '.join(given)} apply to --study paper, not wide-pair")
-            _wide_pair(out, preset, quick, seed)
+            _wide_pair(out, preset, quick, seed, lens or default_lens(preset), stereo_file)
             return
+        if stereo_file is not None:
+            fail("--stereo applies to --study wide-pair, not paper")
         config = make_config(
             preset,
             quick=quick,
@@ -194,6 +208,7 @@ def register(app: typer.Typer) -> None:
             distances=parse_distances(distances) if distances is not None else None,
             textures=textures,
             seed=seed,
+            lens=lens,
         )
         # Calibrated models may end a hair before the VPC's edge (a few pixels invalid); the
         # pipeline's warning about it would interrupt the progress bar: the report lists it.
@@ -206,8 +221,9 @@ def register(app: typer.Typer) -> None:
         console.print(f"wrote {report} and the results next to it ({total:.0f} s)", highlight=False)
 
 
-def _wide_pair(out: Path, preset: str, quick: bool, seed: int) -> None:
-    config = make_wide_config(preset, quick=quick, seed=seed)
+def _wide_pair(out: Path, preset: str, quick: bool, seed: int, lens: str, stereo_file: Path | None) -> None:
+    stereo = load_stereo_params(stereo_file) if stereo_file is not None else None
+    config = make_wide_config(preset, quick=quick, seed=seed, lens=lens, stereo=stereo)
     logging.getLogger("rig.pipeline").setLevel(logging.ERROR)  # each variant's notes: in the report
     with progress_bar() as progress:
         task = progress.add_task("wide pair", total=study_steps(config))

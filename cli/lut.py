@@ -72,13 +72,7 @@ def register(app: typer.Typer) -> None:
         if pair.field_note:
             warn(pair.field_note)
         cache = LutCache(cache_dir)
-        cam = pair.camera
-        view = (
-            f"VPC {cam.width}x{cam.height}, hfov {config.hfov_deg:g}°"
-            if pair.projection == "pinhole"
-            else f"lat-lon {cam.width}x{cam.height}, {config.resolution_px_per_deg:.3f} px/deg"
-        )
-        table = Table(title=f"{view}, B {pair.baseline_m:.4f} m")
+        table = Table(title=f"{pair.describe()}, B {pair.baseline_m:.4f} m")
         for col in ("camera", "path", "key", "valid", "build ms", "source"):
             table.add_column(col)
         for name in (pair.left, pair.right):
@@ -99,7 +93,7 @@ def register(app: typer.Typer) -> None:
             )
             if frac < 1.0 and pair.projection == "pinhole":  # a lat-lon field spans the overlap by design
                 valid = percent_valid(frac)
-                warn(f"the VPC leaves camera '{name}''s field: only {valid} of its pixels are valid")
+                warn(f"the pinhole pair leaves camera '{name}''s field: only {valid} of its pixels are valid")
         console.print(table)
 
     @lut.command("show")

@@ -18,6 +18,7 @@ from typing import Annotated, Any
 import typer
 from typer.main import get_group
 
+from cli.console import exit_on_broken_pipe
 from cli.errors import MappedErrorsGroup
 
 __all__ = ["COMMANDS", "DISTRIBUTION", "LazyCommands", "build_app", "main", "package_version"]
@@ -122,7 +123,10 @@ def build_app() -> typer.Typer:
 
 
 def main() -> None:
-    build_app()(prog_name="rig")
+    try:
+        build_app()(prog_name="rig")
+    except BrokenPipeError:  # raised outside a command (typer's help, --version): as inside one
+        exit_on_broken_pipe()
 
 
 if __name__ == "__main__":

@@ -6,7 +6,6 @@ recording's frames before any pair is processed (:func:`check_against_frames`)."
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -125,23 +124,16 @@ def build_pipelines(
 
 def describe_pipeline(pipeline: DepthPipeline | RigPipeline, cal_path: Path) -> str:
     """One line naming the calibration file, the rectified pair and the baseline (a ring: its
-    pairs and the panorama)."""
+    pairs, its first pair's rectified pair and the panorama)."""
     from rig.rig_pipeline import RigPipeline
 
     if isinstance(pipeline, RigPipeline):
-        first = pipeline.first.pair.camera
-        size = f"{first.width}x{first.height}"
         return (
             f"calibration {cal_path}, {len(pipeline.rig.names)} cameras, pairs {', '.join(pipeline.labels)} "
-            f"({pipeline.first.pair.projection} {size} first), panorama {pipeline.panorama.camera.width}x"
+            f"({pipeline.first.pair.describe()} first), panorama {pipeline.panorama.camera.width}x"
             f"{pipeline.panorama.camera.height}"
         )
-    cam = pipeline.pair.camera
-    if pipeline.pair.projection == "pinhole":
-        view = f"VPC {cam.width}x{cam.height} fx {cam.fx:.1f}"
-    else:
-        view = f"lat-lon {cam.width}x{cam.height} {math.radians(cam.fx):.3f} px/deg"
-    return f"calibration {cal_path}, {view}, B {pipeline.baseline_m:.4f} m"
+    return f"calibration {cal_path}, {pipeline.pair.describe()}, B {pipeline.baseline_m:.4f} m"
 
 
 def check_against_frames(pipeline: DepthPipeline | RigPipeline, recording: RecordedPairs) -> None:

@@ -1,36 +1,40 @@
 """``rig serve``: settings → bound socket → runtime → uvicorn.
 
 Order matters for the user: settings are validated first (a non-loopback bind without a token
-is refused before anything else happens), then the socket is bound (a busy port is one line, not
-a traceback after startup), then the demo is rendered if needed (with a progress bar) and the
-runtime is built (calibration, LUTs, cameras).
+is refused before anything else happens), then the socket is bound (a busy port is one line at
+once: only the settings are imported by then, not the pipeline, the app or uvicorn), then the
+demo is rendered if needed (with a progress bar) and the runtime is built (calibration, LUTs,
+cameras).
+
+The demo (``--demo``, or no cameras configured) without a configured API token makes one
+(:func:`secrets.token_urlsafe`) and prints the dashboard's URL with it, as notebook servers do:
+the dashboard and Swagger UI can then change the settings and record. A configured token is
+never replaced, nor printed.
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import secrets
+import shutil
+import sys
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from cli.console import console, err_console, progress_bar, warn
 from cli.errors import fail
 from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption
-from rig.capture.recorded import open_recording
-from rig.errors import RecordingError
-from service.demo import (
-    DemoSpec,
-    cached_demo_recording,
-    demo_overrides,
-    ensure_demo_recording,
-    replay_overrides,
-)
-from service.errors import ServiceError
-from service.settings import Settings, load_settings
 
-__all__ = ["ServiceConfigOption", "register", "serve_settings"]
+if TYPE_CHECKING:
+    import socket
+
+    from service.settings import Settings
+
+__all__ = ["ServiceConfigOption", "command_hint", "register", "serve_settings", "served_url"]
 
 #: The service's config file (``rig serve``, ``rig check``).
 ServiceConfigOption = Annotated[
@@ -51,6 +55,10 @@ def recording_overrides(
 ) -> dict[str, Any]:
     """File cameras replaying ``recording`` at its recorded pace, looping, live timestamps;
     ``bag``: a ROS bag's ``left_topic``, ``right_topic`` and ``max_skew_ms``."""
+    from rig.capture.recorded import open_recording
+    from rig.errors import RecordingError
+    from service.demo import replay_overrides
+
     fields = {k: v for k, v in (bag or {}).items() if v is not None}
     try:
         rec = open_recording(recording, **fields)
@@ -64,6 +72,8 @@ def recording_overrides(
 
 def demo_recording() -> Path:
     """The demo's loop recording, rendered with a progress bar the first time."""
+    from service.demo import DemoSpec, cached_demo_recording, ensure_demo_recording
+
     spec = DemoSpec()
     cached = cached_demo_recording(spec)
     if cached is not None:
@@ -92,7 +102,11 @@ def serve_settings(
 ) -> Settings:
     """The settings ``rig serve`` runs with (renders the demo if it is used and not cached).
     ``--demo`` and ``--recording`` bring their own cameras (and the demo its calibration): the
-    configuration's are still validated, and said to be ignored."""
+    configuration's are still validated, and said to be ignored. The demo gets an API token
+    when none is configured (see the module doc)."""
+    from service.demo import demo_overrides
+    from service.settings import load_settings
+
     if demo and recording is not None:
         fail("--demo and --recording exclude each other")
     overrides: dict[str, Any] = {"server": {}}
@@ -115,6 +129,8 @@ def serve_settings(
         else:
             console.print("no cameras configured: serving the built-in demo (simulated rig)")
         overrides = _deep_merge(overrides, demo_overrides(demo_recording()))
+        if base.server.api_token is None:
+            overrides["server"]["api_token"] = secrets.token_urlsafe(24)
         return load_settings(config, overrides, replace=("cameras", "calibration"))
     return base
 
@@ -135,6 +151,59 @@ def _say_ignored(base: Settings, flag: str, *, calibration_too: bool) -> None:
         warn(f"{flag}: the configured {' and '.join(ignored)} {verb} ignored ({_REPLACEMENTS[flag]})")
 
 
+def served_url(settings: Settings, port: int, token: str | None = None) -> str:
+    """The dashboard's URL on ``port``; with ``token``, carrying it (``?token=``) for the page to
+    take."""
+    host = settings.server.host
+    host_part = f"[{host}]" if ":" in host else host
+    url = f"http://{host_part}:{port}/"
+    return url if token is None else f"{url}?token={token}"
+
+
+def command_hint(argv0: str | None = None, path: str | None = None) -> str | None:
+    """How to reach this ``rig`` command when its directory is not on ``PATH`` (``make demo``
+    runs ``.venv/bin/rig``: the other commands need ``. .venv/bin/activate``), else None."""
+    script = Path(sys.argv[0] if argv0 is None else argv0)
+    if script.name != "rig" or not script.parent.name:
+        return None
+    found = shutil.which("rig", path=os.environ.get("PATH", "") if path is None else path)
+    if found is not None and Path(found).resolve() == script.resolve():
+        return None
+    bindir = script.parent.resolve()
+    try:
+        shown = bindir.relative_to(Path.cwd())
+    except ValueError:
+        shown = bindir
+    return f"the rig command is {shown / 'rig'}; `. {shown / 'activate'}` puts it on PATH"
+
+
+def _bind(settings: Settings) -> socket.socket:
+    """The service's listening socket, a busy port said with the way out."""
+    from service.listen import PortBusy, bind_socket
+
+    try:
+        return bind_socket(settings.server.host, settings.server.port)
+    except PortBusy as err:
+        fail(f"{err} (another `rig serve`?): choose another port with --port P, or --port 0 for any free one")
+
+
+def _banner(settings: Settings, port: int, generated_token: str | None) -> None:
+    url = served_url(settings, port)
+    if generated_token is None:
+        lines = [f"depth service: {url}  (dashboard; API docs at {url}docs; Ctrl+C stops)"]
+    else:
+        lines = [
+            f"depth service: {served_url(settings, port, generated_token)}  (dashboard, with the demo's "
+            "API token: its controls can change the settings and record; Ctrl+C stops)",
+            f"API docs: {url}docs (Authorize with the token {generated_token})",
+        ]
+    hint = command_hint()
+    if hint is not None:
+        lines.append(hint)
+    for line in lines:
+        console.print(line, highlight=False, soft_wrap=True)
+
+
 def run_serve(
     config: Path | None = None,
     *,
@@ -146,18 +215,19 @@ def run_serve(
     bag: Mapping[str, Any] | None = None,
     log_level: str = "info",
 ) -> None:
-    # FastAPI and uvicorn are imported only when serving (the other commands start faster).
-    from service.runtime import Runtime
-    from service.serve import LOG_LEVELS, bind_socket, ensure_fd_room, run_server
+    # The bind is validated (loopback or token) and taken with only the settings imported; the
+    # pipeline, FastAPI and uvicorn (seconds of imports on a busy board) come after.
+    from service.errors import ServiceError
+    from service.listen import LOG_LEVELS, bind_socket, ensure_fd_room
+    from service.settings import load_settings
 
     if log_level not in LOG_LEVELS:
         fail(f"--log-level must be one of {', '.join(LOG_LEVELS)}, got {log_level!r}")
     logging.basicConfig(level=log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
-    # The bind is validated (loopback or token) and taken before any slow work (demo render, LUTs).
     early: dict[str, Any] = {"server": {k: v for k, v in (("host", host), ("port", port)) if v is not None}}
     first = load_settings(config, early)
     ensure_fd_room(first)
-    sock = bind_socket(first.server.host, first.server.port)
+    sock = _bind(first)
     bound_port = sock.getsockname()[1]
     try:
         settings = serve_settings(
@@ -169,18 +239,15 @@ def run_serve(
                 bind_socket(fox.host, fox.port).close()
             except ServiceError as err:
                 raise ServiceError(f"server.foxglove: {err}") from err
+        from service.runtime import Runtime
+        from service.serve import run_server
+
         runtime = Runtime.build(settings)
     except BaseException:
         sock.close()
         raise
-    server_host = settings.server.host
-    host_part = f"[{server_host}]" if ":" in server_host else server_host
-    url = f"http://{host_part}:{bound_port}/"
-    console.print(
-        f"depth service: {url}  (dashboard; API docs at {url}docs; Ctrl+C stops)",
-        highlight=False,
-        soft_wrap=True,
-    )
+    generated = settings.server.token if first.server.api_token is None else None
+    _banner(settings, bound_port, generated)
     run_server(settings, runtime, sock, log_level)
     err_console.print("depth service stopped (worker and capture threads joined)", highlight=False)
 

@@ -33,6 +33,7 @@ from cli.pair_options import (
     make_pair_config,
 )
 from cli.pipeline_options import load_stereo_params
+from rig.sim.lens_effects import LENS_CHOICES
 from rig.sim.presets import PRESETS, RING_PRESETS, Preset, get_preset, get_ring_preset
 from rig.sim.simulate import DEFAULT_DISTANCES, DEFAULT_ROOM_FRAMES, SCENES, simulate_recording
 from rig.sim.textures import TEXTURES, texture_name
@@ -124,14 +125,37 @@ def register(app: typer.Typer) -> None:
         seed: Annotated[
             str, typer.Option(metavar="SEED", help="Seed of textures, room layout and noise.")
         ] = "0",
+        lens: Annotated[
+            str,
+            typer.Option(
+                metavar="LENS",
+                help="honest: the preset's lens and sensor effects fitted to real fisheyes (blur "
+                "growing to the rim, rim darkening, per-camera exposure, noise); ideal: none.",
+            ),
+        ] = "honest",
         noise: Annotated[
             str | None,
-            typer.Option(metavar="STD", help="Sensor noise std in grey levels.", show_default="the preset's"),
+            typer.Option(
+                metavar="STD",
+                help="Gaussian sensor noise std in grey levels, instead of the lens's noise.",
+                show_default="the lens's",
+            ),
         ] = None,
         vignetting: Annotated[
             str | None,
-            typer.Option(metavar="STRENGTH", help="Vignetting strength 0..1.", show_default="the preset's"),
+            typer.Option(
+                metavar="STRENGTH",
+                help="Vignetting strength 0..1 (1 - k(1 - cos⁴(θ/2))), instead of the lens's rim darkening.",
+                show_default="the lens's",
+            ),
         ] = None,
+        reference: Annotated[
+            bool,
+            typer.Option(
+                "--reference/--no-reference",
+                help="Also render the Reference images (ideal rectified views) into ground_truth/.",
+            ),
+        ] = False,
         supersample: Annotated[
             str, typer.Option(metavar="N", help="Sub-pixel rays per axis (anti-aliasing).")
         ] = "3",
@@ -174,19 +198,13 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Render a simulated recording with ground truth (range, depth and Reference images of the
         rectified pair)."""
-        if ring is not None:
-            scene = scene or "room"
-            if ring not in RING_PRESETS:
-                fail(f"unknown --rig {ring!r}; valid rings: {', '.join(RING_PRESETS)}")
-            if scene != "room":
-                fail(f"--rig renders --scene room, not {scene}")
-        elif panorama_px_per_deg is not None:
-            fail("--panorama-px-per-deg applies to --rig (a ring's panorama)")
-        scene = scene or "plane"
+        scene = _scene_of(ring, scene, panorama_px_per_deg)
         if preset not in PRESETS:
             fail(f"unknown --preset {preset!r}; valid presets: {', '.join(PRESETS)}")
         if scene not in SCENES:
             fail(f"unknown --scene {scene!r}; valid scenes: {', '.join(SCENES)}")
+        if lens not in LENS_CHOICES:
+            fail(f"unknown --lens {lens!r}; valid: {', '.join(LENS_CHOICES)}")
         if out.exists() and (not out.is_dir() or any(out.iterdir())):
             fail(f"{out}: already exists and is not an empty directory; choose a new --out")
         if scene == "room" and (distances is not None or frames_per_distance.strip() != "1"):
@@ -217,11 +235,16 @@ def register(app: typer.Typer) -> None:
         chosen = get_preset(preset)
         if factor != 1.0:
             chosen = chosen.scaled(factor)
+        count = (
+            len(ks or DEFAULT_DISTANCES) * per_distance
+            if scene == "plane"
+            else (n_frames or DEFAULT_ROOM_FRAMES)
+        )
         start = time.monotonic()
         with progress_bar(TimeRemainingColumn(), transient=False, on_stdout=True) as bar:
-            task = bar.add_task(f"rendering {scene} ({chosen.name})", total=None)
+            task = bar.add_task(f"rendering {scene} ({chosen.name}, {lens} lens)", total=count)
 
-            def step(done: int, total: int) -> None:
+            def step(done: float, total: int) -> None:
                 bar.update(task, completed=done, total=total)
 
             simulate_recording(
@@ -239,15 +262,12 @@ def register(app: typer.Typer) -> None:
                 color=color,
                 vpc=vpc,
                 blind_band_px=params.blind_band_px,
+                lens=lens,
+                reference=reference,
                 progress=step,
             )
         elapsed = time.monotonic() - start
         cam = chosen.rig.cameras["left"]
-        count = (
-            len(ks or DEFAULT_DISTANCES) * per_distance
-            if scene == "plane"
-            else (n_frames or DEFAULT_ROOM_FRAMES)
-        )
         what = (
             f"distances {','.join(f'{k:g}' for k in (ks or DEFAULT_DISTANCES))} baselines "
             f"(baseline {chosen.rig.baseline() * 1000:.0f} mm), texture {tex}"
@@ -255,18 +275,33 @@ def register(app: typer.Typer) -> None:
             else "room path"
         )
         console.print(
-            f"[green]wrote[/green] {count} pairs of {cam.width}x{cam.height} ({chosen.name}, {what}) "
-            f"to {out} in {elapsed:.1f} s",
+            f"[green]wrote[/green] {count} pairs of {cam.width}x{cam.height} ({chosen.name}, {what}, "
+            f"{lens} lens) to {out} in {elapsed:.1f} s",
             highlight=False,
         )
         gt = json.loads((out / "ground_truth" / "scene.json").read_text())["vpc"]
         what = "range and depth" if vpc.projection == "pinhole" else "range"
+        refs = ", Reference images" if reference else ""
         console.print(
             f"ground truth: {out / 'ground_truth'} (left {vpc.projection} view's {what} "
-            f"{gt['width']}x{gt['height']} .npy, Reference images, scene.json); "
+            f"{gt['width']}x{gt['height']} .npy{refs}, scene.json); "
             "calibration: calibration.yaml",
             highlight=False,
         )
+
+
+def _scene_of(ring: str | None, scene: str | None, panorama_px_per_deg: str | None) -> str:
+    """The scene to render (a ring's: the room; a pair's default: the plane), checking that
+    ``--rig`` and ``--panorama-px-per-deg`` go together and with the room."""
+    if ring is None:
+        if panorama_px_per_deg is not None:
+            fail("--panorama-px-per-deg applies to --rig (a ring's panorama)")
+        return scene or "plane"
+    if ring not in RING_PRESETS:
+        fail(f"unknown --rig {ring!r}; valid rings: {', '.join(RING_PRESETS)}")
+    if scene not in (None, "room"):
+        fail(f"--rig renders --scene room, not {scene}")
+    return "room"
 
 
 def _ring(

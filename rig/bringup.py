@@ -23,7 +23,9 @@ takes pairs like the depth worker does, and judges what a technician can act on,
 * **rectified rows** — a sample pair rectified and its matched features' vertical disparity
   (:mod:`rig.calibration_check`; swapped cameras are named).
 
-A row is ``pass``, ``warn`` (works, but worth a look), ``fail`` (with what to do) or ``n/a``.
+A row is ``pass``, ``warn`` (works, but worth a look), ``fail`` (with what to do), ``n/a`` (does
+not apply: a file camera has no USB link) or ``not measured`` (no frame came to measure it on: a
+camera that delivered nothing has its losses, exposure and frame size unknown, never passed).
 """
 
 from __future__ import annotations
@@ -48,9 +50,10 @@ from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams
 from rig.usb import bus_budget_mbps, format_bandwidth_mbps, sysfs_usb_device_of_video
 
-__all__ = ["MIN_FPS_SHARE", "BringupReport", "CheckRow", "Result", "run_bringup"]
+__all__ = ["MIN_FPS_SHARE", "NOT_MEASURED", "BringupReport", "CheckRow", "Result", "run_bringup"]
 
-Result = Literal["pass", "warn", "fail", "n/a"]
+Result = Literal["pass", "warn", "fail", "n/a", "not measured"]
+NOT_MEASURED: Result = "not measured"
 #: A camera delivering less than this share of its nominal frame rate fails.
 MIN_FPS_SHARE = 0.9
 # V4L2 auto exposure modes (CAP_PROP_AUTO_EXPOSURE in raw V4L2 units).
@@ -76,6 +79,14 @@ class BringupReport:
     @property
     def failed(self) -> list[CheckRow]:
         return [r for r in self.rows if r.result == "fail"]
+
+    @property
+    def not_measured(self) -> list[CheckRow]:
+        return [r for r in self.rows if r.result == NOT_MEASURED]
+
+
+def _unmeasured(check: str, camera: str, expected: str, why: str = "no frame arrived") -> CheckRow:
+    return CheckRow(check, camera, why, expected, NOT_MEASURED)
 
 
 def run_bringup(
@@ -117,11 +128,17 @@ def run_bringup(
             name, health.cameras[name], infos[name], config, capture.camera(name).nominal_fps
         )
     rows.append(_pairing_row(health, pairs))
+    delivered = {n: int(health.cameras[n].counters["frames_received"] or 0) > 0 for n in CAMERA_NAMES}
     for name in CAMERA_NAMES:
-        rows += _loss_rows(name, health.cameras[name], config)
+        rows += _loss_rows(name, health.cameras[name], config, delivered[name])
     rows += _usb_rows(config, infos, sysfs_root)
-    rows += [_exposure_row(n, config, controls.get(n)) for n in CAMERA_NAMES]
-    size_rows = _size_rows(rig, infos)
+    rows += [
+        _exposure_row(n, config, controls.get(n))
+        if delivered[n]
+        else _unmeasured("exposure", n, "read back from the camera")
+        for n in CAMERA_NAMES
+    ]
+    size_rows = _size_rows(rig, infos, delivered)
     rows += size_rows
     rows.append(_rows_row(pipeline, sample, ok_sizes=all(r.result == "pass" for r in size_rows)))
     return BringupReport(rows, seconds, pairs)
@@ -212,9 +229,14 @@ def _pairing_row(health: CaptureHealth, pairs: int) -> CheckRow:
     )
 
 
-def _loss_rows(name: str, cam: CameraHealth, config: CaptureConfig) -> list[CheckRow]:
-    c = {k: int(v or 0) for k, v in cam.counters.items() if isinstance(v, int) and not isinstance(v, bool)}
+def _loss_rows(name: str, cam: CameraHealth, config: CaptureConfig, delivered: bool) -> list[CheckRow]:
     sup = config.supervisor
+    if not delivered:
+        return [
+            _unmeasured("dropped", name, f"≤ {sup.max_dropped_fraction:.0%}"),
+            _unmeasured("corrupt", name, f"≤ {sup.max_broken_fraction:.0%}"),
+        ]
+    c = {k: int(v or 0) for k, v in cam.counters.items() if isinstance(v, int) and not isinstance(v, bool)}
     arrived = c["frames_received"] + c["frames_corrupt"] + c["timestamp_errors"]
     dropped_share = c["frames_dropped"] / max(1, arrived + c["frames_lost"])
     broken = c["frames_corrupt"] + c["frames_undecodable"]
@@ -302,12 +324,15 @@ def _exposure_row(name: str, config: CaptureConfig, controls: Mapping[str, float
     return CheckRow("exposure", name, value, f"exposure {cam.exposure:g}", "pass")
 
 
-def _size_rows(rig: Rig, infos: Mapping[str, CameraInfo]) -> list[CheckRow]:
+def _size_rows(rig: Rig, infos: Mapping[str, CameraInfo], delivered: Mapping[str, bool]) -> list[CheckRow]:
     rows = []
     for name in CAMERA_NAMES:
         info, model = infos[name], rig.cameras[name]
         value = f"frames {info.width}x{info.height}"
         expect = f"calibration {model.width}x{model.height}"
+        if not delivered[name]:
+            rows.append(_unmeasured("calibration", name, expect))
+            continue
         problems = check_frame_sizes(rig, {name: (info.width, info.height)})
         if problems:
             rows.append(CheckRow("calibration", name, value, expect, "fail", problems[0].message))
@@ -318,9 +343,10 @@ def _size_rows(rig: Rig, infos: Mapping[str, CameraInfo]) -> list[CheckRow]:
 
 def _rows_row(pipeline: DepthPipeline, sample: FramePair | None, *, ok_sizes: bool) -> CheckRow:
     expect = f"≤ {VERTICAL_WARN_PX:g} px"
-    if sample is None or not ok_sizes:
-        why = "no pair to rectify" if sample is None else "the frames do not fit the calibration"
-        return CheckRow("rectified rows", "", why, expect, "n/a")
+    if sample is None:
+        return _unmeasured("rectified rows", "", expect, "no pair to rectify")
+    if not ok_sizes:
+        return CheckRow("rectified rows", "", "the frames do not fit the calibration", expect, "n/a")
     try:
         left, right = sample.left.gray, sample.right.gray
         check = check_calibration(pipeline, left, right)

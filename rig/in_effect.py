@@ -23,6 +23,7 @@ from calibration.rig import Rig
 from rig.errors import ConfigError
 from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
+from rig.reach import nearest_range_m, reach_note
 from rig.rectified import RectifiedCamera, RectifiedPair, RectifiedPairConfig, design_rectified_pair
 from rig.stereo import SeenColumns, StereoMatcher, StereoParams
 
@@ -136,6 +137,8 @@ class PairInEffect:
         design, an explicit field wider than it is clipped (:attr:`RectifiedPair.field_note`)."""
         pair, c, v = self.pair, self.camera, self.config
         lines = [pair.field_note] if pair.field_note else []
+        reach = reach_note(f"{pair.left}|{pair.right}", pair.projection, c.fx, pair.baseline_m, self.stereo)
+        lines += [reach] if reach else []
         if isinstance(c, LatLonModel):
             return lines
         for name, info in self.geometry.lut_info.items():
@@ -164,6 +167,11 @@ class PairInEffect:
             revision=self.revision + 1,
         )
 
+    @property
+    def nearest_range_m(self) -> float:
+        """The nearest range straight ahead the matcher's search reaches (rig.reach)."""
+        return nearest_range_m(self.pair.projection, self.camera.fx, self.pair.baseline_m, self.stereo)
+
     def as_json(self) -> dict[str, Any]:
         """What is in effect, as the service's ``/config`` and ``rig process``'s ``run.json`` show it:
         the projection and size really used (``pair``: ``vpc.json``'s fields), the configuration
@@ -173,4 +181,5 @@ class PairInEffect:
             "pair": {**self.pair.as_json(), "left": self.pair.left, "right": self.pair.right},
             "config": self.config.model_dump(mode="json"),
             "stereo": self.stereo.model_dump(mode="json"),
+            "nearest_range_m": self.nearest_range_m,
         }

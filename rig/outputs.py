@@ -12,6 +12,7 @@ Layout of an output directory::
     right/NNNNNN.png
     cloud/NNNNNN.ply      with ``ply``: the points in the rig frame, coloured from the left view
     preview/NNNNNN.png    with ``preview``: the left view beside colour depth (lat-lon: range)
+                          and its colour bar in metres (rig.colormap)
 
 Every file is written atomically (:func:`calibration.atomic.write_atomic`: a temporary, fsynced, renamed
 into place), so a file that exists is complete, and a pair is complete when every product of it
@@ -40,6 +41,7 @@ from numpy.typing import NDArray
 
 from calibration.atomic import fsync_directory, is_temporary, sweep_temporaries, write_atomic
 from rig.capture.recorded import RecordedPairs
+from rig.colormap import DepthColors
 from rig.depth import depth_to_png_mm, ply_bytes
 from rig.errors import ConfigError, OutputError, PipelineError, RigError
 from rig.pipeline import DepthFrame, DepthPipeline
@@ -321,22 +323,9 @@ class OutputLayout:
 
 
 def depth_preview(left_rect: NDArray[Any], depth: NDArray[Any]) -> NDArray[np.uint8]:
-    """Left VPC image beside its depth in colour (turbo on log depth between the 2nd and 98th
-    percentiles: near is red, far blue; black = invalid), with that range written on it.
-    (H, 2W, 3) uint8 BGR."""
-    ok = np.isfinite(depth) & (depth > 0)
-    vis = np.zeros((*depth.shape, 3), dtype=np.uint8)
-    label = "no depth"
-    if ok.any():
-        near, far = np.percentile(depth[ok], [2.0, 98.0])
-        far = max(far, near * 1.001)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            t = (np.log(far) - np.log(np.clip(depth, near, far))) / (np.log(far) - np.log(near))
-        scaled = np.clip(np.nan_to_num(t, nan=0.0) * 255.0, 0, 255).astype(np.uint8)
-        vis = np.asarray(cv2.applyColorMap(scaled, cv2.COLORMAP_TURBO), dtype=np.uint8)
-        vis[~ok] = 0
-        label = f"{near:.2f}-{far:.2f} m"
+    """Left rectified image beside its depth (lat-lon: range) in colour and a colour bar in metres:
+    the service's colour scale (:class:`rig.colormap.DepthColors`, log between its default near and
+    far, the same colours on every frame; black = no depth). (H, 2W + legend, 3) uint8 BGR."""
+    colors = DepthColors()
     left = left_rect if left_rect.ndim == 3 else cv2.cvtColor(left_rect, cv2.COLOR_GRAY2BGR)
-    out = np.hstack([left, vis])
-    cv2.putText(out, label, (left.shape[1] + 8, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 2)
-    return out
+    return np.hstack([left, colors.colorize(depth), colors.legend(depth.shape[0])])

@@ -9,7 +9,7 @@ with per-stage timings.
 
 ``process`` is three stages that a pipelined caller (:mod:`rig.staged`) may run on three
 threads, frame N+1's stage 1 while frame N is in stage 2 or 3: :meth:`rectify` (LUT remap + gray;
-thread-safe), :meth:`match` (the OpenCV matcher's parallel part; serialised) and
+thread-safe), :meth:`match` (the matcher's search; serialised) and
 :meth:`postprocess` (speckle removal, refinement, filters, confidence, depth; serialised, in
 frame order for the temporal filter).
 
@@ -23,6 +23,7 @@ geometry, whichever it started with, so no frame mixes two or is dropped.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Mapping
@@ -43,8 +44,10 @@ from rig.heap import tune_allocator
 from rig.in_effect import PairGeometry, PairInEffect
 from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
-from rig.postprocess import PostprocessStage
-from rig.rectified import RectifiedPair, RectifiedPairConfig
+from rig.match_input import matcher_input
+from rig.postprocess import PostprocessStage, refine_pool
+from rig.reach import reaching
+from rig.rectified import RectifiedPair, RectifiedPairConfig, pinhole_intrinsics
 from rig.stereo import MatchedDisparity, StereoMatcher, StereoParams, UnfilteredDisparity
 
 __all__ = [
@@ -120,11 +123,30 @@ class MatchedImages:
     match_ms: float
 
 
+def _reaching(params: StereoParams, rig: Rig, config: RectifiedPairConfig) -> StereoParams:
+    """``params`` widened to reach ``min_range_m`` (rig.reach) on the pair ``config`` designs:
+    its resolution and baseline are known before its field (which the search's blind band
+    widens)."""
+    if params.min_range_m is None:
+        return params
+    if config.projection == "latlon":
+        fx, width = math.degrees(config.resolution_px_per_deg), None
+    else:
+        fx, width = pinhole_intrinsics(config).fx, config.pinhole_size[0]
+    return reaching(params, config.projection, fx, rig.baseline(config.left, config.right), width)
+
+
+def _width(in_effect: PairInEffect) -> int | None:
+    """The width a pinhole pair's search must fit in (a lat-lon field widens with it)."""
+    return in_effect.camera.width if in_effect.pair.projection == "pinhole" else None
+
+
 def _check_params(params: StereoParams, width: int) -> None:
-    if params.disparity_range + max(params.min_disparity, 0) >= width:
+    if max(params.blind_band_px, params.disparity_range + max(params.min_disparity, 0)) >= width:
         raise ConfigError(
             f"stereo: disparity_range {params.disparity_range} + min_disparity {params.min_disparity} "
-            f"must be below the rectified view's width {width}"
+            f"(the coarse-to-fine search: {params.blind_band_px}) must be below the rectified view's "
+            f"width {width}"
         )
 
 
@@ -157,7 +179,7 @@ class DepthPipeline:
         if tune_malloc:
             tune_allocator()
         config = config or RectifiedPairConfig()
-        params = stereo or StereoParams()
+        params = _reaching(stereo or StereoParams(), rig, config)
         self.cache = LutCache(cache_dir)
         # A lat-lon field's default leaves room for the matcher's unmatched columns.
         reserve = params.blind_band_px
@@ -249,6 +271,9 @@ class DepthPipeline:
             geometry = None if rig is None else self._corrected_geometry(old, rig)
             matcher = None
             if stereo is not None:
+                stereo = reaching(
+                    stereo, old.pair.projection, old.camera.fx, old.pair.baseline_m, _width(old)
+                )
                 _check_params(stereo, old.camera.width)
                 matcher = StereoMatcher(stereo)
                 self._warn_blind_band(old, stereo)
@@ -339,15 +364,27 @@ class DepthPipeline:
         ms = (time.perf_counter() - t0) * 1e3
         return RectifiedImages(left_rect, right_rect, left_gray, right_gray, ms, geometry)
 
-    def match(self, rect: RectifiedImages) -> MatchedImages:
-        """Stage 2 of :meth:`process`: the current matcher's OpenCV call (its parallel part; the
-        speckle removal after it is :meth:`postprocess`'s, so that it overlaps the next pair's call).
-        Callers are serialised (an OpenCV matcher keeps scratch buffers)."""
+    def match(self, rect: RectifiedImages, *, temporal_prior: bool = False) -> MatchedImages:
+        """Stage 2 of :meth:`process`: the current matcher's search (the speckle removal after it
+        is :meth:`postprocess`'s, so that it overlaps the next pair's search). Callers are
+        serialised (an OpenCV matcher keeps scratch buffers). ``temporal_prior``: the pairs are
+        a live stream in order, and the coarse-to-fine search may reuse the coarse level of rows
+        that did not change (``stereo.temporal_prior``; the service's worker)."""
         with self._match_lock:
             matcher = self._in_effect.matcher
             seen = (rect.geometry or self._in_effect.geometry).seen
             t0 = time.perf_counter()
-            unfiltered = matcher.compute(rect.left_gray, rect.right_gray, seen)
+            p = matcher.params
+            # Both searches see the same input: the views made alike (rig.match_input).
+            left, right = (
+                matcher_input(g, p.match_blur_sigma, p.match_normalise_window, p.match_normalise_eps)
+                for g in (rect.left_gray, rect.right_gray)
+            )
+            unfiltered = matcher.compute(left, right, seen, pool=refine_pool(), temporal_prior=temporal_prior)
+            if left is not rect.left_gray:
+                # The coarse-to-fine search's normalisation is of its input; the refinement's
+                # is of the rectified images as they are (it makes its own).
+                unfiltered.normalised = None
             return MatchedImages(rect, matcher, unfiltered, (time.perf_counter() - t0) * 1e3)
 
     def _disparity(self, matched: MatchedImages) -> MatchedDisparity:
@@ -372,7 +409,11 @@ class DepthPipeline:
         rect = matched.rectified
         with self._postprocess_lock:
             out, speckle_ms, stage = self._postprocess(
-                matched.matcher, rect.left_gray, rect.right_gray, lambda: self._disparity(matched)
+                matched.matcher,
+                rect.left_gray,
+                rect.right_gray,
+                lambda: self._disparity(matched),
+                matched.unfiltered.normalised,
             )
         timings = {"remap": rect.remap_ms, "match": matched.match_ms + speckle_ms, **stage}
         # Processing time, not wall time: pipelined stages may wait between each other.

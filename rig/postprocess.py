@@ -14,6 +14,7 @@ the valid pixels are worked on (:func:`active_columns`).
 
 from __future__ import annotations
 
+import functools
 import os
 import threading
 import time
@@ -39,7 +40,14 @@ from rig.subpixel import (
     refinement_inputs,
 )
 
-__all__ = ["PostprocessOutputs", "PostprocessStage", "active_columns", "refine_pool"]
+__all__ = [
+    "SUBPIXEL_REACH_PX",
+    "PostprocessOutputs",
+    "PostprocessStage",
+    "active_columns",
+    "refine_pool",
+    "trusted_disparity_floor",
+]
 
 F32 = NDArray[np.float32]
 U8 = NDArray[np.uint8]
@@ -50,6 +58,17 @@ _refine_pool: ThreadPoolExecutor | None = None
 _pool_lock = threading.Lock()
 _refine_pool_nice: int | None = None
 _REFINE_THREADS = min(4, os.cpu_count() or 1)
+#: How far below its integer cost minimum the matcher's interpolation can place a disparity.
+SUBPIXEL_REACH_PX = 0.5
+
+
+def trusted_disparity_floor(params: StereoParams) -> float:
+    """The smallest disparity (px) that is a measurement: half a pixel above the lowest one the
+    matcher searches (and above zero). Lower ones come only from a cost minimum on the search
+    range's edge, which says nothing of where the true minimum lies, or from the refinement's
+    step past it; their range would be invented (B/d: kilometres from a hundredth of a pixel),
+    so they are invalid. That bounds the range: on the lat-lon pair's axis ``fx·B/floor``."""
+    return max(params.min_disparity, 0) + SUBPIXEL_REACH_PX
 
 
 def refine_pool() -> ThreadPoolExecutor | None:
@@ -142,18 +161,23 @@ def _prepare(
     right_gray: U8,
     disparity_of: Callable[[], MatchedDisparity],
     pool: Executor | None,
+    made: tuple[F32, F32] | None = None,
 ) -> _Prepared:
-    """The refinement's preparation around the matcher's speckle removal (``disparity_of``)."""
+    """The refinement's preparation around the matcher's speckle removal (``disparity_of``);
+    ``made``: the images' normalisation if the matcher made it."""
     refine = p.subpixel or p.confidence
     t0 = time.perf_counter()
     # The refinement's image normalisation needs no disparity: it runs on the pool while this
     # thread removes the matcher's speckles (single-threaded).
-    normalised = Normalisation(left_gray, right_gray, pool) if refine else None
+    normalised = None
+    if refine:
+        normalised = Normalisation.ready(*made) if made else Normalisation(left_gray, right_gray, pool)
     t_norm = time.perf_counter()
     raw = disparity_of()
     t_raw = time.perf_counter()
     margin = (p.subpixel_window // 2 if refine else 0) + p.median // 2
     cols = active_columns(raw.valid, margin)
+    _drop_search_edge(raw, p.min_disparity, cols)
     inputs = None
     if refine:
         inputs = refinement_inputs(left_gray, right_gray, raw.disparity, cols=cols, normalised=normalised)
@@ -161,6 +185,18 @@ def _prepare(
     # pass (which counts as the match stage's).
     prep_ms = ((t_norm - t0) + (time.perf_counter() - t_raw)) * 1e3
     return _Prepared(raw.disparity, raw.valid, cols, margin, inputs, (t_raw - t_norm) * 1e3, prep_ms)
+
+
+def _drop_search_edge(raw: MatchedDisparity, min_disparity: int, cols: slice) -> None:
+    """Invalidate (in place, within ``cols``) the pixels whose cost minimum lies on the lowest
+    disparity searched: the matcher reports them as exactly ``min_disparity``, uninterpolated,
+    and the true minimum may be anywhere below (a far point, or none at all). Before the
+    refinement and the median, so that they neither refine nor vote."""
+    disparity, valid = raw.disparity[:, cols], raw.valid[:, cols]
+    edge = disparity <= np.float32(min_disparity)  # False where NaN (invalid)
+    if edge.any():
+        valid[edge] = False
+        disparity[edge] = np.nan
 
 
 class _Bands:
@@ -252,14 +288,16 @@ class PostprocessStage:
         left_gray: U8,
         right_gray: U8,
         disparity_of: Callable[[], MatchedDisparity],
+        normalised: tuple[F32, F32] | None = None,
     ) -> tuple[PostprocessOutputs, float, StageTimes]:
         """The post-processing stage of the pair whose gray VPC images are ``left_gray``/``right_gray``,
         with the parameters of the ``matcher`` that matched it; ``disparity_of()`` removes its
-        speckles and gives its disparity. Returns the outputs, the speckle removal's time (ms)
-        and the stage's times (ms) by section: refine, filters, depth."""
+        speckles and gives its disparity; ``normalised``: the images' contrast normalisation if
+        the matcher made it. Returns the outputs, the speckle removal's time (ms) and the
+        stage's times (ms) by section: refine, filters, depth."""
         p = matcher.params
         pool = refine_pool()
-        prep = _prepare(p, left_gray, right_gray, disparity_of, pool)
+        prep = _prepare(p, left_gray, right_gray, disparity_of, pool, normalised)
         temporal = p.temporal_alpha > 0.0
         self._follow(matcher)
         out = PostprocessOutputs.empty(
@@ -268,12 +306,13 @@ class PostprocessStage:
             cols=prep.cols,
             range_is_depth=isinstance(self.camera, LatLonModel),
         )
-        bands = _Bands(p, prep, out, None if temporal else self._depth_rows)
+        depth_rows = functools.partial(self._depth_rows, floor=trusted_disparity_floor(p))
+        bands = _Bands(p, prep, out, None if temporal else depth_rows)
         run_in_bands(bands, prep.disparity.shape[0], _REFINE_THREADS, prep.margin, pool)
         stage = bands.stage_ms()
         stage["refine"] += prep.prep_ms
         if temporal:
-            self._temporal_and_depth(out, stage)
+            self._temporal_and_depth(out, stage, depth_rows)
         return out, prep.speckle_ms, stage
 
     @property
@@ -292,18 +331,24 @@ class PostprocessStage:
             self._temporal = TemporalFilter(p.temporal_alpha, p.temporal_reset)
             self._temporal_owner = matcher
 
-    def _temporal_and_depth(self, out: PostprocessOutputs, stage: StageTimes) -> None:
+    def _temporal_and_depth(
+        self,
+        out: PostprocessOutputs,
+        stage: StageTimes,
+        depth_rows: Callable[[PostprocessOutputs, int, int], StageTimes],
+    ) -> None:
         """The temporal filter over the whole frame, then its depth; their times added to
         ``stage``'s filters and depth."""
         t0 = time.perf_counter()
         out.disparity = self._temporal(out.disparity, out.valid)
         stage["filters"] += (time.perf_counter() - t0) * 1e3
-        for key, ms in self._depth_rows(out, 0, out.disparity.shape[0]).items():
+        for key, ms in depth_rows(out, 0, out.disparity.shape[0]).items():
             stage[key] += ms
 
-    def _depth_rows(self, out: PostprocessOutputs, r0: int, r1: int) -> StageTimes:
+    def _depth_rows(self, out: PostprocessOutputs, r0: int, r1: int, *, floor: float) -> StageTimes:
         """Depth and range of rows ``[r0, r1)`` of ``out`` (in place; whole rows: numpy is 2-3×
-        slower on a column window than on contiguous rows); its time."""
+        slower on a column window than on contiguous rows), invalid below the disparity
+        ``floor`` (:func:`trusted_disparity_floor`); its time."""
         t0 = time.perf_counter()
         disparity, valid = out.disparity[r0:r1], out.valid[r0:r1]
         camera = self.camera
@@ -312,13 +357,17 @@ class PostprocessStage:
         else:
             depth = disparity_to_depth(disparity, camera.fx, self.baseline_m, out=out.depth[r0:r1])
             np.multiply(depth, self._ray_norms[r0:r1], out=out.range[r0:r1])
-        # d <= 0 (and a lat-lon triangle that does not close) has no depth: invalid everywhere,
-        # so the arrays agree pixel for pixel.
+        # d below the floor (and a lat-lon triangle that does not close) has no depth: invalid
+        # everywhere, so the arrays agree pixel for pixel.
         gone = ~np.isfinite(depth)
+        gone |= disparity < np.float32(floor)
         gone &= valid
         if gone.any():
             valid ^= gone  # gone ⊂ valid: clears them
             fill_where(disparity, np.nan, gone)
+            fill_where(depth, np.nan, gone)  # below the floor depth was finite
+            if out.range is not out.depth:
+                fill_where(out.range[r0:r1], np.nan, gone)
             if out.confidence is not None:
                 fill_where(out.confidence[r0:r1], 0.0, gone)
         return {"depth": (time.perf_counter() - t0) * 1e3}

@@ -189,6 +189,16 @@ class RectifiedPair:
         """The rectified frame's axes in the rig frame (3, 3), columns x, y, z."""
         return self.T_rig_rect[self.left][:3, :3]
 
+    def describe(self) -> str:
+        """The pair as the commands name it: ``lat-lon 661x1064, 5.585 px/deg`` or ``pinhole
+        640x480, hfov 90.0°`` (its projection and real size, whatever was configured)."""
+        c = self.camera
+        if isinstance(c, LatLonModel):
+            return f"lat-lon {c.width}x{c.height}, {math.radians(c.fx):.3f} px/deg"
+        return (
+            f"pinhole {c.width}x{c.height}, hfov {math.degrees(2.0 * math.atan(c.width / 2.0 / c.fx)):.1f}°"
+        )
+
     def as_json(self) -> dict[str, object]:
         """``vpc.json`` of ``rig process`` (docs/design.md): the projection, its intrinsics, the
         baseline and the left rectified frame in the rig frame."""

@@ -229,7 +229,9 @@ _Rectified = tuple[NDArray[Any], NDArray[Any], float, float]  # VPC image, gray,
 
 class StagedExecutor:
     """Runs ``pipeline`` on the pairs ``take`` hands in (see the module doc). ``take`` is read
-    through :attr:`take` on every call, so a caller may swap it (a benchmark's gate)."""
+    through :attr:`take` on every call, so a caller may swap it (a benchmark's gate).
+    ``temporal_prior``: the pairs are one live stream, and the matcher may start from what it
+    found in the rows that did not change (:meth:`DepthPipeline.match`; the service's worker)."""
 
     def __init__(
         self,
@@ -242,8 +244,10 @@ class StagedExecutor:
         deliver_thread: bool = False,
         poll_s: float = 0.1,
         prefix: str = "rig-depth",
+        temporal_prior: bool = False,
     ) -> None:
         self.pipeline = pipeline
+        self._temporal_prior = temporal_prior
         self.take = take
         self._sink = sink
         self._on_error = on_error
@@ -399,7 +403,8 @@ class StagedExecutor:
             self._to_postprocess.put(END)
             return False
         try:
-            matched = self.pipeline_of(item.job).match(item.rect)
+            # Each pair's matcher keeps its own stream's prior (a ring: one per pair).
+            matched = self.pipeline_of(item.job).match(item.rect, temporal_prior=self._temporal_prior)
         except Exception as err:
             self._on_error(item.job.key, err)
             matched = None

@@ -1,9 +1,11 @@
 """Stereo matching on the rectified VPC pair (see docs/stereo.md).
 
 OpenCV ``StereoSGBM`` (any of its modes) or ``StereoBM``, configured with the parameter names
-of ROS ``stereo_image_proc``'s disparity node, plus our own stages: subpixel refinement
-and a confidence map (:mod:`rig.subpixel`), a full left-right check, median and temporal
-filters (:mod:`rig.filters`). Every stage is configuration; none is a code fork.
+of ROS ``stereo_image_proc``'s disparity node, searching the whole range at full resolution (the
+exact search, the default) or at a coarse level and then at full resolution in narrow bands
+(``coarse_to_fine: true``, :mod:`rig.coarse_to_fine`), plus our own stages: subpixel
+refinement and a confidence map (:mod:`rig.subpixel`), a full left-right check, median and
+temporal filters (:mod:`rig.filters`). Every stage is configuration; none is a code fork.
 
 Default choices (measured on the virtual environment; see docs/stereo.md, whose tables
 ``python -m bench.phantoms`` and ``pytest -s tests/rig/test_stereo_render.py tests/rig/test_filters.py``
@@ -13,13 +15,16 @@ left-right check on, chosen against *phantom obstacles*: a repetitive or weak te
 its next repeat gives a disparity one period too large, a near surface that is not there. Fewer
 disparities leave fewer wrong periods within reach, and the left-right check removes most of
 the rest; the price is the nearest depth (fx·B/96 at the VPC's fx) and a second matcher run
-(both measured in docs/stereo.md). The temporal filter is off (it lags moving scenes).
+(both measured in docs/stereo.md). The temporal filter is off (it lags moving scenes). The
+coarse-to-fine search costs about half the matching's CPU; since the normalised match input it
+is measurably worse than the exact search on the real ring and the lat-lon renders' phantoms
+(docs/stereo.md, "Coarse-to-fine search"), so it is off by default.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from concurrent.futures import Executor
 from typing import Any, Literal
 
 import cv2
@@ -27,11 +32,15 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
+from rig.coarse_to_fine import CoarseToFine, FineLevel
+from rig.disparity import MatchedDisparity, SeenColumns, UnfilteredDisparity
 from rig.errors import PipelineError
 from rig.filters import fill_where, left_right_consistent
 from rig.settings_model import SettingsModel
 
 __all__ = [
+    "COARSE_HALF_UP_TO",
+    "COARSE_P2_FACTOR",
     "COST_PER_WINDOW_PIXEL",
     "MAX_PATH_COST",
     "SGBM_MODES",
@@ -63,6 +72,12 @@ MAX_PATH_COST = 32767
 #: renders (tests/rig/test_stereo_limits.py): with P2 + 16·w² above 32767 nearly every disparity
 #: is wrong (w = 27 with the default penalties; P2 = 32000 with a 7 px window).
 COST_PER_WINDOW_PIXEL = 16
+#: The coarse-to-fine search's coarse level is 1/2 resolution up to this many disparities, 1/4 beyond.
+COARSE_HALF_UP_TO = 128
+#: The coarse level's P2 over the full resolution's: a step of one coarse pixel is ``scale`` full
+#: ones, and a stiffer coarse level keeps repetitive texture from locking onto the wrong period
+#: (measured: docs/stereo.md, "Coarse-to-fine search").
+COARSE_P2_FACTOR = 4
 
 
 class StereoParams(SettingsModel):
@@ -81,6 +96,12 @@ class StereoParams(SettingsModel):
     disparity_range: int = Field(
         96, ge=16, le=4096, description="disparities searched (multiple of 16); nearest depth fx·B/range"
     )
+    min_range_m: float | None = Field(
+        None,
+        gt=0.0,
+        le=1000.0,
+        description="nearest range to reach: the search widens to it (rig.reach); null = off",
+    )
     # OpenCV 5.0 SGBM_3WAY divides by zero (SIGFPE, the process dies) at a ratio of 100 (rounded):
     # this bound is the only guard against it, for the settings, the command line and PATCH /config.
     uniqueness_ratio: float = Field(10.0, ge=0.0, lt=99.5, description="best must beat 2nd by this %")
@@ -91,6 +112,15 @@ class StereoParams(SettingsModel):
     P1: float = Field(0.0, ge=0.0, le=1e7, description="SGBM smoothness penalty, ±1 px steps (0 = 8·w²)")
     P2: float = Field(0.0, ge=0.0, le=1e7, description="SGBM smoothness penalty, larger steps (0 = 32·w²)")
     full_dp: bool = Field(False, description="SGBM full 8-direction dynamic programming (= mode hh)")
+    match_blur_sigma: float = Field(
+        0.0, ge=0.0, le=8.0, description="blur of both views before matching (px; 0 = off; rig.match_input)"
+    )
+    match_normalise_window: int = Field(
+        31, ge=0, le=255, description="local contrast normalisation before matching (odd px; 0 = off)"
+    )
+    match_normalise_eps: float = Field(
+        16.0, gt=0.0, le=255.0, description="grey levels added to the local σ: flat regions stay flat"
+    )
     subpixel: bool = Field(True, description="gradient-based subpixel refinement (rig.subpixel)")
     subpixel_window: int = Field(15, ge=3, le=31, description="refinement window (odd, px)")
     lr_check: bool = Field(True, description="full left-right consistency check (2nd matcher run)")
@@ -100,6 +130,10 @@ class StereoParams(SettingsModel):
     temporal_reset: float = Field(1.0, gt=0.0, le=64.0, description="disparity change that restarts (px)")
     confidence: bool = Field(True, description="per-pixel confidence map in [0, 1]")
     confidence_sigma: float = Field(0.1, ge=1e-4, le=10.0, description="predicted σ_d giving conf. 1/e")
+    # The coarse-to-fine search (rig.coarse_to_fine; docs/stereo.md, "Coarse-to-fine search").
+    coarse_to_fine: bool = Field(False, description="whole range at a coarse level, full resolution in bands")
+    coarse_scale: Literal[0, 2, 4] = Field(0, description="coarse level 1/2 or 1/4 (0: 1/2 up to 128 disp.)")
+    temporal_prior: bool = Field(True, description="live: unchanged rows keep their last coarse search")
 
     @field_validator("sgbm_mode", mode="before")
     @classmethod
@@ -115,6 +149,8 @@ class StereoParams(SettingsModel):
             for name in ("correlation_window_size", "prefilter_size", "subpixel_window")
             if getattr(self, name) % 2 == 0
         ]
+        if self.match_normalise_window and self.match_normalise_window % 2 == 0:
+            problems.append(f"match_normalise_window must be 0 or odd, got {self.match_normalise_window}")
         if self.disparity_range % 16:
             problems.append(f"disparity_range must be a multiple of 16, got {self.disparity_range}")
         if self.stereo_algorithm == 0 and self.correlation_window_size < 5:
@@ -151,8 +187,50 @@ class StereoParams(SettingsModel):
     @property
     def blind_band_px(self) -> int:
         """Columns on the left of the image the matcher never matches: OpenCV's matchers start at
-        column ``min_disparity + disparity_range`` (a left pixel's match must lie in the image)."""
-        return max(0, self.min_disparity + self.disparity_range)
+        column ``min_disparity + disparity_range`` (a left pixel's match must lie in the image);
+        the coarse-to-fine search at its coarse level's (the range rounded up to 16 coarse px)."""
+        s = self.coarse_factor
+        lo, core, _ = self.coarse_span()
+        return max(0, s * (lo + core) if s > 1 else self.min_disparity + self.disparity_range)
+
+    @property
+    def coarse_factor(self) -> int:
+        """The coarse level's downsampling factor: 1 without the coarse-to-fine search (and for
+        block matching, cheap over the whole range); by default 2 up to 128 disparities and 4
+        beyond (at most 64 coarse disparities up to 256)."""
+        if not self.coarse_to_fine or self.stereo_algorithm != 1:
+            return 1
+        return self.coarse_scale or (2 if self.disparity_range <= COARSE_HALF_UP_TO else 4)
+
+    def coarse_span(self) -> tuple[int, int, int]:
+        """The coarse level's smallest disparity, the range that covers this one (rounded up to
+        a multiple of 16) and how far it searches beyond that (16 per 64, at least 16: a surface
+        found there is too near and gets no depth, rather than a wrong match within the range);
+        coarse px."""
+        s = self.coarse_factor
+        lo = self.min_disparity // s
+        core = -(-(-(-(self.min_disparity + self.disparity_range) // s) - lo) // 16) * 16
+        return lo, core, -(-core // 64) * 16
+
+    def coarse_level(self) -> StereoParams:
+        """The parameters of the coarse level's matcher (:meth:`coarse_span`), speckles of a
+        proportional area and a stiffer P2 (:data:`COARSE_P2_FACTOR` times, up to half the path
+        costs' headroom, never below this level's). Unchecked: derived."""
+        s = self.coarse_factor
+        lo, core, beyond = self.coarse_span()
+        p1, p2 = self.penalties()
+        headroom = MAX_PATH_COST - COST_PER_WINDOW_PIXEL * self.correlation_window_size**2
+        return self.model_copy(
+            update={
+                "coarse_to_fine": False,
+                "min_range_m": None,  # the range is already widened (rig.reach)
+                "min_disparity": lo,
+                "disparity_range": core + beyond,
+                "speckle_size": self.speckle_size // (s * s),
+                "P1": float(p1),
+                "P2": float(max(p1 + 1, min(COARSE_P2_FACTOR * p2, max(p2, headroom // 2)))),
+            }
+        )
 
     @property
     def effective_mode(self) -> str:
@@ -164,47 +242,6 @@ class StereoParams(SettingsModel):
         p1 = int(self.P1) if self.P1 else 8 * channels * w2
         p2 = int(self.P2) if self.P2 else 32 * channels * w2
         return p1, max(p2, p1 + 1)
-
-
-@dataclass
-class MatchedDisparity:
-    """The disparity of one matched pair: (H, W) float32 px, NaN where ``valid`` is False."""
-
-    disparity: F32
-    valid: NDArray[np.bool_]
-
-
-@dataclass(frozen=True)
-class SeenColumns:
-    """The columns ``[start, stop)`` of each rectified image that its lens sees on at least one
-    row (a lat-lon field's corners are outside a lens). The matcher never matches a reference
-    pixel outside them, so it leaves out the columns that only serve those pixels."""
-
-    left: tuple[int, int]
-    right: tuple[int, int]
-
-    @classmethod
-    def of(cls, left_valid: NDArray[np.bool_], right_valid: NDArray[np.bool_]) -> SeenColumns:
-        """From the two lookup tables' validity masks (H, W)."""
-        return cls(_span(left_valid), _span(right_valid))
-
-
-def _span(valid: NDArray[np.bool_]) -> tuple[int, int]:
-    cols = np.flatnonzero(valid.any(axis=0))
-    return (int(cols[0]), int(cols[-1]) + 1) if cols.size else (0, 0)
-
-
-@dataclass
-class UnfilteredDisparity:
-    """OpenCV's fixed-point disparities of one pair (1/16 px, int16) before the speckle removal:
-    the left view's (H, W) and, with ``lr_check``, the mirrored pair's (H, W), still mirrored;
-    ``right_unsearched_from``: the right image's columns from this one on have no right-view
-    disparity (the mirrored run's unmatched band). Made by :meth:`StereoMatcher.compute`,
-    turned into a :class:`MatchedDisparity` by :meth:`StereoMatcher.disparity_of`."""
-
-    left: NDArray[np.int16]
-    mirrored: NDArray[np.int16] | None = None
-    right_unsearched_from: int = 0
 
 
 def create_opencv_matcher(p: StereoParams) -> Any:
@@ -237,17 +274,34 @@ def create_opencv_matcher(p: StereoParams) -> Any:
     )
 
 
+def _coarse_to_fine(p: StereoParams) -> CoarseToFine | None:
+    """The coarse-to-fine search of ``p`` (None: the exact search)."""
+    if p.coarse_factor == 1:
+        return None
+    lo, _, beyond = p.coarse_span()
+    d_min, d_max = p.min_disparity, p.min_disparity + p.disparity_range - 1
+    level = FineLevel(
+        p.coarse_factor, lo, beyond, p.blind_band_px, p.correlation_window_size, d_min, d_max,
+        (d_min - 1) * 16, p.lr_check, not p.subpixel,
+    )  # fmt: skip
+    coarse = p.coarse_level()
+    return CoarseToFine((StereoMatcher(coarse), StereoMatcher(coarse)), level)  # a matcher per view
+
+
 class StereoMatcher:
-    """OpenCV matcher built from :class:`StereoParams`; ``match`` runs it (and the LR check).
+    """The matcher of :class:`StereoParams`; ``match`` runs it (and the LR check).
 
-    ``match`` is :meth:`compute` (the OpenCV matcher's parallel part) then :meth:`disparity_of` (SGBM's
-    speckle removal, single-threaded, and the float conversion), so that a pipelined caller can
-    run the next pair's ``compute`` while this one is finished. ``StereoSGBM.compute`` ends with
-    that same ``filterSpeckles`` call on one core (~10 ms of a 1280×960 frame); the result is the
-    bare matcher's bit for bit (tested for every mode).
+    ``match`` is :meth:`compute` (the search: the coarse-to-fine one, or the OpenCV matcher's
+    parallel part) then :meth:`disparity_of` (SGBM's speckle removal, single-threaded, and the
+    float conversion), so that a pipelined caller can run the next pair's ``compute`` while this
+    one is finished. ``StereoSGBM.compute`` ends with that same ``filterSpeckles`` call on one
+    core (~10 ms of a 1280×960 frame); the exact search's result is the bare matcher's bit for
+    bit (tested for every mode). :meth:`raw`, :meth:`left_view`, :meth:`mirrored_view` and
+    :meth:`right_disparity` are the exact search's whatever the parameters.
 
-    ``compute`` is not safe for concurrent calls (OpenCV matchers keep scratch buffers); the
-    pipeline swaps whole instances instead of mutating one. ``disparity_of`` is.
+    ``compute`` is not safe for concurrent calls (OpenCV matchers keep scratch buffers, the
+    coarse-to-fine search its live history); the pipeline swaps whole instances instead of
+    mutating one. ``disparity_of`` is.
     """
 
     def __init__(self, params: StereoParams | None = None) -> None:
@@ -257,6 +311,7 @@ class StereoMatcher:
         self._deferred_speckles = self.params.stereo_algorithm == 1 and self.params.speckle_size > 0
         deferred = {"speckle_size": 0} if self._deferred_speckles else {}
         self._matcher = create_opencv_matcher(self.params.model_copy(update=deferred))
+        self.coarse_to_fine_search = _coarse_to_fine(self.params)
 
     def _compute(self, left: U8, right: U8) -> NDArray[np.int16]:
         try:
@@ -277,19 +332,43 @@ class StereoMatcher:
                 f"{self.params.disparity_range} + min_disparity {self.params.min_disparity}"
             )
 
-    def compute(self, left: U8, right: U8, seen: SeenColumns | None = None) -> UnfilteredDisparity:
-        """The OpenCV matcher on gray images (H, W) uint8 (and on the mirrored pair with
-        ``lr_check``), speckles not yet removed. With ``seen``, each run matches only the
-        columns its reference lens sees (and those their matches and windows need); the
-        others are invalid."""
+    def compute(
+        self,
+        left: U8,
+        right: U8,
+        seen: SeenColumns | None = None,
+        *,
+        pool: Executor | None = None,
+        temporal_prior: bool = False,
+    ) -> UnfilteredDisparity:
+        """The matcher on gray images (H, W) uint8 (and on the mirrored pair with
+        ``lr_check``), speckles not yet removed: the coarse-to-fine search
+        (:mod:`rig.coarse_to_fine`; ``pool`` its threads, ``temporal_prior`` for a live stream of
+        frames in order, when ``stereo.temporal_prior`` allows) or the OpenCV matcher over the
+        whole range. With ``seen``, each run matches only the columns its reference lens sees
+        (and those their matches and windows need); the others are invalid."""
         self._check(left, right)
-        width = left.shape[1]
-        mirrored, unsearched = None, width
+        if self.coarse_to_fine_search is not None:
+            prior = temporal_prior and self.params.temporal_prior
+            return self.coarse_to_fine_search.compute(left, right, seen, pool=pool, temporal_prior=prior)
+        mirrored, unsearched = None, left.shape[1]
         if self.params.lr_check:
-            mirrored, start = self._compute_mirrored(left, right, seen.right if seen else (0, width))
-            unsearched = width - start - self.params.blind_band_px
-        left_disp, _ = self._compute_columns(left, right, seen.left if seen else (0, width))
-        return UnfilteredDisparity(left_disp, mirrored, unsearched)
+            mirrored, unsearched = self.mirrored_view(left, right, seen)
+        return UnfilteredDisparity(self.left_view(left, right, seen), mirrored, unsearched)
+
+    def left_view(self, left: U8, right: U8, seen: SeenColumns | None = None) -> NDArray[np.int16]:
+        """The OpenCV matcher's fixed-point disparity of the left view (:meth:`compute`'s exact
+        search without the mirrored pair)."""
+        return self._compute_columns(left, right, seen.left if seen else (0, left.shape[1]))[0]
+
+    def mirrored_view(
+        self, left: U8, right: U8, seen: SeenColumns | None = None
+    ) -> tuple[NDArray[np.int16], int]:
+        """The OpenCV matcher's fixed-point disparity of the mirrored pair (still mirrored) and
+        the right image's first column it never matched (:meth:`compute`'s second run)."""
+        width = left.shape[1]
+        mirrored, start = self._compute_mirrored(left, right, seen.right if seen else (0, width))
+        return mirrored, width - start - self.params.blind_band_px
 
     def _compute_columns(self, ref: U8, other: U8, seen: tuple[int, int]) -> tuple[NDArray[np.int16], int]:
         """The matcher on the columns of ``ref`` from ``seen[0]`` to ``seen[1]`` (and the ones
@@ -316,8 +395,8 @@ class StereoMatcher:
         reference: ``seen`` are the right image's seen columns, mirrored here."""
         width = left.shape[1]
         return self._compute_columns(
-            np.ascontiguousarray(right[:, ::-1]),
-            np.ascontiguousarray(left[:, ::-1]),
+            np.asarray(cv2.flip(right, 1), dtype=np.uint8),
+            np.asarray(cv2.flip(left, 1), dtype=np.uint8),
             (width - seen[1], width - seen[0]),
         )
 

@@ -151,12 +151,29 @@ class Normalisation:
     (both images at once, while the caller does something else) or else here. :meth:`result`
     gives (L, R) (H, W) float32."""
 
-    def __init__(self, left: U8, right: U8, pool: Executor | None = None) -> None:
-        self._left = submit_or_run(pool, normalise_contrast, left)
-        self._right = submit_or_run(pool, normalise_contrast, right)
+    def __init__(
+        self,
+        left: NDArray[np.generic],
+        right: NDArray[np.generic],
+        pool: Executor | None = None,
+        *,
+        ready: bool = False,
+    ) -> None:
+        work = _as_is if ready else normalise_contrast
+        self._left = submit_or_run(pool, work, left)
+        self._right = submit_or_run(pool, work, right)
+
+    @classmethod
+    def ready(cls, left: F32, right: F32) -> Normalisation:
+        """Both images' normalisation, made earlier (the coarse-to-fine search makes it)."""
+        return cls(left, right, None, ready=True)
 
     def result(self) -> tuple[F32, F32]:
         return self._left.result(), self._right.result()
+
+
+def _as_is(image: F32) -> F32:
+    return image
 
 
 def refinement_inputs(

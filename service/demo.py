@@ -58,6 +58,7 @@ class DemoSpec:
     supersample: int = 2
     seed: int = 0
     vpc: RectifiedPairConfig = field(default_factory=RectifiedPairConfig)
+    lens: str = "honest"  # rig sim's lens effects (its noise is left to the loop's frames)
 
     def as_json(self) -> dict[str, Any]:
         return {
@@ -70,6 +71,7 @@ class DemoSpec:
             "supersample": self.supersample,
             "seed": self.seed,
             "vpc": self.vpc.model_dump(mode="json"),
+            "lens": self.lens,
         }
 
 
@@ -102,6 +104,7 @@ def render_demo(spec: DemoSpec, out: Path, progress: StepProgress | None = None)
         supersample=spec.supersample,
         seed=spec.seed,
         vpc=spec.vpc,
+        lens=spec.lens,
     )
     if progress is not None:
         progress("render", 1, 1)

@@ -1,4 +1,5 @@
 """Response encodings of one depth frame: 16-bit PNG depth, npy, JPEG, colourised depth, PLY.
+Colour depth is :func:`rig.colormap.colorize_depth`, the scale ``rig process --preview`` shares.
 
 All vectorised numpy plus OpenCV's encoders and ISA-L's deflate (all of which release the GIL),
 so encoding in a request thread does not stall the worker.
@@ -16,6 +17,7 @@ import numpy as np
 from isal import isal_zlib
 from numpy.typing import NDArray
 
+from rig.colormap import colorize_depth
 from rig.depth import depth_to_png16, pack_xyzrgb, ply_bytes, to_units16
 from rig.errors import PipelineError
 
@@ -142,21 +144,6 @@ def npy_bytes(array: NDArray[Any]) -> bytes:
     buf = io.BytesIO()
     np.save(buf, np.ascontiguousarray(array), allow_pickle=False)
     return buf.getvalue()
-
-
-def colorize_depth(depth: F32, near_m: float, far_m: float) -> NDArray[np.uint8]:
-    """BGR (H, W, 3) turbo colour map of log depth between ``near_m`` (red) and ``far_m``
-    (blue); invalid pixels black. A log scale keeps both a close hand and a far wall readable."""
-    d = np.asarray(depth, dtype=np.float32)
-    with np.errstate(invalid="ignore"):
-        valid = np.isfinite(d) & (d > 0)
-    logd = np.log(np.where(valid, d, np.float32(far_m)))
-    lo, hi = np.float32(np.log(near_m)), np.float32(np.log(far_m))
-    t = np.clip((hi - logd) / (hi - lo), 0.0, 1.0)
-    gray = np.rint(t * 255.0).astype(np.uint8)
-    out = np.asarray(cv2.applyColorMap(gray, cv2.COLORMAP_TURBO), dtype=np.uint8)
-    out[~valid] = 0
-    return out
 
 
 def pcd_bytes(points: NDArray[np.float32], colors: NDArray[np.uint8] | None = None) -> bytes:

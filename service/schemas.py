@@ -326,6 +326,9 @@ class ServerPublicModel(BaseModel):
 class ConfigModel(BaseModel):
     revision: int = Field(description="the configuration's revision, also the ETag: one more at each change")
     stereo: StereoParams = Field(description="the stereo parameters in effect")
+    nearest_range_m: float = Field(
+        description="the nearest range straight ahead the search reaches (stereo.min_range_m widens it)"
+    )
     rectified: RectifiedPairModel = Field(
         description="the rectified pair in effect: projection and real size"
     )

@@ -6,7 +6,9 @@ token is configured (allowed only on a loopback bind) those endpoints refuse eve
 in a local browser cannot change anything behind the user's back. The token comparison is
 constant-time. Routers holding such endpoints use :class:`TokenFirstRoute`, which checks the
 token of a POST/PUT/PATCH/DELETE before its body is read, so an unauthenticated client gets 401
-whatever it sends (never a validation error that describes the body).
+whatever it sends (never a validation error that describes the body). The OpenAPI document
+declares the token as an HTTP bearer scheme on those operations (:data:`bearer_scheme`), so
+Swagger UI's Authorize button works.
 """
 
 from __future__ import annotations
@@ -16,19 +18,28 @@ import json
 from collections.abc import Callable, Coroutine
 from typing import Annotated, Any
 
-from fastapi import Depends, HTTPException, Request, Response
+from fastapi import HTTPException, Request, Response, Security
 from fastapi.routing import APIRoute
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.errors import Unauthorized
 
-__all__ = ["STATE_CHANGING_METHODS", "AuthDep", "BodySizeLimit", "TokenFirstRoute", "require_token"]
+__all__ = [
+    "STATE_CHANGING_METHODS",
+    "AuthDep",
+    "BodySizeLimit",
+    "TokenFirstRoute",
+    "bearer_scheme",
+    "check_token",
+    "require_token",
+]
 
 STATE_CHANGING_METHODS = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 
 
-async def require_token(request: Request) -> None:
-    """FastAPI dependency: 401 unless the request carries the configured bearer token."""
+def check_token(request: Request) -> None:
+    """Unauthorized (401) unless ``request`` carries the configured bearer token."""
     expected = request.app.state.settings.server.token
     if expected is None:
         raise Unauthorized(
@@ -42,7 +53,24 @@ async def require_token(request: Request) -> None:
         raise Unauthorized("invalid bearer token")
 
 
-AuthDep = Annotated[None, Depends(require_token)]
+#: The OpenAPI document's security scheme (``bearer``): Swagger UI's Authorize button sends the
+#: token it is given on the operations that need it. It never refuses by itself
+#: (``auto_error=False``): :func:`check_token` decides, with the project's 401 details.
+bearer_scheme = HTTPBearer(
+    auto_error=False,
+    scheme_name="bearer",
+    description="the service's API token (server.api_token, RIG_API_TOKEN; `rig serve --demo` makes one)",
+)
+
+
+async def require_token(
+    request: Request, _credentials: Annotated[HTTPAuthorizationCredentials | None, Security(bearer_scheme)]
+) -> None:
+    """FastAPI dependency: 401 unless the request carries the configured bearer token."""
+    check_token(request)
+
+
+AuthDep = Annotated[None, Security(require_token)]
 
 
 class TokenFirstRoute(APIRoute):
@@ -55,7 +83,7 @@ class TokenFirstRoute(APIRoute):
             return handler
 
         async def token_first(request: Request) -> Response:
-            await require_token(request)
+            check_token(request)
             return await handler(request)
 
         return token_first

@@ -1,15 +1,15 @@
 """Serving the app: a bound socket, then uvicorn until SIGINT/SIGTERM.
 
-The socket is bound before any slow work (a busy port is a :class:`ServiceError`, reported as
-one line, not a traceback after startup). Uvicorn handles SIGINT/SIGTERM: it stops accepting,
-gives open streams ``GRACEFUL_S`` to finish, and the app's lifespan joins the worker and capture
-threads. ``rig serve`` (:mod:`cli.serve`) puts settings, socket and runtime together.
+The socket is bound before any slow work, by :mod:`service.listen` (a busy port is a
+:class:`ServiceError`, reported as one line, not a traceback after startup). Uvicorn handles
+SIGINT/SIGTERM: it stops accepting, gives open streams ``GRACEFUL_S`` to finish, and the app's
+lifespan joins the worker and capture threads. ``rig serve`` (:mod:`cli.serve`) puts settings,
+socket and runtime together.
 """
 
 from __future__ import annotations
 
 import contextlib
-import resource
 import signal
 import socket
 import threading
@@ -21,6 +21,7 @@ import uvicorn
 from service.app import create_app
 from service.connections import ConnectionLimits, guarded_protocol
 from service.errors import ServiceError
+from service.listen import FD_RESERVE, LOG_LEVELS, bind_socket, ensure_fd_room
 from service.runtime import Runtime
 from service.settings import Settings
 
@@ -30,37 +31,11 @@ __all__ = [
     "LOG_LEVELS",
     "bind_socket",
     "ensure_fd_room",
-    "fds_needed",
     "run_server",
     "uvicorn_config",
 ]
 
 GRACEFUL_S = 3
-LOG_LEVELS = ("critical", "error", "warning", "info", "debug")
-#: File descriptors kept free of HTTP connections: cameras, frame and recording files, the LUT
-#: cache, sensors, the listening socket, Python's own.
-FD_RESERVE = 128
-
-
-def bind_socket(host: str, port: int) -> socket.socket:
-    """A listening-ready TCP socket on ``host:port`` (port 0 = any free port); ServiceError
-    naming the address when it cannot be had."""
-    try:
-        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
-    except socket.gaierror as err:
-        raise ServiceError(f"cannot resolve host {host!r}: {err.strerror}") from err
-    family, _, _, _, address = infos[0]
-    # proto must be IPPROTO_TCP (not 0): asyncio sets TCP_NODELAY on accepted connections only
-    # then, and without it Nagle + delayed ACK add ~40 ms to every keep-alive response.
-    sock = socket.socket(family, socket.SOCK_STREAM, socket.IPPROTO_TCP)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    try:
-        sock.bind(address)
-    except OSError as err:
-        sock.close()
-        raise ServiceError(f"cannot listen on {host}:{port}: {err.strerror}") from err
-    sock.set_inheritable(True)
-    return sock
 
 
 class _Server(uvicorn.Server):
@@ -78,31 +53,6 @@ class _Server(uvicorn.Server):
         finally:
             for sig, handler in original.items():
                 signal.signal(sig, handler)
-
-
-def fds_needed(settings: Settings) -> int:
-    """Descriptors ``rig serve`` may hold: one per HTTP connection, three per Foxglove viewer (its
-    connection, the gate's to the SDK and the SDK's end of it) and :data:`FD_RESERVE`."""
-    fox = settings.server.foxglove
-    return settings.server.max_connections + (3 * fox.max_viewers if fox.enabled else 0) + FD_RESERVE
-
-
-def ensure_fd_room(settings: Settings) -> int:
-    """Make sure ``server.max_connections`` connections (and Foxglove's viewers) leave
-    :data:`FD_RESERVE` descriptors free (raising the soft ``RLIMIT_NOFILE`` up to the hard one if
-    needed): the process's limit, or ServiceError naming the setting."""
-    need = fds_needed(settings)
-    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    if soft != resource.RLIM_INFINITY and soft < need:
-        if hard != resource.RLIM_INFINITY and hard < need:
-            raise ServiceError(
-                f"settings: field 'server.max_connections': {settings.server.max_connections} connections "
-                f"need {need} file descriptors, and this process may open {hard} (ulimit -n; "
-                "LimitNOFILE= in a systemd unit): lower server.max_connections or raise the limit"
-            )
-        resource.setrlimit(resource.RLIMIT_NOFILE, (need, hard))
-        soft = need
-    return soft
 
 
 def uvicorn_config(app: Any, settings: Settings, log_level: str = "info", **kwargs: Any) -> uvicorn.Config:

@@ -50,6 +50,7 @@ from pydantic_core import ErrorDetails
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
 from rig.capture.config import CAMERA_KINDS, CaptureConfig, resolve_camera_paths
+from rig.colormap import DEFAULT_RANGE_M
 from rig.errors import ConfigError
 from rig.pinhole_depth import PinholeDepthConfig
 from rig.rectification.monitor import RectificationConfig
@@ -196,7 +197,7 @@ class ServerSettings(SettingsModel):
     )
     keep_alive_s: int = Field(5, ge=1, le=600, description="idle keep-alive connections close after this")
     color_range_m: tuple[float, float] = Field(
-        (0.3, 8.0), description="depth range spanned by the colour map (near, far), log scale"
+        DEFAULT_RANGE_M, description="depth range spanned by the colour map (near, far), log scale"
     )
     recording_queue: int = Field(64, ge=1, le=10_000, description="pairs waiting for the recording writer")
     stale_after_s: float = Field(2.0, gt=0.0, description="no depth frame for this long → degraded")

@@ -146,6 +146,7 @@ class DepthWorker:
             pacing=JustInTime(),
             poll_s=poll_s,
             prefix="rig-depth",
+            temporal_prior=True,  # a live stream in order: stereo.temporal_prior may use it
         )
 
     # ----- lifecycle ---------------------------------------------------------------------------

@@ -29,6 +29,7 @@ from calibration.rig import Rig
 from calibration.targets import board_object_points, detect_chessboard
 from rig.evaluate.config import EvalConfig
 from rig.evaluate.renders import calibration_board_poses, render_board
+from rig.sim.lens_effects import LensEffects
 
 __all__ = ["BoardViews", "CalibrationStudy", "ModelCalibration", "distinct_lenses", "run_calibration_study"]
 
@@ -104,15 +105,25 @@ def distinct_lenses(rig: Rig) -> dict[str, str]:
     return out
 
 
-def _views(lens: CameraModel, config: EvalConfig, rng: np.random.Generator, step: Step) -> BoardViews:
+def _views(
+    lens: CameraModel,
+    config: EvalConfig,
+    rng: np.random.Generator,
+    step: Step,
+    effects: LensEffects | None,
+    camera_index: int,
+) -> BoardViews:
     poses = calibration_board_poses(lens, config.calibration_views, rng, config.board, config.square_m)
     X = board_object_points(*config.board, config.square_m)
     images: list[NDArray[np.uint8]] = []
     corners: list[F64 | None] = []
     exact: list[F64] = []
     top = 0.0
-    for T in poses:
-        image = render_board(lens, T, config.board, config.square_m, config.supersample)
+    for i, T in enumerate(poses):
+        image = render_board(
+            lens, T, config.board, config.square_m, config.supersample, effects=effects,
+            camera_index=camera_index, seed=config.seed * 1000 + i,
+        )  # fmt: skip
         found = detect_chessboard(image, config.board)
         images.append(image)
         corners.append(found)
@@ -135,14 +146,16 @@ def _corner_rms(corners: Sequence[F64 | None], exact: Sequence[F64]) -> float:
 
 
 def run_calibration_study(
-    rig: Rig, config: EvalConfig, models: Sequence[str], step: Step
+    rig: Rig, config: EvalConfig, models: Sequence[str], step: Step, effects: LensEffects | None = None
 ) -> CalibrationStudy:
-    """Render, detect and calibrate (see the module doc). Never raises for a model that cannot be
-    calibrated: its :class:`ModelCalibration` carries the reason."""
+    """Render (through the lens ``effects``, None: ideal), detect and calibrate (see the module
+    doc). Never raises for a model that cannot be calibrated: its :class:`ModelCalibration`
+    carries the reason."""
     lens_of = distinct_lenses(rig)
     lenses = list(dict.fromkeys(lens_of.values()))
     rng = np.random.default_rng([config.seed, 11])
-    views = {name: _views(rig.cameras[name], config, rng, step) for name in lenses}
+    index = {name: i for i, name in enumerate(rig.cameras)}
+    views = {name: _views(rig.cameras[name], config, rng, step, effects, index[name]) for name in lenses}
     X = board_object_points(*config.board, config.square_m)
     out: dict[str, ModelCalibration] = {}
     for model in models:

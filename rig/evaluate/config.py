@@ -9,6 +9,11 @@ pairs.
 Quick run (tests, smoke checks): the preset scaled to half size, 10 views and one round of corner
 refinement, a 320×240 VPC, planes at k = 3, 8, 16 with 2 textures, supersampling 2×2 throughout;
 the extrinsics chain from up to 8 wedge boards and 2 room pairs.
+
+The fisheye renders (boards, planes, room) go through the ``lens`` effects: ``honest`` (the
+preset's lens fitted to real fisheyes, :mod:`rig.sim.lens_effects`) or ``ideal`` (none). The
+default is ``ideal`` for ``paper-sim``, the paper's virtual rig (its Unity lenses are ideal:
+that is what reproduces the paper), ``honest`` for every other preset.
 """
 
 from __future__ import annotations
@@ -20,7 +25,8 @@ from dataclasses import dataclass, field
 from calibration.models import MODELS
 from rig.errors import ConfigError
 from rig.rectified import RectifiedPairConfig
-from rig.sim.presets import PRESETS
+from rig.sim.lens_effects import LensEffects, check_lens
+from rig.sim.presets import PRESETS, Preset
 from rig.sim.textures import TEXTURES
 from rig.stereo import StereoParams
 
@@ -29,6 +35,7 @@ __all__ = [
     "FULL_DISTANCES",
     "QUICK_DISTANCES",
     "EvalConfig",
+    "default_lens",
     "make_config",
     "stereo_for",
 ]
@@ -76,11 +83,17 @@ class EvalConfig:
     extrinsics_model: str = "kannala_brandt"  # lenses of the extrinsics chain (rig.evaluate.extrinsics)
     stereo_views: int = 12  # wedge boards for the pair's calibration (at most; those both lenses see)
     refine_frames: int = 3  # room pairs the extrinsics are refined from
+    lens: str = "honest"  # the fisheye renders' lens effects: honest or ideal
+
+    def lens_effects(self, preset: Preset) -> LensEffects | None:
+        """The fisheye renders' lens effects for ``preset`` (None: the ideal lens)."""
+        return preset.lens if self.lens == "honest" else None
 
     def describe(self) -> dict[str, object]:
         """JSON-able summary for run.json and the report."""
         return {
             "preset": self.preset,
+            "lens": self.lens,
             "quick": self.quick,
             "seed": self.seed,
             "models": list(self.models),
@@ -149,11 +162,14 @@ def make_config(
     distances: Sequence[float] | None = None,
     textures: int | None = None,
     seed: int = 0,
+    lens: str | None = None,
 ) -> EvalConfig:
     """The run for ``preset`` (a name of :data:`rig.sim.PRESETS`); ``None`` picks the default
-    of the full or quick run. Raises ConfigError naming the bad value."""
+    of the full or quick run (``lens``: :func:`default_lens`). Raises ConfigError naming the bad
+    value."""
     if preset not in PRESETS:
         raise ConfigError(f"unknown preset {preset!r}; valid presets: {', '.join(PRESETS)}")
+    chosen_lens = check_lens(default_lens(preset) if lens is None else lens)
     n_tex = (2 if quick else 3) if textures is None else int(textures)
     if not 1 <= n_tex <= len(TEXTURES):
         raise ConfigError(f"textures must be between 1 and {len(TEXTURES)}, got {textures}")
@@ -182,4 +198,10 @@ def make_config(
         extrinsics_model="kannala_brandt" if "kannala_brandt" in chosen else chosen[0],
         stereo_views=8 if quick else 12,
         refine_frames=2 if quick else 3,
+        lens=chosen_lens,
     )
+
+
+def default_lens(preset: str) -> str:
+    """``ideal`` for the paper's virtual rig, ``honest`` for the others (the module doc)."""
+    return "ideal" if preset == "paper-sim" else "honest"

@@ -122,18 +122,21 @@ def _wedge_poses(rig: Rig, config: EvalConfig) -> list[F64]:
 
 
 def _calibrate(
-    truth: Rig, lenses: dict[str, CameraModel], config: EvalConfig, step: Step, study: ExtrinsicsStudy
+    preset: Preset, lenses: dict[str, CameraModel], config: EvalConfig, step: Step, study: ExtrinsicsStudy
 ) -> Rig:
+    truth = preset.rig
     poses = _wedge_poses(truth, config)
     study.board_views = len(poses)
     images: dict[str, list[NDArray[np.uint8] | None]] = {"left": [], "right": []}
     corners: dict[str, list[F64 | None]] = {"left": [], "right": []}
-    for T in poses:
-        for name in ("left", "right"):
+    for k, T in enumerate(poses):
+        for i, name in enumerate(("left", "right")):
             T_cam_board = invert_transform(truth.T_rig_cam[name]) @ T
             image = render_board(
-                truth.cameras[name], T_cam_board, config.board, config.square_m, config.supersample
-            )
+                truth.cameras[name], T_cam_board, config.board, config.square_m, config.supersample,
+                effects=config.lens_effects(preset), camera_index=list(truth.cameras).index(name),
+                seed=config.seed * 1000 + 2 * k + i,
+            )  # fmt: skip
             images[name].append(image)
             corners[name].append(detect_chessboard(image, config.board))
         step("rendering stereo calibration boards")
@@ -167,12 +170,12 @@ def run_extrinsics_study(
         return out
     lenses = {n: mc.camera_for(study, n) for n in ("left", "right")}
     try:
-        calibrated = _calibrate(truth, lenses, config, step, out)
+        calibrated = _calibrate(preset, lenses, config, step, out)
         out.calibrated = pose_error(calibrated, truth)
         with tempfile.TemporaryDirectory(prefix="rig-evaluate-room-") as tmp:
             root = simulate_recording(
                 preset, "room", Path(tmp) / "room", frames=config.refine_frames, seed=config.seed,
-                supersample=config.supersample, vpc=_GT_VPC,
+                supersample=config.supersample, vpc=_GT_VPC, lens=config.lens,
             )  # fmt: skip
             step("rendering the room")
             refinement = refine_recording(Recording(root), calibrated, config.vpc, RefineOptions())

@@ -14,6 +14,7 @@ from rig.evaluate.extrinsics import CALIBRATED, REFINED
 from rig.evaluate.metrics import finite_mean
 from rig.evaluate.plots import label
 from rig.evaluate.runner import EvaluationRun
+from rig.sim.lens_effects import lens_for
 
 __all__ = ["render_markdown"]
 
@@ -53,8 +54,8 @@ def _settings(run: EvaluationRun) -> list[str]:
         f"# Evaluation of the `{c.preset}` preset" + (" (quick run)" if c.quick else ""),
         "",
         *_para(
-            f"{run.preset.description}. Simulated sensor: noise σ = {run.preset.noise_std:g} grey ",
-            f"levels, vignetting {run.preset.vignetting:g}. Fisheye images {lens.width}×{lens.height}, ",
+            f"{run.preset.description}. Fisheye renders (boards, planes, room) through the ",
+            f"{lens_for(c.lens, run.preset.lens).describe()}. Fisheye images {lens.width}×{lens.height}, ",
             f"supersampling {c.supersample}×{c.supersample} (boards, room) and {c.plane_supersample}×",
             f"{c.plane_supersample} (planes), seed {c.seed}.",
         ),
@@ -124,8 +125,9 @@ def _difference(run: EvaluationRun) -> list[str]:
         "The left VPC image of a room made through each model's lookup table (true extrinsics: ",
         "only the intrinsic model differs), against the Reference camera (an ideal pinhole at the VPC ",
         "pose) rendered directly. The fisheye image is rendered through the true lens without noise or ",
-        "vignetting. Mean absolute difference in grey levels over the pixels the table maps into the ",
-        "lens; `true_lens` uses the exact lens: the floor that resampling the fisheye image leaves.",
+        "lens effects (the ideal lens: the subject is the geometry). Mean absolute difference in grey ",
+        "levels over the pixels the table maps into the lens; `true_lens` uses the exact lens: the ",
+        "floor that resampling the fisheye image leaves.",
     )
     rows = [
         [label(n), r.mad_whole, r.mad_central, r.valid_frac, r.error or ""]
@@ -319,7 +321,7 @@ def _agreement(claims: Sequence[Claim]) -> list[str]:
     out += _para(
         'The paper\'s "simulated better than real" compares its simulation with its real prototype; ',
         "here it is the comparison of the `paper-sim` run with the `prototype` run (a simulated ",
-        "stand-in for the real rig, with its lens, noise and vignetting).",
+        "stand-in for the real rig, with its lens).",
     )
     return out
 

@@ -10,7 +10,8 @@ surface) and the *lost rate* (valid pixels further than twice the truth: a real 
 placed too far), the figures the defaults are chosen by (``python -m bench.phantoms``, docs/stereo.md).
 
 Scenes (:data:`SCENES`), all seen by the ``prototype`` rig (190° Kannala-Brandt lenses, 72 mm
-baseline) with its sensor noise and vignetting:
+baseline) through its honest lens (``lens="honest"``: blur growing to the rim, rim darkening,
+per-camera exposure, sensor noise; ``"ideal"``: none):
 
 * ``room-walk-0`` … ``room-walk-2``: the README's walkthrough, ``rig sim --preset prototype
   --scene room --frames 3`` (the demo room; its front wall's printed paper repeats every 2 m);
@@ -47,6 +48,7 @@ from rig.sim import (
     room_path,
     room_scene,
 )
+from rig.sim.lens_effects import lens_for
 from rig.sim.patterns import spectral_noise
 from rig.sim.render import render_range
 
@@ -170,15 +172,17 @@ def render_phantom_shot(
     blind_band_px: int = 0,
     supersample: int = 2,
     seed: int = 0,
+    lens: str = "honest",
 ) -> PhantomShot:
-    """A scene (or a name of :data:`SCENES`) through the ``prototype`` rig, with its sensor
-    noise (seeded) and vignetting; by default on the 640×480 pinhole pair (:data:`PHANTOM_VPC`).
+    """A scene (or a name of :data:`SCENES`) through the ``prototype`` rig and its ``lens``
+    (honest or ideal; noise seeded); by default on the 640×480 pinhole pair (:data:`PHANTOM_VPC`).
     ``blind_band_px``: the matcher's unmatched columns, which a lat-lon pair's default field
     adds (the pipeline's pair for those stereo parameters)."""
     spec = SCENES[which] if isinstance(which, str) else which
     name = spec.name
     preset = get_preset("prototype")
     rig = preset.rig
+    effects = lens_for(lens, preset.lens)
     pair = design_rectified_pair(rig, vpc or PHANTOM_VPC, blind_band_px=blind_band_px)
     scene = spec.build()
     images = []
@@ -192,9 +196,9 @@ def render_phantom_shot(
                 spec.T_world_rig @ rig.T_rig_cam[cam],
                 box,
                 supersample=supersample,
-                noise_std=preset.noise_std,
-                vignetting=preset.vignetting,
                 seed=seed * 2 + i,
+                lens=effects,
+                camera_index=list(rig.cameras).index(cam),
             )
         )
     return PhantomShot(name, images[0], images[1], truth_depth(scene, pair, spec.T_world_rig), rig, pair)

@@ -3,10 +3,15 @@ their Reference pair, the room for the image comparison.
 
 Only the part of a fisheye image that is used gets ray-cast: the same lens with its principal
 point moved by the crop origin sees exactly the same ray at every pixel, so a crop pasted into
-the full frame equals the full render pixel for pixel (noise and vignetting included, they are
-per pixel). Outside the crop the frame holds the background, which nothing reads: a board's
-detector sees the board with its white margin and background around it; a VPC lookup table
-reads only its source region (plus the bilinear neighbours, inside the margin).
+the full frame equals the full render pixel for pixel (vignetting included, it is per pixel; the
+noise is drawn afresh). With lens effects (:mod:`rig.sim.lens_effects`) the crop is rendered
+larger by the blur's reach, so its blur near the crop's edge is the full image's. Outside the
+crop the frame holds the background, which nothing reads: a board's detector sees the board with
+its white margin and background around it; a VPC lookup table reads only its source region (plus
+the bilinear neighbours, inside the margin).
+
+The fisheye renders take the study's lens effects (``--lens honest``: the preset's fitted lens;
+``ideal``: none); a Reference view is an ideal lens on the same sensor (its noise only).
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,6 +31,7 @@ from rig.errors import EvaluationError
 from rig.lut import Lut
 from rig.rectified import RectifiedPair
 from rig.sim import Scene, chessboard_corners, chessboard_scene, plane_scene, render
+from rig.sim.lens_effects import LensEffects
 
 __all__ = [
     "Box",
@@ -74,22 +81,28 @@ def render_in_box(
     vignetting: float = 0.0,
     seed: int = 0,
     background: int = 0,
+    lens: LensEffects | None = None,
+    camera_index: int = 0,
 ) -> U8:
-    """Full-size grey image of ``camera`` with only ``box`` rendered (None: everything)."""
+    """Full-size grey image of ``camera`` with only ``box`` rendered (None: everything); ``lens``
+    and ``camera_index`` as :func:`rig.sim.render` takes them."""
+    kw: dict[str, Any] = {"supersample": supersample, "noise_std": noise_std, "vignetting": vignetting}
+    kw |= {"seed": seed, "background": background, "lens": lens, "camera_index": camera_index}
     if box is None:
-        return render(
-            scene, camera, T_world_cam, supersample=supersample, noise_std=noise_std,
-            vignetting=vignetting, seed=seed, background=background,
-        ).image  # fmt: skip
+        return render(scene, camera, T_world_cam, **kw).image
     x0, y0, x1, y1 = box
     full = np.full((camera.height, camera.width), background, dtype=np.uint8)
     if x1 <= x0 or y1 <= y0:
         return full
-    part = render(
-        scene, _crop(camera, box), T_world_cam, supersample=supersample, noise_std=noise_std,
-        vignetting=vignetting, seed=seed, background=background,
-    )  # fmt: skip
-    full[y0:y1, x0:x1] = part.image
+    reach = lens.reach_px(camera_index) if lens is not None else 0
+    grown = (
+        max(0, x0 - reach),
+        max(0, y0 - reach),
+        min(camera.width, x1 + reach),
+        min(camera.height, y1 + reach),
+    )
+    part = render(scene, _crop(camera, grown), T_world_cam, **kw).image
+    full[y0:y1, x0:x1] = part[y0 - grown[1] : y1 - grown[1], x0 - grown[0] : x1 - grown[0]]
     return full
 
 
@@ -214,10 +227,19 @@ def calibration_board_poses(
 
 
 def render_board(
-    lens: CameraModel, T_cam_board: F64, board: tuple[int, int], square_m: float, supersample: int
+    lens: CameraModel,
+    T_cam_board: F64,
+    board: tuple[int, int],
+    square_m: float,
+    supersample: int,
+    *,
+    effects: LensEffects | None = None,
+    camera_index: int = 0,
+    seed: int = 0,
 ) -> U8:
     """Grey image of the board (one square of white margin) seen by ``lens`` on a uniform
-    background; only the board's bounding box is ray-cast."""
+    background, through the lens ``effects`` of the rig's ``camera_index``-th camera (noise
+    seeded by ``seed``); only the board's bounding box is ray-cast."""
     scene = chessboard_scene(*board, square_m, T_cam_board)
     p = board_outline(board, square_m, 1.0) @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
     pix, ok = lens.project(p, in_image=False)
@@ -225,7 +247,10 @@ def render_board(
         return np.full((lens.height, lens.width), BOARD_BACKGROUND, dtype=np.uint8)
     # Past the lens's field the margin has no image: the valid outline bounds what is seen.
     box = _clip_box(pix[ok, 0], pix[ok, 1], lens.width, lens.height, 2 * _MARGIN)
-    return render_in_box(scene, lens, np.eye(4), box, supersample=supersample, background=BOARD_BACKGROUND)
+    return render_in_box(
+        scene, lens, np.eye(4), box, supersample=supersample, background=BOARD_BACKGROUND, lens=effects,
+        camera_index=camera_index, seed=seed,
+    )  # fmt: skip
 
 
 # ----- plane pairs ------------------------------------------------------------------------------
@@ -270,24 +295,27 @@ def render_plane_shot(
     supersample: int,
     noise_std: float,
     vignetting: float,
+    lens: LensEffects | None = None,
 ) -> PlaneShot:
     """Render the plane ``k`` baselines ahead of ``rig`` with ``texture``. The fisheye views get
-    the preset's noise and vignetting; the Reference views the same noise (a sensor effect) but
-    no vignetting (a lens effect). ``boxes`` per camera name: the fisheye regions to render;
-    ``phase_px``: sub-pixel disparity offset (:func:`plane_distance`)."""
+    the ``lens`` effects and the simple sensor model's ``noise_std`` and ``vignetting``; the
+    Reference views the same sensor noise but no lens effects. ``boxes`` per camera name: the
+    fisheye regions to render; ``phase_px``: sub-pixel disparity offset (:func:`plane_distance`)."""
     distance = plane_distance(pair, k, phase_px)
     scene = plane_scene(distance, texture, seed)
     seeds = np.random.SeedSequence([seed, round(k * 1000), sum(map(ord, texture))]).generate_state(4)
     fish = {
         name: render_in_box(
             scene, rig.cameras[name], rig.T_rig_cam[name], boxes[name], supersample=supersample,
-            noise_std=noise_std, vignetting=vignetting, seed=int(seeds[i]),
+            noise_std=noise_std, vignetting=vignetting, seed=int(seeds[i]), lens=lens,
+            camera_index=list(rig.cameras).index(name),
         )
         for i, name in enumerate((pair.left, pair.right))
     }  # fmt: skip
+    sensor = lens.sensor_only() if lens is not None else None
     refs = {
         name: render(scene, pair.camera, pair.T_rig_rect[name], supersample=supersample,
-                     noise_std=noise_std, seed=int(seeds[2 + i]))
+                     noise_std=noise_std, seed=int(seeds[2 + i]), lens=sensor)
         for i, name in enumerate((pair.left, pair.right))
     }  # fmt: skip
     return PlaneShot(

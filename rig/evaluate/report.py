@@ -15,6 +15,7 @@ import json
 import math
 import os
 import platform
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,7 @@ from rig.evaluate.markdown import render_markdown
 from rig.evaluate.matchers import MATCHER_LABELS
 from rig.evaluate.plots import coverage_plot, depth_plot, depth_ratio_plot, difference_montage, matcher_plot
 from rig.evaluate.runner import EvaluationRun
+from rig.sim.lens_effects import lens_for
 
 __all__ = ["DIFFERENCE_GAIN", "OUTPUT_FILES", "results_document", "write_outputs"]
 
@@ -200,8 +202,7 @@ def _run_document(run: EvaluationRun) -> dict[str, Any]:
             "settings": run.config.describe(),
             "preset_description": run.preset.description,
             "vpc": run.pair.as_json(),
-            "noise_std": run.preset.noise_std,
-            "vignetting": run.preset.vignetting,
+            "lens_effects": asdict(lens_for(run.config.lens, run.preset.lens)),
             "theory_sigma_d_px": run.theory_sigma_d_px,
             "depth_fits": {n: list(f) if f else None for n, f in run.depth_fits.items()},
             "failures": {

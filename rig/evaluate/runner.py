@@ -104,7 +104,7 @@ def run_evaluation(
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    study = run_calibration_study(rig, config, config.models, sink.step)
+    study = run_calibration_study(rig, config, config.models, sink.step, config.lens_effects(preset))
     timings["calibration"] = time.perf_counter() - t0
     ok_models = [m for m in config.models if study.models[m].ok]
 
@@ -144,8 +144,8 @@ def run_evaluation(
                 t0 = time.perf_counter()
                 shot = render_plane_shot(
                     rig, pair, k, texture, boxes, phase_px=float(phase), seed=config.seed,
-                    supersample=config.plane_supersample,
-                    noise_std=preset.noise_std, vignetting=preset.vignetting,
+                    supersample=config.plane_supersample, noise_std=0.0, vignetting=0.0,
+                    lens=config.lens_effects(preset),
                 )  # fmt: skip
                 render_s += time.perf_counter() - t0
                 sink.step(f"rendering planes (k = {k:g}, {texture})")

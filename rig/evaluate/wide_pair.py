@@ -2,7 +2,8 @@
 each rectified pair turns into range, and how accurate that range is, pinhole against lat-lon.
 
 For each pose of the rig in the closed textured room of ``rig sim`` (along its demo path): the
-fisheye pair is rendered once (preset noise and vignetting), then every variant (a rectified
+fisheye pair is rendered once (through the preset's honest lens, or the ideal one: ``lens``),
+then every variant (a rectified
 pair: projection, field and resolution) runs the product's depth pipeline on it; its range
 (metres along each left rectified pixel's ray, :func:`rig.depth.disparity_to_range`) is compared
 with the renderer's exact range through the same rectified view
@@ -41,6 +42,7 @@ from rig.evaluate.renders import lut_box, render_in_box, union_box
 from rig.field import overlap, pixel_solid_angles
 from rig.pipeline import DepthPipeline
 from rig.rectified import RectifiedPairConfig, design_rectified_pair, rectified_frame
+from rig.sim.lens_effects import check_lens, lens_for
 from rig.sim.presets import get_preset
 from rig.sim.render import render_range
 from rig.sim.scene import Scene, room_scene
@@ -93,10 +95,12 @@ class WideConfig:
     stereo: StereoParams
     overlap_step_deg: float
     quick: bool
+    lens: str = "honest"
 
     def describe(self) -> dict[str, object]:
         return {
             "preset": self.preset,
+            "lens": self.lens,
             "image_scale": self.scale,
             "scene": "room",
             "poses": list(self.poses),
@@ -159,13 +163,21 @@ def default_variants(
     return tuple(out)
 
 
-def make_wide_config(preset: str = "prototype", *, quick: bool = False, seed: int = 0) -> WideConfig:
+def make_wide_config(
+    preset: str = "prototype",
+    *,
+    quick: bool = False,
+    seed: int = 0,
+    lens: str = "honest",
+    stereo: StereoParams | None = None,
+) -> WideConfig:
     """Full run: the preset's own size, three poses along the room path, supersampling 3×3, the
-    default pinhole pair and stereo settings, lat-lon resolutions 4.5 and 7 px/deg besides the
-    budget ones. Quick (tests): a quarter-size rig, one pose, supersampling 2×2, a 160×120 pinhole
-    and a quarter of the disparities."""
+    default pinhole pair and stereo settings (or ``stereo``), lat-lon resolutions 4.5 and 7
+    px/deg besides the budget ones. Quick (tests): a quarter-size rig, one pose, supersampling
+    2×2, a 160×120 pinhole and a quarter of the disparities."""
     scale = 0.25 if quick else 1.0
-    stereo = StereoParams(disparity_range=32) if quick else StereoParams()
+    if stereo is None:
+        stereo = StereoParams(disparity_range=32) if quick else StereoParams()
     pinhole = (
         RectifiedPairConfig(width=160, height=120) if quick else RectifiedPairConfig(projection="pinhole")
     )
@@ -182,6 +194,7 @@ def make_wide_config(preset: str = "prototype", *, quick: bool = False, seed: in
         stereo=stereo,
         overlap_step_deg=0.5 if quick else 0.1,
         quick=quick,
+        lens=check_lens(lens),
     )
 
 
@@ -286,15 +299,15 @@ def run_wide_study(
         for n in ("left", "right")
     }
     scene = room_scene(config.seed)
-    preset = get_preset(config.preset)
+    effects = lens_for(config.lens, get_preset(config.preset).scaled(config.scale).lens)
     for i, pose in enumerate(config.poses):
         T_world_rig = room_path(pose, config.path_frames)
         seeds = np.random.SeedSequence([config.seed, pose]).generate_state(2)
         images = {
             name: render_in_box(
                 scene, rig.cameras[name], T_world_rig @ rig.T_rig_cam[name], boxes[name],
-                supersample=config.supersample, noise_std=preset.noise_std,
-                vignetting=preset.vignetting, seed=int(seeds[k]),
+                supersample=config.supersample, seed=int(seeds[k]), lens=effects,
+                camera_index=list(rig.cameras).index(name),
             )
             for k, name in enumerate(("left", "right"))
         }  # fmt: skip

@@ -21,6 +21,8 @@ from matplotlib.ticker import ScalarFormatter
 
 from calibration.atomic import write_atomic
 from rig.evaluate.wide_pair import REFERENCE_VARIANT, VariantResult, WideStudy
+from rig.sim.lens_effects import lens_for
+from rig.sim.presets import get_preset
 
 __all__ = ["WIDE_OUTPUT_FILES", "wide_document", "write_wide_outputs"]
 
@@ -126,8 +128,9 @@ def _markdown(study: WideStudy, doc: dict[str, Any]) -> str:
         f"# Wide pair: {c.preset}{' (quick)' if c.quick else ''}",
         "",
         f"The room scene of `rig sim` at {len(c.poses)} pose(s) of its path ({poses} of {c.path_frames}), "
-        f"fisheye renders supersampled {c.supersample}×{c.supersample} with the preset's noise and "
-        f"vignetting; stereo: the defaults with {c.stereo.disparity_range} disparities. The overlap of "
+        f"fisheye renders supersampled {c.supersample}×{c.supersample} through the "
+        f"{lens_for(c.lens, get_preset(c.preset).scaled(c.scale).lens).describe()}; stereo: the defaults "
+        f"with {c.stereo.disparity_range} disparities. The overlap of "
         f"the two lenses: {study.overlap_sr:.3f} sr.",
         "",
         "| variant | pixels | px/deg (centre) | valid sr | within 1 % sr | within 3 % sr (of overlap) "

@@ -34,7 +34,7 @@ from calibration.relative_pose import (
 )
 from calibration.rig import Rig
 from rig.errors import RecordingError, RectificationError
-from rig.recording import Recording
+from rig.recording import PairRecord, Recording
 from rig.rectification.matching import MatchOptions, RayMatches, match_pair
 from rig.rectification.measure import VerticalDisparity, vertical_disparity
 from rig.rectification.views import EpipolarViews
@@ -45,6 +45,7 @@ __all__ = [
     "RefineOptions",
     "backup_path",
     "collect_matches",
+    "pick_pairs",
     "refine_frames",
     "refine_recording",
     "refine_rig",
@@ -151,6 +152,21 @@ def _pick(n: int, k: int) -> list[int]:
     return sorted({round(float(i)) for i in np.linspace(0, n - 1, k)})
 
 
+def pick_pairs(recording: Recording, frames: int, left: str, right: str) -> list[PairRecord]:
+    """Up to ``frames`` pairs evenly spread over ``recording``; RecordingError for a recording
+    without both cameras or without pairs."""
+    missing = [n for n in ("left", "right") if n not in recording.cameras]
+    if missing:
+        has = ", ".join(recording.cameras) or "none"
+        raise RecordingError(
+            f"{recording.root / 'recording.json'}: a recording of camera(s) {has} only; "
+            f"refinement needs both {left} and {right}"
+        )
+    if len(recording) == 0:
+        raise RecordingError(f"{recording.root / 'frames.csv'}: no pairs recorded")
+    return [recording.pairs[i] for i in _pick(len(recording), frames)]
+
+
 def collect_matches(
     recording: Recording,
     views: EpipolarViews,
@@ -161,17 +177,7 @@ def collect_matches(
     and the pairs skipped with the reason (unreadable frames). RecordingError for a recording
     without both cameras, or whose left and right frames are the same images."""
     opts = options or RefineOptions()
-    left, right = views.names
-    missing = [n for n in ("left", "right") if n not in recording.cameras]
-    if missing:
-        has = ", ".join(recording.cameras) or "none"
-        raise RecordingError(
-            f"{recording.root / 'recording.json'}: a recording of camera(s) {has} only; "
-            f"refinement needs both {left} and {right}"
-        )
-    if len(recording) == 0:
-        raise RecordingError(f"{recording.root / 'frames.csv'}: no pairs recorded")
-    chosen = [recording.pairs[i] for i in _pick(len(recording), opts.frames)]
+    chosen = pick_pairs(recording, opts.frames, *views.names)
     parts: list[RayMatches] = []
     skipped: dict[int, str] = {}
     identical = 0

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 from calibration.models import CameraModel, create
 from calibration.rig import Rig
 from rig.errors import ConfigError
+from rig.sim.lens_effects import HONEST_LENS, LensEffects
 from rig.sim.mount import divergent_rig, ring_rig
 
 __all__ = ["PRESETS", "RING_PRESETS", "Preset", "get_preset", "get_ring_preset", "scale_camera"]
@@ -29,9 +30,10 @@ __all__ = ["PRESETS", "RING_PRESETS", "Preset", "get_preset", "get_ring_preset",
 
 @dataclass(frozen=True)
 class Preset:
-    """A simulated rig: cameras "left"/"right" (a ring's: ``cam1``..``camN``), frame rate, and
-    default sensor effects (``noise_std`` grey levels, ``vignetting`` strength) that ``rig sim``
-    applies."""
+    """A simulated rig: cameras "left"/"right" (a ring's: ``cam1``..``camN``), frame rate, the
+    honest renderer's ``lens`` effects (:mod:`rig.sim.lens_effects`, fitted to real fisheyes) and
+    the simple sensor model of the renders before it (``noise_std`` grey levels, ``vignetting``
+    strength), which the demo's and the benchmarks' frames still add to a noise-free render."""
 
     name: str
     rig: Rig
@@ -39,12 +41,13 @@ class Preset:
     description: str
     noise_std: float = 0.0
     vignetting: float = 0.0
+    lens: LensEffects = HONEST_LENS
 
     def scaled(self, factor: float) -> Preset:
         """The same rig with every camera's image scaled by ``factor`` (quick renders, tests)."""
         cams = {n: scale_camera(c, factor) for n, c in self.rig.cameras.items()}
         rig = Rig(cams, {n: T.copy() for n, T in self.rig.T_rig_cam.items()}, self.rig.pairs)
-        return replace(self, rig=rig)
+        return replace(self, rig=rig, lens=self.lens.scaled(factor))
 
 
 def scale_camera(camera: CameraModel, factor: float) -> CameraModel:

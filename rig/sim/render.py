@@ -1,16 +1,19 @@
 """Ray-cast renderer: any ``calibration`` camera model at any pose, with exact depth.
 
 For every pixel, ``supersample²`` sub-pixel rays (one per stratum of an s×s grid, see
-:func:`subpixel_offsets`) are unprojected by the camera
-model, moved into the world by ``T_world_cam``, intersected with the scene's rectangles, shaded
-from the nearest rectangle's texture and box-filtered back to one pixel (anti-aliasing). Depth,
-ray length and the validity mask come from the ray through the pixel centre, so they are exact,
-not averaged. Work goes in chunks of image rows to bound memory.
+:func:`subpixel_offsets`) are unprojected by the camera model (:class:`RayGrid`, in tiles of
+neighbouring pixels), intersected in the camera frame with the scene's rectangles that the
+tile's rays can reach (:class:`rig.sim.raycast.CameraScene`: exact culling, the same nearest hit
+as testing every rectangle), shaded from the nearest rectangle's texture and box-filtered back to
+one pixel (anti-aliasing). Depth, ray length and the validity mask come from the ray through the
+pixel centre, so they are exact, not averaged. One tile is in memory at a time unless the
+:class:`RayGrid` caches its rays for the next frame.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,16 +22,25 @@ from numpy.typing import ArrayLike, NDArray
 from calibration.geometry import is_rotation
 from calibration.models import CameraModel
 from rig.errors import SimulationError
-from rig.sim.rays import camera_rays
+from rig.sim.lens_effects import LensEffects, apply_lens
+from rig.sim.raycast import CameraScene
+from rig.sim.raygrid import DEFAULT_TILE_PX, RayGrid, subpixel_offsets
 from rig.sim.scene import Hits, Scene
 
-__all__ = ["Render", "render", "render_range", "subpixel_offsets", "vignetting_factor"]
+__all__ = [
+    "Geometry",
+    "RayGrid",
+    "Render",
+    "ViewProgress",
+    "render",
+    "render_geometry",
+    "render_range",
+    "subpixel_offsets",
+    "vignetting_factor",
+]
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
-
-# Sub-pixel rays per chunk: ~200 MB peak for a 26-rectangle room, less for a plane.
-DEFAULT_CHUNK_RAYS = 1 << 19
 
 
 @dataclass(frozen=True)
@@ -57,23 +69,15 @@ def vignetting_factor(cos_theta: F64, strength: float) -> F64:
     return 1.0 - strength * (1.0 - half_cos2 * half_cos2)
 
 
-def subpixel_offsets(s: int) -> tuple[F64, F64]:
-    """Sample offsets (du, dv), each (s, s) indexed [sub-row j, sub-column i], in pixels from the
-    pixel centre: one sample per s×s stratum, on a sheared lattice so all s² samples have
-    distinct u and distinct v. An axis-aligned edge then moves the pixel value in steps of 1/s²
-    of its extent, not 1/s as on a regular grid (a 3× finer edge position for s = 3)."""
-    j, i = np.meshgrid(np.arange(s), np.arange(s), indexing="ij")
-    du = (i * s + j + 0.5) / (s * s) - 0.5
-    dv = (j * s + i + 0.5) / (s * s) - 0.5
-    return du.astype(np.float64), dv.astype(np.float64)
-
-
 def _shade(scene: Scene, hits: Hits, channels: int, background: float) -> F32:
     """Texture values (M,) or (M, 3) for hits; ``background`` where a ray hits nothing."""
     shape = (hits.t.shape[0],) if channels == 1 else (hits.t.shape[0], 3)
+    index = hits.rect_index
+    if index.size and index[0] >= 0 and (index == index[0]).all():  # one rectangle: no selection
+        return scene.rects[int(index[0])].texture.sample_as(hits.st, channels)
     out = np.full(shape, background, dtype=np.float32)
-    for r in np.unique(hits.rect_index[hits.rect_index >= 0]):
-        sel = hits.rect_index == r
+    for r in np.unique(index[index >= 0]):
+        sel = index == r
         out[sel] = scene.rects[int(r)].texture.sample_as(hits.st[sel], channels)
     return out
 
@@ -96,39 +100,95 @@ def _check(
         raise SimulationError(f"render: background must be a grey level 0..255, got {background!r}")
 
 
-def _centre_hits(
-    scene: Scene, camera: CameraModel, T: F64, rows: F64, cols: F64
-) -> tuple[F64, F64, NDArray[np.bool_]]:
-    """For the pixel centres of ``rows`` × ``cols`` (n·w,): the distance to the nearest surface
-    along each ray (NaN: none or no ray), the rays (n·w, 3) in the camera frame, and valid."""
-    vv, uu = np.meshgrid(rows, cols, indexing="ij")
-    rays, ok = camera_rays(camera, np.stack([uu.ravel(), vv.ravel()], axis=1))
-    hits = scene.intersect(T[:3, 3], rays[ok] @ T[:3, :3].T)
-    t = np.full(ok.shape[0], np.nan)
-    t[ok] = np.where(hits.rect_index >= 0, hits.t, np.nan)
-    return t, rays, ok
+@dataclass(frozen=True)
+class Geometry:
+    """What the pixel-centre rays of a view hit: ``depth``, ``distance`` and ``valid`` as in
+    :class:`Render`."""
+
+    depth: F32
+    distance: F32
+    valid: NDArray[np.bool_]
+
+
+#: ``progress(fraction)`` of one view's tiles done, after each tile.
+ViewProgress = Callable[[float], None]
+
+
+def _cast(
+    scene: Scene,
+    T: F64,
+    grid: RayGrid,
+    shade: F32 | None,
+    background: float,
+    progress: ViewProgress | None,
+) -> tuple[Geometry, F64]:
+    """Cast ``grid``'s rays into ``scene`` from the pose ``T``; fill ``shade`` (H, W, channels)
+    with the box-filtered samples unless it is None. Returns the centre rays' geometry and the
+    cosine of their angle off the optical axis (1 where the lens sees nothing)."""
+    s = grid.supersample
+    h, w = grid.camera.height, grid.camera.width
+    depth = np.full((h, w), np.nan, dtype=np.float32)
+    distance = np.full((h, w), np.nan, dtype=np.float32)
+    valid = np.zeros((h, w), dtype=bool)
+    cos_theta = np.ones((h, w))
+    view = CameraScene(scene, T)
+    for tile in grid.tiles():
+        n, tw = tile.shape
+        rects = view.candidates(tile.axis, tile.cos_half)
+        hits = view.intersect(tile.rays, rects)
+        if shade is not None:
+            ch = shade.shape[2]
+            samples = np.full((tile.samples_ok.size, ch), background, dtype=np.float32)
+            samples[tile.samples_ok] = _shade(scene, hits, ch, background).reshape(-1, ch)
+            shade[tile.rows, tile.cols] = samples.reshape(n, s, tw, s, ch).mean(axis=(1, 3))
+        if tile.centre_rays is None:
+            centre_t, centre_rect = hits.t[tile.centre_in_samples], hits.rect_index[tile.centre_in_samples]
+        else:
+            centre = view.intersect(tile.centre_rays, rects)
+            centre_t, centre_rect = centre.t, centre.rect_index
+        t = np.full(n * tw, np.nan)
+        t[tile.centre_ok] = np.where(centre_rect >= 0, centre_t, np.nan)
+        valid[tile.rows, tile.cols] = tile.centre_ok.reshape(n, tw)
+        distance[tile.rows, tile.cols] = t.reshape(n, tw)
+        depth[tile.rows, tile.cols] = (t * tile.centre_z).reshape(n, tw)
+        cos_theta[tile.rows, tile.cols] = tile.centre_z.reshape(n, tw)
+        if progress is not None:
+            progress((tile.index + 1) / grid.count)
+    return Geometry(depth, distance, valid), cos_theta
+
+
+def render_geometry(
+    scene: Scene,
+    camera: CameraModel,
+    T_world_cam: ArrayLike,
+    *,
+    tile_px: int = DEFAULT_TILE_PX,
+    rays: RayGrid | None = None,
+) -> Geometry:
+    """Ground truth only: depth, distance and validity of each pixel-centre ray of ``camera``
+    (any model, e.g. a rectified view) posed at ``T_world_cam``, as :func:`render` gives them,
+    without shading. ``rays``: the camera's :class:`RayGrid` at supersample 1 to reuse."""
+    T = np.asarray(T_world_cam, dtype=np.float64)
+    _check(camera, T, 1, 0.0, 0.0, 0)
+    return _cast(scene, T, _grid(camera, 1, tile_px, rays), None, 0.0, None)[0]
+
+
+def _grid(camera: CameraModel, supersample: int, tile_px: int, rays: RayGrid | None) -> RayGrid:
+    if rays is None:
+        return RayGrid(camera, supersample, tile_px=tile_px)
+    if rays.camera is not camera or rays.supersample != supersample:
+        raise SimulationError("render: the ray grid is of another camera or supersampling")
+    return rays
 
 
 def render_range(
-    scene: Scene, camera: CameraModel, T_world_cam: ArrayLike, *, chunk_rays: int = DEFAULT_CHUNK_RAYS
+    scene: Scene, camera: CameraModel, T_world_cam: ArrayLike, *, tile_px: int = DEFAULT_TILE_PX
 ) -> tuple[F32, NDArray[np.bool_]]:
-    """Ground truth only: the distance (H, W) float32 m along each pixel-centre ray of ``camera``
-    (any model, e.g. a rectified view) posed at ``T_world_cam`` to the nearest surface (NaN: no
-    surface, or no ray), and the pixels that have a ray (H, W) bool. What :func:`render` gives
-    as ``distance``, without shading."""
-    T = np.asarray(T_world_cam, dtype=np.float64)
-    _check(camera, T, 1, 0.0, 0.0, 0)
-    h, w = camera.height, camera.width
-    distance = np.empty((h, w), dtype=np.float32)
-    valid = np.empty((h, w), dtype=bool)
-    rows_per_chunk = max(1, int(chunk_rays) // w)
-    cols = np.arange(w, dtype=np.float64)
-    for r0 in range(0, h, rows_per_chunk):
-        rows = np.arange(r0, min(h, r0 + rows_per_chunk), dtype=np.float64)
-        t, _, ok = _centre_hits(scene, camera, T, rows, cols)
-        distance[r0 : r0 + rows.size] = t.reshape(rows.size, w)
-        valid[r0 : r0 + rows.size] = ok.reshape(rows.size, w)
-    return distance, valid
+    """The distance (H, W) float32 m along each pixel-centre ray of ``camera`` posed at
+    ``T_world_cam`` to the nearest surface (NaN: no surface, or no ray) and the pixels that have a
+    ray (H, W) bool (:func:`render_geometry`)."""
+    truth = render_geometry(scene, camera, T_world_cam, tile_px=tile_px)
+    return truth.distance, truth.valid
 
 
 def render(
@@ -142,52 +202,35 @@ def render(
     seed: int | None = None,
     color: bool = False,
     background: int = 0,
-    chunk_rays: int = DEFAULT_CHUNK_RAYS,
+    tile_px: int = DEFAULT_TILE_PX,
+    rays: RayGrid | None = None,
+    progress: ViewProgress | None = None,
+    lens: LensEffects | None = None,
+    camera_index: int = 0,
 ) -> Render:
     """Render ``scene`` through ``camera`` posed at ``T_world_cam`` (4, 4).
 
     ``noise_std``: gaussian sensor noise in grey levels (seeded by ``seed``; ``None`` = fresh);
     ``vignetting``: strength k of :func:`vignetting_factor`; ``color``: BGR output (grey
     textures become grey BGR); ``background``: the grey level where the lens sees nothing or a
-    ray hits no surface.
+    ray hits no surface. ``rays``: the camera's :class:`RayGrid` at ``supersample`` to reuse
+    (one that caches its tiles makes the next render of the same camera skip the lens model).
+    ``progress``: called with the fraction of the view done as the tiles finish. ``lens``: the
+    lens and sensor effects (:mod:`rig.sim.lens_effects`) of the rig's ``camera_index``-th
+    camera, applied before ``vignetting`` and ``noise_std``; None is the ideal lens.
     """
     T = np.asarray(T_world_cam, dtype=np.float64)
     _check(camera, T, supersample, float(noise_std), float(vignetting), background)
-    s = int(supersample)
-    h, w = camera.height, camera.width
-    channels = 3 if color else 1
-    R, origin = T[:3, :3], T[:3, 3]
-    shade = np.empty((h, w, channels), dtype=np.float32)
-    depth = np.full((h, w), np.nan, dtype=np.float32)
-    distance = np.full((h, w), np.nan, dtype=np.float32)
-    valid = np.zeros((h, w), dtype=bool)
-    cos_theta = np.ones((h, w))
-    du, dv = subpixel_offsets(s)
-    rows_per_chunk = max(1, int(chunk_rays) // (w * s * s))
-    cols = np.arange(w, dtype=np.float64)
-    for r0 in range(0, h, rows_per_chunk):
-        rows = np.arange(r0, min(h, r0 + rows_per_chunk), dtype=np.float64)
-        n = rows.shape[0]
-        # Pixel centres: validity, depth, ray length, off-axis angle.
-        t, rays, ok = _centre_hits(scene, camera, T, rows, cols)
-        sl = slice(r0, r0 + n)
-        valid[sl] = ok.reshape(n, w)
-        distance[sl] = t.reshape(n, w)
-        depth[sl] = (t * rays[:, 2]).reshape(n, w)
-        cos_theta[sl] = rays[:, 2].reshape(n, w)
-        # Sub-pixel rays, (row, sub-row, column, sub-column) order so the box filter is a mean.
-        sub_v = np.broadcast_to(rows[:, None, None, None] + dv[None, :, None, :], (n, s, w, s))
-        sub_u = np.broadcast_to(cols[None, None, :, None] + du[None, :, None, :], (n, s, w, s))
-        rays, ok = camera_rays(camera, np.stack([sub_u.ravel(), sub_v.ravel()], axis=1))
-        samples = np.full((ok.shape[0], channels), float(background), dtype=np.float32)
-        hits = scene.intersect(origin, rays[ok] @ R.T)
-        samples[ok] = _shade(scene, hits, channels, float(background)).reshape(-1, channels)
-        shade[sl] = samples.reshape(n, s, w, s, channels).mean(axis=(1, 3))
+    grid = _grid(camera, int(supersample), tile_px, rays)
+    shade = np.full((camera.height, camera.width, 3 if color else 1), float(background), dtype=np.float32)
+    truth, cos_theta = _cast(scene, T, grid, shade, float(background), progress)
+    rng = np.random.default_rng(seed)
+    if lens is not None:
+        shade = apply_lens(shade, cos_theta, camera.max_theta, lens, camera_index, rng)
     if vignetting > 0:
         shade *= vignetting_factor(cos_theta, float(vignetting)).astype(np.float32)[:, :, None]
     if noise_std > 0:
-        rng = np.random.default_rng(seed)
         shade += rng.normal(0.0, float(noise_std), shade.shape).astype(np.float32)
     image = np.clip(np.rint(shade), 0, 255).astype(np.uint8)
-    image[~valid] = background
-    return Render(image[:, :, 0] if channels == 1 else image, depth, distance, valid)
+    image[~truth.valid] = background
+    return Render(image[:, :, 0] if not color else image, truth.depth, truth.distance, truth.valid)

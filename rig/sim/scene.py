@@ -24,10 +24,12 @@ from rig.sim.textures import CheckerTexture, Texture, make_texture, texture_name
 
 __all__ = [
     "Hits",
+    "RectArrays",
     "Scene",
     "TexturedRect",
     "chessboard_corners",
     "chessboard_scene",
+    "intersect_rects",
     "plane_scene",
     "rect_from_axes",
     "room_scene",
@@ -35,6 +37,9 @@ __all__ = [
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
+
+#: Centres, x axes, y axes, normals (R, 3) each and half sizes (R, 2) of R rectangles.
+RectArrays = tuple[F64, F64, F64, F64, F64]
 
 # Hits closer than this (metres) are the ray's own origin, not a surface.
 _T_MIN = 1e-9
@@ -82,57 +87,69 @@ class Scene:
     info: dict[str, Any] = field(default_factory=dict)
 
     @functools.cached_property
-    def _arrays(self) -> tuple[F64, F64, F64, F64, F64]:
+    def rect_arrays(self) -> RectArrays:
+        """The rectangles as arrays in the world frame (see :data:`RectArrays`)."""
         T = np.stack([r.T_world_rect for r in self.rects]) if self.rects else np.zeros((0, 4, 4))
         half = np.array([r.size_m for r in self.rects], dtype=np.float64).reshape(-1, 2) / 2.0
         return T[:, :3, 3], T[:, :3, 0], T[:, :3, 1], T[:, :3, 2], half
 
     def intersect(self, origin: ArrayLike, dirs: F64) -> Hits:
         """Nearest rectangle along rays ``origin (3,) + t * dirs (N, 3)`` with t > 0."""
-        o = np.asarray(origin, dtype=np.float64).reshape(3)
-        d = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
-        n = d.shape[0]
-        t_best = np.full(n, np.inf)
-        idx = np.full(n, -1, dtype=np.int64)
-        st = np.zeros((n, 2))
-        centres, ux, uy, normal, half = self._arrays
-        r = centres.shape[0]
-        if r == 0 or n == 0:
-            return Hits(t_best, idx, st)
-        # Per rectangle: the origin's offset along the normal and in-plane axes; one matrix
-        # product then gives every ray's components along all three axes of all rectangles.
-        oc = o[None, :] - centres  # (R, 3)
-        num = -np.einsum("rk,rk->r", oc, normal)
-        a0, b0 = np.einsum("rk,rk->r", oc, ux), np.einsum("rk,rk->r", oc, uy)
-        basis = np.concatenate([normal, ux, uy]).T  # (3, 3R)
-        step = max(1, _BATCH_ELEMENTS // r)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            for lo in range(0, n, step):
-                dd = d[lo : lo + step]
-                proj = dd @ basis  # (m, 3R)
-                # Rays parallel to a plane give t = ±inf or nan there: rejected below.
-                t = num / proj[:, :r]
-                a = proj[:, r : 2 * r]
-                a *= t
-                a += a0
-                hit = np.abs(a, out=a) <= half[:, 0]
-                b = proj[:, 2 * r :]
-                b *= t
-                b += b0
-                hit &= np.abs(b, out=b) <= half[:, 1]
-                hit &= t > _T_MIN
-                t[~hit] = np.inf
-                k = np.argmin(t, axis=1)
-                t_best[lo : lo + step] = t[np.arange(k.shape[0]), k]
-                idx[lo : lo + step] = k
-        found = np.isfinite(t_best)
-        idx[~found] = -1
-        # Texture coordinates of the winning hits only.
-        kf = idx[found]
-        rel = o[None, :] - centres[kf] + t_best[found, None] * d[found]
-        st[found, 0] = np.einsum("nk,nk->n", rel, ux[kf]) + half[kf, 0]
-        st[found, 1] = np.einsum("nk,nk->n", rel, uy[kf]) + half[kf, 1]
+        return intersect_rects(self.rect_arrays, origin, dirs)
+
+
+def intersect_rects(rects: RectArrays, origin: ArrayLike, dirs: F64) -> Hits:
+    """Nearest of the rectangles ``rects`` (centres, x axes, y axes, normals (R, 3) each and half
+    sizes (R, 2)) along rays ``origin (3,) + t * dirs (N, 3)`` with t > 0; ``rect_index`` indexes
+    ``rects`` (ties go to the lower index)."""
+    o = np.asarray(origin, dtype=np.float64).reshape(3)
+    d = np.asarray(dirs, dtype=np.float64).reshape(-1, 3)
+    n = d.shape[0]
+    t_best = np.full(n, np.inf)
+    idx = np.full(n, -1, dtype=np.int64)
+    st = np.zeros((n, 2))
+    centres, ux, uy, normal, half = rects
+    r = centres.shape[0]
+    if r == 0 or n == 0:
         return Hits(t_best, idx, st)
+    # Per rectangle: the origin's offset along the normal and in-plane axes; one matrix
+    # product then gives every ray's components along all three axes of all rectangles.
+    oc = o[None, :] - centres  # (R, 3)
+    num = -np.einsum("rk,rk->r", oc, normal)
+    a0, b0 = np.einsum("rk,rk->r", oc, ux), np.einsum("rk,rk->r", oc, uy)
+    basis = np.concatenate([normal, ux, uy]).T  # (3, 3R)
+    step = max(1, _BATCH_ELEMENTS // r)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for lo in range(0, n, step):
+            sl = slice(lo, lo + step)
+            proj = d[sl] @ basis  # (m, 3R)
+            # Rays parallel to a plane give t = ±inf or nan there: rejected below.
+            t = num / proj[:, :r]
+            # The hit's coordinates in the rectangle's plane, from its centre.
+            a = proj[:, r : 2 * r]
+            a *= t
+            a += a0
+            b = proj[:, 2 * r :]
+            b *= t
+            b += b0
+            hit = np.abs(a) <= half[:, 0]
+            hit &= np.abs(b) <= half[:, 1]
+            hit &= t > _T_MIN
+            t[~hit] = np.inf
+            if r == 1:
+                k = np.zeros(t.shape[0], dtype=np.int64)
+                t_best[sl], st[sl, 0], st[sl, 1] = t[:, 0], a[:, 0], b[:, 0]
+            else:
+                k = np.argmin(t, axis=1)
+                rows = np.arange(k.shape[0])
+                t_best[sl], st[sl, 0], st[sl, 1] = t[rows, k], a[rows, k], b[rows, k]
+            idx[sl] = k
+    found = np.isfinite(t_best)
+    idx[~found] = -1
+    # Texture coordinates run from the rectangle's corner.
+    st += half[np.maximum(idx, 0)]
+    st[~found] = 0.0
+    return Hits(t_best, idx, st)
 
 
 def rect_from_axes(

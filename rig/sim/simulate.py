@@ -10,8 +10,9 @@ Layout written under ``out``::
                                              pixel's ray (either projection), m, NaN = none
     ground_truth/depth/NNNNNN.npy            float32 (H, W) z in the LEFT VPC frame, m, NaN = none
                                              (the pinhole pair only)
-    ground_truth/reference/left/NNNNNN.png   Reference: the ideal rectified view (pinhole or
-                                             lat-lon) at the left VPC pose
+    ground_truth/reference/left/NNNNNN.png   with ``reference``: the Reference, the ideal
+                                             rectified view (pinhole or lat-lon) at the left
+                                             VPC pose
     ground_truth/reference/right/NNNNNN.png  ... and at the right VPC pose
 
 The rectified views are those of ``vpc`` (default RectifiedPairConfig()); a lat-lon field's default adds
@@ -20,8 +21,9 @@ ground truth is per pixel of what ``rig process`` writes with the same settings.
 
 Scenes: ``plane`` puts the paper's fronto-parallel target at each distance (in baselines) for
 ``frames_per_distance`` frames; ``room`` moves the rig along a short path through the demo room
-for ``frames`` frames. A pair is indexed in frames.csv only after its ground truth is on disk,
-so every indexed pair has ground truth even if the run is killed.
+for ``frames`` frames. The fisheye views go through the preset's lens effects (``lens="honest"``,
+:mod:`rig.sim.lens_effects`) or none (``"ideal"``). A pair is indexed in frames.csv only after
+its ground truth is on disk, so every indexed pair has ground truth even if the run is killed.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ import io
 import json
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -45,8 +47,9 @@ from calibration.geometry import make_transform, rot_y
 from rig.errors import ConfigError, DiskFullError, RecordingError, SimulationError
 from rig.recording import RecordingWriter
 from rig.rectified import RectifiedPair, RectifiedPairConfig, design_rectified_pair
+from rig.sim.lens_effects import LensEffects, lens_for
+from rig.sim.pair_render import PairRenderer, RenderedPair
 from rig.sim.presets import Preset, get_preset
-from rig.sim.render import render
 from rig.sim.scene import Scene, plane_scene, room_scene
 from rig.sim.textures import texture_name
 from rig.stereo import StereoParams
@@ -65,8 +68,9 @@ GROUND_TRUTH_VERSION = 2
 DEFAULT_DISTANCES = (3.0, 5.0, 10.0)
 DEFAULT_ROOM_FRAMES = 5
 
-#: ``progress(done, total)`` after each rendered pair.
-ProgressCallback = Callable[[int, int], None]
+#: ``progress(done, total)`` as the work advances: ``done`` counts pairs (fractional while one
+#: renders; the whole number after each pair is written), ``total`` the pairs to render.
+ProgressCallback = Callable[[float, int], None]
 
 F64 = NDArray[np.float64]
 
@@ -201,6 +205,21 @@ def _frame_seed(seed: int, seq: int, camera: int) -> int:
     return int(np.random.SeedSequence([seed, seq, camera]).generate_state(1)[0])
 
 
+def _sensor(
+    p: Preset, lens: str | LensEffects, noise_std: float | None, vignetting: float | None
+) -> tuple[LensEffects, float, float]:
+    """The fisheyes' lens effects and the simple sensor model's noise and vignetting: an explicit
+    ``noise_std`` replaces the lens's noise, an explicit ``vignetting`` its rim darkening."""
+    effects = lens_for(lens, p.lens) if isinstance(lens, str) else lens
+    noise = 0.0 if noise_std is None else float(noise_std)
+    vig = 0.0 if vignetting is None else float(vignetting)
+    if noise_std is not None:
+        effects = effects.noiseless()
+    if vignetting is not None:
+        effects = replace(effects, illumination=())
+    return effects, noise, vig
+
+
 def simulate_recording(
     preset: Preset | str,
     scene: str,
@@ -217,22 +236,26 @@ def simulate_recording(
     color: bool = False,
     vpc: RectifiedPairConfig | None = None,
     blind_band_px: int | None = None,
+    lens: str | LensEffects = "honest",
+    reference: bool = False,
     progress: ProgressCallback | None = None,
 ) -> Path:
     """Render a recording of ``scene`` ("plane" | "room") seen by ``preset``'s rig into ``out``.
 
     plane: ``distances`` in baselines (default 3, 5, 10), ``frames_per_distance`` pairs each;
-    room: ``frames`` pairs along :func:`room_path` (default 5). ``noise_std`` / ``vignetting``
-    default to the preset's. Ground truth is for the rectified pair of ``vpc`` (default
-    RectifiedPairConfig()) and, for a lat-lon field, ``blind_band_px`` (see the module doc).
-    ``out`` must not exist or be an empty directory. Returns ``out``.
+    room: ``frames`` pairs along :func:`room_path` (default 5). ``lens``: "honest" (the preset's
+    :class:`LensEffects`), "ideal" (none) or explicit effects; ``noise_std`` (gaussian, grey
+    levels) replaces the lens's sensor noise and ``vignetting`` (:func:`vignetting_factor`'s
+    strength) its rim darkening when given. Ground truth is for the rectified pair of ``vpc``
+    (default RectifiedPairConfig()) and, for a lat-lon field, ``blind_band_px`` (see the module doc);
+    ``reference`` adds the Reference pair's images. ``out`` must not exist or be an empty
+    directory. Returns ``out``.
     """
     p = get_preset(preset) if isinstance(preset, str) else preset
     if isinstance(frames_per_distance, bool) or int(frames_per_distance) < 1:
         raise ConfigError(f"frames_per_distance must be >= 1, got {frames_per_distance!r}")
     shots = _shots(p, scene, distances, int(frames_per_distance), frames, texture, int(seed))
-    noise = p.noise_std if noise_std is None else float(noise_std)
-    vig = p.vignetting if vignetting is None else float(vignetting)
+    effects, noise, vig = _sensor(p, lens, noise_std, vignetting)
     check_effects(noise, vig, supersample)
     band = StereoParams().blind_band_px if blind_band_px is None else int(blind_band_px)
     pair = design_rectified_pair(p.rig, vpc, blind_band_px=band)
@@ -241,8 +264,13 @@ def simulate_recording(
         raise RecordingError(f"{root}: already exists and is not an empty directory; choose a new --out")
     gt = root / "ground_truth"
     pinhole = pair.projection == "pinhole"
+    subdirs = (
+        "range",
+        *(("reference/left", "reference/right") if reference else ()),
+        *(("depth",) if pinhole else ()),
+    )
     try:
-        for sub in ("range", "reference/left", "reference/right", *(("depth",) if pinhole else ())):
+        for sub in subdirs:
             (gt / sub).mkdir(parents=True, exist_ok=True)
         save_rig(p.rig, root / "calibration.yaml")
     except OSError as err:
@@ -259,49 +287,65 @@ def simulate_recording(
         "frames": len(shots),
         "texture": shots[0].info.get("texture"),
         "seed": int(seed),
+        "lens": effects.name,
+        "lens_effects": asdict(effects),
         "noise_std": noise,
         "vignetting": vig,
         "supersample": int(supersample),
         "color": bool(color),
     }
     doc = _ground_truth_doc(p, scene, pair, vpc or RectifiedPairConfig(), band)
-    cams = (pair.left, pair.right)
+    renderer = PairRenderer(
+        p.rig, pair, supersample=int(supersample), color=color, lens=effects, noise_std=noise,
+        vignetting=vig, reference=reference, frames=len(shots),
+    )  # fmt: skip
     with RecordingWriter(root, meta=meta) as writer:
         for seq, shot in enumerate(shots):
-            kw: dict[str, Any] = {"supersample": supersample, "color": color}
-            ref = {
-                n: render(shot.scene, pair.camera, shot.T_world_rig @ pair.T_rig_rect[n], **kw) for n in cams
-            }
-            views = [
-                render(
-                    shot.scene,
-                    p.rig.cameras[n],
-                    shot.T_world_rig @ p.rig.T_rig_cam[n],
-                    noise_std=noise,
-                    vignetting=vig,
-                    seed=_frame_seed(int(seed), seq, i),
-                    **kw,
-                )
-                for i, n in enumerate(cams)
-            ]
-            rel = {"range": f"ground_truth/range/{seq:06d}.npy"}
-            rel |= {"depth": f"ground_truth/depth/{seq:06d}.npy"} if pinhole else {}
-            rel |= {n: f"ground_truth/reference/{n}/{seq:06d}.png" for n in cams}
-            try:
-                _write_atomic(root / rel["range"], _npy(ref[pair.left].distance))
-                if pinhole:
-                    _write_atomic(root / rel["depth"], _npy(ref[pair.left].depth))
-                for n in cams:
-                    _write_atomic(root / rel[n], _png(ref[n].image))
-                entry = {"seq": seq, **shot.info, "T_world_rig": shot.T_world_rig.tolist()}
-                entry |= {k: rel[k] for k in ("range", "depth") if k in rel}
-                entry["reference"] = {n: rel[n] for n in cams}
-                doc["frames"].append(entry)
-                _write_atomic(gt / "scene.json", json.dumps(doc, indent=2).encode() + b"\n")
-            except OSError as err:
-                raise _write_error(root, err) from err
+            seeds = (_frame_seed(int(seed), seq, 0), _frame_seed(int(seed), seq, 1))
+            step = None if progress is None else _pair_progress(progress, seq, len(shots))
+            rendered = renderer.render(shot.scene, shot.T_world_rig, seeds, step)
+            entry = {"seq": seq, **shot.info, "T_world_rig": shot.T_world_rig.tolist()}
+            _write_truth(root, doc, entry, rendered, (pair.left, pair.right), pinhole)
             ts = seq * period_ns
-            writer.write_images(seq, ts, ts, views[0].image, views[1].image)
+            writer.write_images(seq, ts, ts, rendered.views[0].image, rendered.views[1].image)
             if progress is not None:
                 progress(seq + 1, len(shots))
     return root
+
+
+def _pair_progress(progress: ProgressCallback, seq: int, total: int) -> Callable[[float], None]:
+    def step(fraction: float) -> None:
+        progress(seq + min(fraction, 0.999), total)
+
+    return step
+
+
+def _write_truth(
+    root: Path,
+    doc: dict[str, Any],
+    entry: dict[str, Any],
+    rendered: RenderedPair,
+    cams: tuple[str, str],
+    pinhole: bool,
+) -> None:
+    """Write one pair's ground truth and scene.json with its ``entry`` added (atomically)."""
+    seq = entry["seq"]
+    rel = {"range": f"ground_truth/range/{seq:06d}.npy"}
+    rel |= {"depth": f"ground_truth/depth/{seq:06d}.npy"} if pinhole else {}
+    refs = rendered.references
+    if refs is not None:
+        rel |= {n: f"ground_truth/reference/{n}/{seq:06d}.png" for n in cams}
+    try:
+        _write_atomic(root / rel["range"], _npy(rendered.truth.distance))
+        if pinhole:
+            _write_atomic(root / rel["depth"], _npy(rendered.truth.depth))
+        if refs is not None:
+            for n, ref in zip(cams, refs, strict=True):
+                _write_atomic(root / rel[n], _png(ref.image))
+        entry |= {k: rel[k] for k in ("range", "depth") if k in rel}
+        if refs is not None:
+            entry["reference"] = {n: rel[n] for n in cams}
+        doc["frames"].append(entry)
+        _write_atomic(root / "ground_truth" / "scene.json", json.dumps(doc, indent=2).encode() + b"\n")
+    except OSError as err:
+        raise _write_error(root, err) from err

@@ -87,9 +87,9 @@ class ImageTexture(Texture):
             return np.zeros((0, *self.image.shape[2:]), dtype=np.float32)
         border = cv2.BORDER_WRAP if self.repeat else cv2.BORDER_REPLICATE
         rows = -(-m // _REMAP_COLS)
-        pad = rows * _REMAP_COLS - m
-        mx = np.concatenate([x, np.zeros(pad)]).astype(np.float32).reshape(rows, _REMAP_COLS)
-        my = np.concatenate([y, np.zeros(pad)]).astype(np.float32).reshape(rows, _REMAP_COLS)
+        maps = np.zeros((2, rows * _REMAP_COLS), dtype=np.float32)
+        maps[0, :m], maps[1, :m] = x, y
+        mx, my = maps.reshape(2, rows, _REMAP_COLS)
         out = cv2.remap(self.image, mx, my, cv2.INTER_LINEAR, borderMode=border)
         return out.reshape(rows * _REMAP_COLS, *self.image.shape[2:])[:m]
 

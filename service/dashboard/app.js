@@ -1,8 +1,14 @@
 // Dashboard: polls /health, refreshes the images when a new depth frame is out, and outlines the
-// VPC footprint (from /calibration) on the fisheye frames. The camera table's figure columns come
-// from the counter table (/counters): each camera counter with a `column` is shown there, those
-// sharing a column summed. Plain JS, no build step.
+// rectified pair's footprint (from /calibration) on the fisheye frames. The camera table's figure
+// columns come from the counter table (/counters): each camera counter with a `column` is shown
+// there, those sharing a column summed. The colour bar and the read-out under the pointer are
+// readout.js's, the point cloud cloud.js's, the stereo and recording controls controls.js's.
+// Plain JS modules, no build step.
 "use strict";
+
+import { initCloud, onCloudFrame } from "/dashboard/cloud.js";
+import { initControls, showRecording } from "/dashboard/controls.js";
+import { initReadout, loadColorbar, onDepthFrame } from "/dashboard/readout.js";
 
 const HEALTH_PERIOD_MS = 400;
 const IMAGE_IDS = ["depth-img", "confidence-img", "vpc-left", "vpc-right", "raw-left", "raw-right"];
@@ -117,27 +123,36 @@ function columnText(cam, col) {
   return sum.toFixed(col.digits);
 }
 
+// What the pair in effect is, in the header and the captions (its projection and real size).
+function showPair(v, baselineM) {
+  const baseline = `baseline ${(baselineM * 1000).toFixed(1)} mm`;
+  const latlon = v.projection === "latlon";
+  const kind = latlon ? "lat-lon" : "pinhole";
+  if (latlon) {
+    // The wide pair: a tall image over the whole overlap, range rather than depth.
+    document.body.classList.add("wide");
+    document.body.style.setProperty("--pair-aspect", String(v.width / v.height));
+    $("pair-info").textContent =
+      `lat-lon pair ${v.width}×${v.height}, ${v.px_per_deg.toFixed(2)} px/deg, ${baseline}`;
+    $("depth-what").textContent = "range along each ray (left lat-lon view)";
+  } else {
+    $("pair-info").textContent = `pinhole pair ${v.width}×${v.height}, ${v.hfov_deg.toFixed(0)}° wide, ` +
+      `fx ${v.fx.toFixed(1)} px, ${baseline}`;
+    $("depth-what").textContent = "depth z (left pinhole view)";
+  }
+  for (const side of CAMERAS) {
+    $(`vpc-${side}-caption`).textContent = `${side} ${kind} view`;
+    $(`footprint-${side}-caption`).textContent =
+      latlon ? `${side} fisheye, the overlap outlined` : `${side} fisheye, the pinhole view outlined`;
+  }
+}
+
 async function loadCalibration() {
   try {
     const r = await fetch("/calibration", { cache: "no-store" });
     if (!r.ok) throw new Error("HTTP " + r.status);
     calibration = await r.json();
-    const v = calibration.vpc;
-    const baseline = `baseline ${(calibration.baseline_m * 1000).toFixed(1)} mm`;
-    if (v.projection === "latlon") {
-      // The wide pair: a tall image over the whole overlap, range rather than depth.
-      document.body.classList.add("wide");
-      document.body.style.setProperty("--pair-aspect", String(v.width / v.height));
-      $("vpc-info").textContent =
-        `lat-lon pair ${v.width}×${v.height}, ${v.px_per_deg.toFixed(2)} px/deg, ${baseline}`;
-      $("depth-caption").textContent =
-        "range along each ray (left lat-lon view; near = red, far = blue, black = no match)";
-      $("vpc-left-caption").textContent = "left lat-lon view";
-      $("vpc-right-caption").textContent = "right lat-lon view";
-      for (const name of CAMERAS) $(`footprint-${name}-caption`).textContent = `${name} fisheye, overlap outlined`;
-    } else {
-      $("vpc-info").textContent = `VPC ${v.width}×${v.height}, fx ${v.fx.toFixed(1)} px, ${baseline}`;
-    }
+    showPair(calibration.vpc, calibration.baseline_m);
     CAMERAS.forEach(drawFootprint);
   } catch (err) {
     setTimeout(loadCalibration, 2000);
@@ -175,6 +190,7 @@ function showHealth(h) {
     for (const col of columns || []) $(`cam-${name}-${col.id}`).textContent = columnText(cam, col);
     $(`banner-${name}`).hidden = cam.connected;
   }
+  showRecording(h.recording);
   const seq = h.worker.last_seq;
   if (seq !== null && seq !== lastSeq) {
     lastSeq = seq;
@@ -182,6 +198,8 @@ function showHealth(h) {
     // A rig of N cameras (health lists its pairs): its panorama too.
     $("panorama-row").hidden = !h.pairs;
     if (h.pairs) refreshImage($("panorama-img"), seq);
+    onDepthFrame(seq);
+    onCloudFrame(seq);
   }
 }
 
@@ -200,4 +218,8 @@ async function pollHealth() {
 
 loadCounters();
 loadCalibration();
+loadColorbar();
+initReadout(["depth-img", "confidence-img"]);
+initCloud();
+initControls();
 pollHealth();

@@ -42,6 +42,7 @@ def config_model(runtime: Runtime, in_effect: PairInEffect) -> ConfigModel:
     return ConfigModel(
         revision=in_effect.revision,
         stereo=in_effect.stereo,
+        nearest_range_m=in_effect.nearest_range_m,
         rectified=rectified_pair_model(in_effect),
         vpc=in_effect.config,
         server=ServerPublicModel(

@@ -1,4 +1,5 @@
-"""``/``: the dashboard page and its two assets, served from the package (no build step)."""
+"""``/``: the dashboard page and its assets (plain JS modules, a style sheet), served from the
+package (no build step, nothing fetched from elsewhere: it works offline)."""
 
 from __future__ import annotations
 
@@ -14,7 +15,14 @@ __all__ = ["router"]
 
 router = APIRouter(tags=["dashboard"])
 
-_ASSETS = {"app.js": "text/javascript; charset=utf-8", "style.css": "text/css; charset=utf-8"}
+_JS = "text/javascript; charset=utf-8"
+_ASSETS = {
+    "app.js": _JS,
+    "cloud.js": _JS,
+    "controls.js": _JS,
+    "readout.js": _JS,
+    "style.css": "text/css; charset=utf-8",
+}
 
 
 @cache

@@ -232,7 +232,8 @@ async def colorized_body(runtime: Runtime, result: PublishedResult) -> bytes:
     response_class=Response,
     summary="Latest depth as a colour-mapped JPEG (the dashboard's and the stream's image)",
     responses=binary_response_doc(
-        "turbo colour map of inverse depth (the lat-lon pair: of inverse range); black = invalid",
+        "turbo on log depth (the lat-lon pair: range) between server.color_range_m, near dark red, far "
+        "dark blue (GET /depth/colorbar: the scale and its ticks in metres); black = invalid",
         "image/jpeg",
     ),
 )

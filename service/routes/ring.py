@@ -89,7 +89,10 @@ async def get_panorama(
     "/panorama/colorized",
     response_class=Response,
     summary="Latest panorama as a colour-mapped JPEG (the dashboard's)",
-    responses=binary_response_doc("turbo colour map of inverse range; black = no range", "image/jpeg"),
+    responses=binary_response_doc(
+        "/depth/colorized's colour scale (GET /depth/colorbar) on the panorama's range; black = no range",
+        "image/jpeg",
+    ),
 )
 async def get_panorama_colorized(result: ResultDep, settings: SettingsDep) -> Response:
     ring = _ring(result)

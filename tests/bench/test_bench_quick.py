@@ -13,6 +13,7 @@ import pytest
 
 from bench import (
     api_load,
+    coarse_to_fine,
     dask_scale,
     hostile,
     lut_build,
@@ -108,6 +109,19 @@ def test_process_bench_runs_the_lat_lon_pair_and_its_floor_writes_the_range(
 
 
 @pytest.mark.slow
+def test_coarse_to_fine_bench_times_the_search_its_parts_and_the_alternatives(
+    bench_env: Path, tmp_path: Path
+) -> None:
+    doc = _written(tmp_path / "c.json", coarse_to_fine.main(["--quick", "--json", str(tmp_path / "c.json")]))
+    rows = {r["call"]: r for r in doc["rows"]}
+    assert rows[coarse_to_fine.EXACT]["ratio"] == 1.0
+    whole, coarse, fine = (
+        rows[k]["cpu_ms"] for k in (coarse_to_fine.C2F, coarse_to_fine.COARSE, coarse_to_fine.FINE)
+    )
+    assert whole > 0 and coarse > 0 and fine == pytest.approx(whole - coarse)
+    assert len(rows) == 9 and all(r["cpu_ms"] > 0 for k, r in rows.items() if k != coarse_to_fine.FINE)
+
+
 def test_dask_bench_runs_each_mode_over_every_recording(bench_env: Path, tmp_path: Path) -> None:
     doc = _written(tmp_path / "d.json", dask_scale.main(["--quick", "--json", str(tmp_path / "d.json")]))
     assert doc["pairs"] == doc["recordings"] * 4 and doc["recordings"] == 2

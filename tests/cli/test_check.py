@@ -21,8 +21,8 @@ RIG = str(Path(sys.executable).with_name("rig"))
 SECONDS = "2"
 
 
-def run(*args: str | Path) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "COLUMNS": "300"}
+def run(*args: str | Path, columns: int = 300) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "COLUMNS": str(columns)}
     env.pop("RIG_DEBUG", None)
     return subprocess.run([RIG, *map(str, args)], capture_output=True, text=True, env=env, timeout=120)
 
@@ -45,13 +45,20 @@ def write_config(
     return path
 
 
+RESULTS = ("pass", "warn", "fail", "n/a", "not measured")
+
+
 def results(stdout: str) -> dict[tuple[str, str], tuple[str, str]]:
-    """(check, camera) → (result, measured) from the printed table."""
+    """(check, camera) → (result, measured) from the printed table (check | measured | expected |
+    result; the check cell ends in the camera's name, if any)."""
     out = {}
     for line in stdout.splitlines():
         cells = [c.strip() for c in line.split("│")[1:-1]]
-        if len(cells) == 6 and cells[4] in ("pass", "warn", "fail", "n/a"):
-            out[(cells[0], cells[1])] = (cells[4], cells[2])
+        if len(cells) == 4 and cells[3] in RESULTS:
+            check, _, camera = cells[0].rpartition(" ")
+            if camera not in ("left", "right"):
+                check, camera = cells[0], ""
+            out[(check, camera)] = (cells[3], cells[1])
     return out
 
 
@@ -70,7 +77,8 @@ def test_a_healthy_rig_passes_every_check(jpeg_recording: Path, tmp_path: Path) 
     assert got[("pairing", "")][0] == "pass" and "skew p50 0.0 ms" in got[("pairing", "")][1]
     rows_px = float(got[("rectified rows", "")][1].split()[0])
     assert rows_px < 0.5
-    assert f"all {len(got)} checks passed" in res.stdout
+    na = sum(r == "n/a" for r, _ in got.values())
+    assert f"all {len(got) - na} checks passed, {na} do not apply" in res.stdout
 
 
 def test_a_half_rate_camera_fails_its_frame_rate_and_drops(jpeg_recording: Path, tmp_path: Path) -> None:
@@ -123,6 +131,37 @@ def test_a_calibration_of_another_size_or_swapped_fails_and_says_why(
         else:
             assert got[("calibration", "left")][0] == "pass"
             assert got[("rectified rows", "")][0] == "fail" and "are swapped" in res.stdout
+
+
+def test_cameras_that_deliver_nothing_leave_their_checks_not_measured_in_80_columns(
+    jpeg_recording: Path, tmp_path: Path
+) -> None:
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(
+        yaml.safe_dump(
+            {
+                "cameras": {
+                    n: {"kind": "v4l2", "device": f"/dev/rig-test-absent-{n}"} for n in ("left", "right")
+                },
+                "calibration": {"path": str(jpeg_recording / "calibration.yaml")},
+                "vpc": {"width": 320, "height": 240},
+                "cache_dir": str(tmp_path / "lut"),
+            }
+        )
+    )
+    res = run("check", "-c", cfg, "-s", "1", columns=80)
+    assert res.returncode == 1, res.stdout + res.stderr
+    widths = [len(line) for line in res.stdout.splitlines()]
+    assert max(widths) <= 80, res.stdout
+    got = results(res.stdout)
+    assert got[("camera", "left")][0] == got[("camera", "right")][0] == "fail"
+    for check in ("dropped", "corrupt", "exposure", "calibration"):
+        for camera in ("left", "right"):
+            assert got[(check, camera)][0] == "not measured", (check, camera, got[(check, camera)])
+    assert got[("rectified rows", "")][0] == "not measured"
+    assert "pass" not in {r for r, _ in got.values()}, got
+    summary = " ".join(res.stdout.split())
+    assert "3 of 12 checks failed: camera left, camera right, pairing; 9 not measured (no frame)" in summary
 
 
 @pytest.mark.parametrize(

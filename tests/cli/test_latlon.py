@@ -1,5 +1,6 @@
 """`rig sim` and `rig process` with the lat-lon pair through the installed console script:
-ground truth, outputs and their accuracy against it, and bad input as one line, exit status 2."""
+ground truth, outputs and their accuracy against it (``rig sim``'s default honest lens), and bad
+input as one line, exit status 2."""
 
 from __future__ import annotations
 

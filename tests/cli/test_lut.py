@@ -37,7 +37,7 @@ def test_build_reports_path_key_valid_fraction_and_time_then_hits(calibration: P
         assert (cache / f"{key}.lut").is_file()
         assert key[:16] in res.stdout
     assert res.stdout.count("100.0%") == 2 and res.stdout.count("built") == 2
-    assert "VPC 640x480" in res.stdout
+    assert "pinhole 640x480, hfov 90.0°" in res.stdout
     again = run("lut", "build", "-c", calibration, "--cache-dir", cache, "--projection", "pinhole")
     assert again.returncode == 0 and again.stdout.count("cache (load)") == 2
     forced = run(
@@ -52,7 +52,7 @@ def test_build_warns_when_the_vpc_leaves_the_lens(calibration: Path, tmp_path: P
     )
     assert res.returncode == 0, res.stderr
     assert "warning" in res.stderr and "of its pixels are valid" in res.stderr
-    assert "VPC 320x240" in res.stdout
+    assert "pinhole 320x240, hfov 150.0°" in res.stdout
     assert len(list(tmp_path.glob("*.lut"))) == 2, "RIG_CACHE_DIR is honoured"
 
 

@@ -86,7 +86,8 @@ def small(rec: Path) -> list[str | Path]:
 def test_process_a_rig_sim_recording(tmp_path: Path) -> None:
     rec = tmp_path / "rec"
     sim_args = ["--preset", "prototype", "--scale", "0.5", "--scene", "plane", "--distances", "4.5,9"]
-    sim_args += ["--supersample", "2", "--noise", "1", "--vignetting", "0"]
+    # The honest lens's optics and exposures, 1 grey level of gaussian noise, no rim darkening.
+    sim_args += ["--supersample", "2", "--lens", "honest", "--noise", "1", "--vignetting", "0"]
     sim = run("sim", *sim_args, "--out", rec, *VPC_ARGS, tmp=tmp_path)
     assert sim.returncode == 0, sim.stderr
     # At 320 px wide, 64 disparities (Z > 2.5 B at fx = 160) keep the left band of unmatched
@@ -130,8 +131,8 @@ def test_output_layout_vpc_json_and_depth(tmp_path: Path, shot: StereoShot) -> N
     assert left.shape == (240, 320) and left.dtype == np.uint8
     assert within_2_percent(out / "depth" / "000003.png", shot.depth) >= 0.95
     preview = np.asarray(cv2.imread(str(out / "preview" / "000003.png"), cv2.IMREAD_UNCHANGED))
-    assert preview.shape == (240, 640, 3)
-    assert np.array_equal(preview[:, :320, 0], left)  # the left half is the VPC image
+    assert preview.shape == (240, 640 + 72, 3)  # left view | colour depth | colour bar in metres
+    assert np.array_equal(preview[:, :320, 0], left)  # the left part is the left rectified image
     ply = (out / "cloud" / "000003.ply").read_bytes()
     assert ply.startswith(b"ply\nformat binary_little_endian 1.0\n")
 

@@ -13,11 +13,13 @@ import pytest
 
 from rig.rectified import DEFAULT_PROJECTION
 from tests.helpers.command import (
+    RIG,
     Served,
     assert_one_line_error,
     clean_env,
     run_rig,
     start_serve,
+    wait_answering,
     wait_healthy,
 )
 from tests.helpers.service import SmallRecording
@@ -55,15 +57,21 @@ def test_missing_recording_and_calibration(tmp_path: Path, small_recording: Smal
     assert_one_line_error(both, "--demo")
 
 
-def test_busy_port_is_one_line(tmp_path: Path) -> None:
+def test_busy_port_is_one_line_with_the_way_out(tmp_path: Path) -> None:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         s.listen()
         port = s.getsockname()[1]
-        result = run_rig(
-            ["serve", "--port", str(port), "--config", str(_empty_config(tmp_path))], serve_env(tmp_path)
-        )
-    assert_one_line_error(result, f"127.0.0.1:{port}")
+        args = ["serve", "--port", str(port), "--config", str(_empty_config(tmp_path))]
+        result = run_rig(args, serve_env(tmp_path))
+        assert_one_line_error(result, f"127.0.0.1:{port}", "Address already in use", "--port P", "--port 0")
+        # Refused before the pipeline, the app and uvicorn are imported (seconds on a busy board):
+        # only the settings are read by then.
+        traced = run_rig(args, serve_env(tmp_path, PYTHONPROFILEIMPORTTIME="1"))
+    assert traced.returncode == 2
+    imported = {line.rsplit("|", 1)[-1].strip() for line in traced.stderr.splitlines() if "|" in line}
+    assert "service.settings" in imported
+    assert not imported & {"uvicorn", "fastapi", "service.app", "service.runtime", "rig.pipeline"}, imported
 
 
 def _empty_config(tmp: Path) -> Path:
@@ -113,10 +121,21 @@ def test_serve_recording_then_graceful_stop(served_recording: Served, stop_signa
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_serve_demo_from_an_empty_cache(tmp_path: Path) -> None:
-    env = serve_env(tmp_path)
+    env = serve_env(tmp_path, PATH="/usr/bin:/bin")  # the rig command is not on PATH: said how
     served = start_serve(["--port", "0", "--demo", "--log-level", "warning"], env, timeout=800)
     assert served.host == "127.0.0.1"  # loopback unless configured
     try:
+        # The demo made an API token and printed the dashboard's URL with it, as notebook servers do.
+        line = served.output[-1]
+        token = line.split("?token=", 1)[1].split()[0]
+        assert line.startswith(f"depth service: {served.url}?token={token}") and len(token) >= 32
+        wait_answering(served.url)
+        patch = {"stereo": {"median": 3}}
+        assert httpx.patch(served.url + "config", json=patch, timeout=30).status_code == 401
+        r = httpx.patch(
+            served.url + "config", json=patch, headers={"Authorization": f"Bearer {token}"}, timeout=60
+        )
+        assert r.status_code == 200 and r.json()["stereo"]["median"] == 3
         assert (tmp_path / "cache" / "odfc-rig" / "demo").is_dir()  # rendered into the user cache dir
         health = wait_healthy(served.url, 120)
         assert health["status"] == "ok"
@@ -131,8 +150,29 @@ def test_serve_demo_from_an_empty_cache(tmp_path: Path) -> None:
         assert page.status_code == 200 and 'id="depth-img"' in page.text
     finally:
         served.proc.send_signal(signal.SIGINT)
-        served.proc.communicate(timeout=60)
+        served.proc.wait(timeout=60)
+        assert served.proc.stdout is not None
+        rest = served.proc.stdout.read()  # the reader's buffer too (communicate reads past it)
     assert served.proc.returncode == 0
+    assert f"API docs: {served.url}docs (Authorize with the token {token})" in rest
+    bindir = RIG.resolve().parent  # said relative to the working directory when inside it
+    shown = bindir.relative_to(Path.cwd()) if bindir.is_relative_to(Path.cwd()) else bindir
+    assert f"the rig command is {shown / 'rig'}; `. {shown / 'activate'}` puts it on PATH" in rest
+
+
+def test_a_configured_token_is_never_printed(tmp_path: Path, small_recording: SmallRecording) -> None:
+    secret = "configured-secret-0123456789abcdef"
+    env = serve_env(tmp_path, RIG_API_TOKEN=secret, RIG_VPC__WIDTH="320", RIG_VPC__HEIGHT="240")
+    served = start_serve(
+        ["--port", "0", "--recording", str(small_recording.loop), "--log-level", "warning"], env
+    )
+    try:
+        wait_answering(served.url)
+        assert httpx.get(served.url + "config", timeout=30).json()["server"]["api_token_set"]
+    finally:
+        text = served.stop()
+    assert secret not in text and "?token=" not in text
+    assert f"depth service: {served.url}  (dashboard; API docs at {served.url}docs" in text
 
 
 def test_served_connections_have_tcp_nodelay() -> None:
@@ -140,7 +180,7 @@ def test_served_connections_have_tcp_nodelay() -> None:
     for IPPROTO_TCP sockets, and without it every keep-alive response waits for a delayed ACK."""
     import asyncio
 
-    from service.serve import bind_socket
+    from service.listen import bind_socket
 
     async def accepted_nodelay() -> int:
         sock = bind_socket("127.0.0.1", 0)

@@ -1,6 +1,7 @@
 """The settings ``rig serve`` runs with: every configured value is validated even where a flag
-takes its place, every mistake is listed at once, and what ``--demo`` or ``--recording`` replace
-is said to be ignored."""
+takes its place, every mistake is listed at once, what ``--demo`` or ``--recording`` replace is
+said to be ignored, the demo makes an API token when none is configured (and its URL carries it),
+and a ``rig`` command off PATH is said with the way to reach it."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from pathlib import Path
 import pytest
 
 import cli.serve
-from cli.serve import serve_settings
+from cli.serve import command_hint, serve_settings, served_url
 from service.errors import SettingsError
 from tests.helpers.command import assert_one_line_error, clean_env, run_rig
 from tests.helpers.service import SmallRecording
@@ -93,3 +94,43 @@ def test_a_vpc_that_cannot_fit_in_memory_is_refused_at_start(tmp_path: Path, jpe
         result, "field 'rectified': a 8192x8192 pinhole pair with 1024 disparities needs about"
     )
     assert "matcher" in line and "MiB this machine has left" in line
+
+
+def test_the_demo_makes_an_api_token_unless_one_is_configured(
+    tmp_path: Path, demo_is: Path, small_recording: SmallRecording, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv("RIG_API_TOKEN", raising=False)
+    made = [serve_settings(None, demo=True).server.token for _ in range(2)]
+    assert all(t is not None and len(t) >= 32 for t in made) and made[0] != made[1]
+    # No cameras configured: the demo all the same, with its token.
+    assert serve_settings(None).server.token is not None
+    # A configured token is the one used; a recording gets none it was not given.
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text("server: {api_token: configured-token-0123456789}\n")
+    assert serve_settings(cfg, demo=True).server.token == "configured-token-0123456789"
+    monkeypatch.setenv("RIG_API_TOKEN", "environment-token-0123456789")
+    assert serve_settings(None, demo=True).server.token == "environment-token-0123456789"
+    monkeypatch.delenv("RIG_API_TOKEN")
+    assert serve_settings(None, recording=small_recording.loop).server.token is None
+
+
+def test_the_dashboard_url_carries_a_made_token(tmp_path: Path, demo_is: Path) -> None:
+    from service.settings import load_settings
+
+    settings = serve_settings(None, demo=True)
+    assert served_url(settings, 8123) == "http://127.0.0.1:8123/"
+    assert served_url(settings, 8123, "abc") == "http://127.0.0.1:8123/?token=abc"
+    v6 = load_settings(None, {"server": {"host": "::1"}})
+    assert served_url(v6, 9000) == "http://[::1]:9000/"
+
+
+def test_the_rig_command_off_path_is_said_with_the_way_to_reach_it(tmp_path: Path) -> None:
+    bindir = tmp_path / "venv" / "bin"
+    bindir.mkdir(parents=True)
+    script = bindir / "rig"
+    script.write_text("#!/bin/sh\n")
+    script.chmod(0o755)
+    hint = command_hint(str(script), "/usr/bin:/bin")
+    assert hint is not None and f"{bindir / 'rig'}" in hint and f". {bindir / 'activate'}" in hint
+    assert command_hint(str(script), f"/usr/bin:{bindir}") is None  # on PATH: nothing to say
+    assert command_hint("/usr/lib/python3/cli/__main__.py", "/usr/bin") is None  # python -m cli

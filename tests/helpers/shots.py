@@ -5,6 +5,10 @@ Only the part of each fisheye image that the VPC's lookup table reads is rendere
 (``rig.evaluate.renders.render_in_box``: the same lens with its principal point moved sees the
 same ray at every pixel); the rest stays background (0), which the table never samples. That
 makes full-size prototype renders affordable in tests.
+
+The shots are the ideal lens with the simple sensor model (gaussian noise, vignetting) the callers
+choose: the matcher and the pipeline are these tests' subject. The honest lens
+(``rig.sim.lens_effects``) is what ``rig sim`` and the studies render by default.
 """
 
 from __future__ import annotations

@@ -26,7 +26,8 @@ GT_VPC = RectifiedPairConfig(width=160, height=120)
 
 
 def render_room(out: Path, frames: int = 2, truth: Rig | None = None) -> Path:
-    """The prototype (half size) in the textured room, with its noise and vignetting."""
+    """The prototype (half size) in the textured room, through its honest lens (``rig sim``'s
+    default: blur growing to the rim, rim darkening, the two cameras' exposures, noise)."""
     preset = get_preset("prototype").scaled(SCALE)
     if truth is not None:
         preset = replace(preset, rig=truth)

@@ -18,6 +18,7 @@ from calibration.models import create
 from calibration.rig import Rig
 from rig.errors import ConfigError, LutError, PipelineError
 from rig.filters import TemporalFilter, median_filter
+from rig.match_input import matcher_input
 from rig.pipeline import DepthPipeline
 from rig.rectified import RectifiedPairConfig
 from rig.stereo import StereoParams, create_opencv_matcher
@@ -29,15 +30,23 @@ SMALL_STEREO = StereoParams(disparity_range=64)
 
 
 @pytest.mark.slow
-def test_done_when_prototype_plane_depth_within_2_percent(lut_cache: Path) -> None:
+@pytest.mark.parametrize("coarse_to_fine", [True, False], ids=["coarse-to-fine", "exact"])
+def test_done_when_prototype_plane_depth_within_2_percent(lut_cache: Path, coarse_to_fine: bool) -> None:
     """Prototype renders (full 1280×960 KB 190° lenses, the preset's 1.5 grey levels
     of noise and vignetting) of a textured plane at 3.7, 7.6 and 14.2 baselines; the pinhole VPC
-    (640×480, 90°) and default stereo parameters; ≥ 95 % of the central 50 % × 50 % box has
-    depth within 2 % of the truth."""
-    pipe = DepthPipeline(prototype_rig(1.0), PINHOLE, cache_dir=lut_cache)
-    print("\nprototype plane, pinhole VPC, default stereo: fraction of central box within 2% of true depth")
+    (640×480, 90°) and default stereo parameters (and the exact search); ≥ 95 % of the central
+    50 % × 50 % box has depth within 2 % of the truth."""
+    stereo = StereoParams(coarse_to_fine=coarse_to_fine)
+    pipe = DepthPipeline(prototype_rig(1.0), PINHOLE, stereo, cache_dir=lut_cache)
+    print(
+        f"\nprototype plane, pinhole VPC, coarse_to_fine {coarse_to_fine}: "
+        "central box within 2% of true depth"
+    )
     # Measured (docs/stereo.md's figures): depth RMS (mm) and disparity RMS (px) at each distance.
-    measured = {3.7: (0.095, 0.031), 7.6: (0.26, 0.020), 14.2: (1.45, 0.032)}
+    measured = {
+        True: {3.7: (0.061, 0.020), 7.6: (0.26, 0.020), 14.2: (1.31, 0.029)},
+        False: {3.7: (0.095, 0.031), 7.6: (0.26, 0.020), 14.2: (1.45, 0.032)},
+    }[coarse_to_fine]
     for k in (3.7, 7.6, 14.2):
         shot = plane_shot(k, scale=1.0, noise_std=1.5, vignetting=0.35)
         frame = pipe.process(shot.left, shot.right)
@@ -111,10 +120,15 @@ def test_finish_on_the_active_columns_is_exactly_the_whole_frame(
 def _finish_by_the_stage_functions(
     left: NDArray[np.uint8], right: NDArray[np.uint8], p: StereoParams, temporal: TemporalFilter, fx_b: float
 ) -> dict[str, NDArray[np.generic] | None]:
-    """The finish stage written out in one pass over the whole frame, from the references its
-    parts are tested against: the bare OpenCV matcher, the single-pass refinement, the median,
-    confidence exp(−σ/σ0) where valid, the temporal filter and depth fx·B/d."""
-    fixed = create_opencv_matcher(p).compute(left, right)
+    """The stages written out in one pass over the whole frame, from the references their parts
+    are tested against: the matcher's input (tests/rig/test_match_input.py), the bare OpenCV
+    matcher, the single-pass refinement (on the images as they are), the median, confidence
+    exp(−σ/σ0) where valid, the temporal filter and depth fx·B/d."""
+    seen = (
+        matcher_input(g, p.match_blur_sigma, p.match_normalise_window, p.match_normalise_eps)
+        for g in (left, right)
+    )
+    fixed = create_opencv_matcher(p).compute(*seen)
     valid = fixed >= p.min_disparity * 16
     disparity = np.where(valid, fixed / np.float32(16.0), np.float32(np.nan)).astype(np.float32)
     sigma = None
@@ -148,7 +162,8 @@ def test_finish_is_the_stage_functions_in_one_pass(
     what its parts give in one pass over the whole frame. (More bands differ only in the box
     filters' summation order: bench/test_fast_paths.py.)"""
     monkeypatch.setattr(finish_module, "refine_pool", lambda: None)
-    params = StereoParams.model_validate({"disparity_range": 64, **stereo})
+    # The exact search, so that the bare OpenCV matcher is its reference.
+    params = StereoParams.model_validate({"disparity_range": 64, "coarse_to_fine": False, **stereo})
     pipe = DepthPipeline(shot.rig, VPC, params, cache_dir=tmp_path)
     assert pipe.valid_fraction == {"left": 1.0, "right": 1.0}, "no LUT masks to apply"
     rect = pipe.rectify(shot.left, shot.right)

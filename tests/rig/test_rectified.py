@@ -163,3 +163,12 @@ def test_rendered_non_ideal_mount_room_rows_align_and_nominal_design_does_not() 
     nominal_med = float(np.median(np.abs(dy_nominal)))
     print(f"room, pair designed for the nominal 90° mount: |dy| median {nominal_med:.2f} px")
     assert nominal_med > 1.0 and nominal_med == pytest.approx(4.6, rel=0.25)  # measured, docs/stereo.md
+
+
+def test_the_pair_is_described_by_its_projection_and_real_size() -> None:
+    rig = prototype_rig(1.0)
+    latlon = design_rectified_pair(rig, RectifiedPairConfig())
+    assert latlon.describe() == f"lat-lon {latlon.camera.width}x{latlon.camera.height}, 5.585 px/deg"
+    assert (latlon.camera.width, latlon.camera.height) != (640, 480)
+    pinhole = design_rectified_pair(rig, RectifiedPairConfig(width=320, height=240, hfov_deg=100))
+    assert pinhole.describe() == "pinhole 320x240, hfov 100.0°"

@@ -6,16 +6,20 @@ quotes."""
 from __future__ import annotations
 
 import functools
+from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
+from calibration.rig import Rig
 from rig.evaluate.consistency import ConsistencyFigures, PairRange, couples, transfer_range, view_mask
 from rig.evaluate.consistency_study import ConsistencyStudy, consistency_study, pair_pipelines
 from rig.evaluate.ring_renders import RigShot, render_rig_shot
 from rig.field import pixel_solid_angles
 from rig.panorama import DISAGREE, PairOutput, PanoramaSpec, fuse_panorama, lenses_seeing
 from rig.ring import adjacent_pairs
+from rig.ring_refine import RingRefineOptions, refine_ring
 from rig.sim import room_scene
 from rig.sim.presets import get_ring_preset
 from rig.sim.render import render_range
@@ -44,8 +48,24 @@ def ring4(tmp_path_factory: pytest.TempPathFactory) -> tuple[RigShot, Consistenc
     return _shot(str(tmp_path_factory.mktemp("lut")))
 
 
-def test_rendered_ring_agrees_with_itself_within_one_percent(ring4: tuple[RigShot, ConsistencyStudy]) -> None:
+#: Per search: the largest couple median |e| and the smallest within-10 % share allowed. The
+#: coarse-to-fine search (the default) agrees less with itself than the exact search on this render
+#: (measured 1.0-1.2 % against 0.74-0.84 %; docs/stereo.md, "Coarse-to-fine search").
+AGREEMENT_BARS = {"exact": (0.01, 0.95), "coarse-to-fine": (0.013, 0.87)}
+
+
+@pytest.mark.parametrize("search", ["coarse-to-fine", "exact"])
+def test_rendered_ring_agrees_with_itself_within_one_percent(
+    ring4: tuple[RigShot, ConsistencyStudy], search: str, tmp_path: Path
+) -> None:
     shot, study = ring4
+    if search == "exact":
+        rig = get_ring_preset("ring4").rig
+        exact = StereoParams(coarse_to_fine=False)
+        study = consistency_study(
+            rig, [shot.images], adjacent_pairs(rig), stereo=exact, cache_dir=str(tmp_path), keep_ranges=True
+        )
+    largest_median, smallest_within_10 = AGREEMENT_BARS[search]
     assert [p.names for p in study.pairs] == [
         ("cam1", "cam2"),
         ("cam2", "cam3"),
@@ -57,19 +77,25 @@ def test_rendered_ring_agrees_with_itself_within_one_percent(ring4: tuple[RigSho
         r, truth = p.ranges[0].range, shot.truth[p.names]
         ok = np.isfinite(r) & np.isfinite(truth)
         err = float(np.median(np.abs(r[ok] / truth[ok] - 1.0)))
-        print(f"ring4 {p.label}: coverage {p.coverage[0]:.3f}, median error against the truth {err:.4f}")
+        print(
+            f"ring4 {search} {p.label}: coverage {p.coverage[0]:.3f}, median error against the truth "
+            f"{err:.4f}"
+        )
         assert p.coverage[0] > 0.90  # measured 0.953-0.962
         assert err < 0.006  # measured 0.0036-0.0044
     for c in study.couples:
         f = c.figures
         print(
-            f"ring4 {c.couple.label}: both {f.both_share:.3f}, median |e| {f.median_abs:.4f}, signed "
+            f"ring4 {search} {c.couple.label}: both {f.both_share:.3f}, median |e| {f.median_abs:.4f}, "
+            f"signed "
             f"{f.median_signed:+.4f}, within 3 % {f.within_3:.3f}, 10 % {f.within_10:.3f}, "
             f"median |dd| {f.median_abs_px:.3f} px"
         )
+    for c in study.couples:
+        f = c.figures
         assert f.points > 20000 and f.both_share > 0.6  # measured 0.74-0.77
-        assert f.median_abs <= 0.01  # measured 0.0074-0.0084
-        assert abs(f.median_signed) < 0.002 and f.within_10 > 0.95
+        assert f.median_abs <= largest_median
+        assert abs(f.median_signed) < 0.002 and f.within_10 > smallest_within_10
 
 
 def test_rendered_truth_is_consistent_to_interpolation(ring4: tuple[RigShot, ConsistencyStudy]) -> None:
@@ -128,3 +154,36 @@ def test_the_rendered_rings_panorama_is_the_truth_where_two_lenses_see(
     print(f"\nring4 panorama: {100 * within:.1f} % of the directions two lenses see within 3 % of the "
           f"truth; {100 * flagged:.1f} % flagged as pairs disagreeing")  # fmt: skip
     assert within >= 0.85
+
+
+def test_a_turned_ring_is_refined_back_and_the_refinement_measured(
+    ring4: tuple[RigShot, ConsistencyStudy], tmp_path_factory: pytest.TempPathFactory
+) -> None:
+    """Three cameras of the rendered ring turned by 0.2–0.3° (the first holds the rig frame): the
+    joint refinement finds them again, lowers every pair's vertical disparity and every couple's
+    disagreement, and so is applied."""
+    shot, _ = ring4
+    truth = get_ring_preset("ring4").rig
+    turned = {"cam2": (0.3, 0.0, 0.1), "cam3": (0.0, -0.2, 0.2), "cam4": (-0.2, 0.2, 0.0)}
+    T = {}
+    for name in truth.names:
+        Tn = truth.T_rig_cam[name].copy()
+        Tn[:3, :3] = Tn[:3, :3] @ Rotation.from_rotvec(np.radians(turned.get(name, (0, 0, 0)))).as_matrix()
+        T[name] = Tn
+    wrong = Rig(dict(truth.cameras), T)
+    result = refine_ring(
+        wrong, [shot.images], options=RingRefineOptions(cache_dir=tmp_path_factory.mktemp("lut"))
+    )
+    print()
+    for p, before in result.vertical_before.items():
+        print(f"{p}: vertical disparity p50 {before.p50_px:.2f} -> {result.vertical_after[p].p50_px:.2f} px")
+    for label, before in result.agreement_before.items():
+        print(
+            f"{label}: median disagreement {100 * before:.2f} -> {100 * result.agreement_after[label]:.2f} %"
+        )
+    assert result.applied, result.reason
+    for name in truth.names:
+        R_err = result.rig.T_rig_cam[name][:3, :3].T @ truth.T_rig_cam[name][:3, :3]
+        assert np.degrees(np.linalg.norm(Rotation.from_matrix(R_err).as_rotvec())) < 0.05, name
+    assert all(result.vertical_after[p].p50_px < 0.5 * v.p50_px for p, v in result.vertical_before.items())
+    assert all(result.agreement_after[k] < v for k, v in result.agreement_before.items())

@@ -37,7 +37,7 @@ def test_latlon_recording_has_range_and_a_reference_pair_whose_rows_match(tmp_pa
     k = 4.0
     out = simulate_recording(
         preset, "plane", tmp_path / "rec", distances=(k,), supersample=3, noise_std=0.0, vpc=LATLON,
-        blind_band_px=16, texture="paper",
+        blind_band_px=16, texture="paper", reference=True,
     )  # fmt: skip
     doc = json.loads((out / "ground_truth" / "scene.json").read_text())
     assert doc["version"] == 2 and "depth" not in doc

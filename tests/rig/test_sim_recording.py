@@ -3,6 +3,7 @@ and one-line errors from the real console script."""
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 
@@ -27,12 +28,15 @@ def small_preset(name: str = "paper-sim", scale: float = 0.25) -> Preset:
 def test_plane_recording_layout_and_ground_truth(tmp_path: Path) -> None:
     preset = small_preset()
     out = tmp_path / "rec"
-    seen: list[tuple[int, int]] = []
+    seen: list[tuple[float, int]] = []
     simulate_recording(
         preset, "plane", out, distances=(4.0, 5.0), frames_per_distance=2, texture="paper", seed=3,
-        noise_std=2.0, supersample=2, vpc=SMALL_VPC, progress=lambda d, t: seen.append((d, t)),
+        noise_std=2.0, supersample=2, vpc=SMALL_VPC, reference=True,
+        progress=lambda d, t: seen.append((d, t)),
     )  # fmt: skip
-    assert seen == [(1, 4), (2, 4), (3, 4), (4, 4)]
+    # Whole pairs once each is written, fractions of a pair while it renders, never backwards.
+    assert [(d, t) for d, t in seen if d == int(d)] == [(1, 4), (2, 4), (3, 4), (4, 4)]
+    assert any(d != int(d) for d, _ in seen) and all(a[0] <= b[0] for a, b in itertools.pairwise(seen))
     rec = Recording(out)
     assert (out / "frames.csv").read_text().splitlines()[0] == ",".join(FRAMES_HEADER)
     assert [p.seq for p in rec.pairs] == [0, 1, 2, 3]
@@ -88,14 +92,14 @@ def test_room_recording_moves_through_a_closed_room(tmp_path: Path) -> None:
 
 
 def test_every_indexed_pair_has_ground_truth_after_a_crash(tmp_path: Path) -> None:
-    def crash(done: int, total: int) -> None:
+    def crash(done: float, total: int) -> None:
         if done == 2:
             raise KeyboardInterrupt
 
     out = tmp_path / "rec"
     with pytest.raises(KeyboardInterrupt):
         simulate_recording(small_preset(), "plane", out, distances=(3, 4, 5), supersample=1, vpc=SMALL_VPC,
-                           progress=crash)  # fmt: skip
+                           reference=True, progress=crash)  # fmt: skip
     rec = Recording(out)
     assert [p.seq for p in rec.pairs] == [0, 1]
     doc = json.loads((out / "ground_truth" / "scene.json").read_text())
@@ -126,7 +130,7 @@ def test_rig_sim_end_to_end(tmp_path: Path) -> None:
     res = run_rig([
         "sim", "--preset", "prototype", "--scene", "plane", "--distances", "4,8", "--scale", "0.125",
         "--supersample", "2", "--vpc-size", "160x120", "--texture", "bricks", "--noise", "0",
-        "--out", str(out),
+        "--reference", "--out", str(out),
     ])  # fmt: skip
     assert res.returncode == 0, res.stderr
     assert "wrote 2 pairs" in res.stdout
@@ -157,6 +161,7 @@ def test_rig_sim_end_to_end(tmp_path: Path) -> None:
         (["--vpc-size", "10by10"], "--vpc-size"),
         (["--scene", "room", "--distances", "3"], "--frames"),
         (["--supersample", "0"], "--supersample"),
+        (["--lens", "perfect"], "honest, ideal"),
     ],
 )
 def test_rig_sim_bad_arguments_fail_in_one_line(tmp_path: Path, args: list[str], needle: str) -> None:

@@ -222,7 +222,7 @@ def test_vignetting_follows_its_formula_and_noise_is_seeded() -> None:
     assert abs((a - 200).std() - 4.0) < 0.3 and abs((a - 200).mean()) < 0.2
 
 
-def test_color_render_agrees_with_grey_and_chunking_changes_nothing() -> None:
+def test_color_render_agrees_with_grey_and_tiling_changes_nothing() -> None:
     cam = equidistant180(96)
     scene = room_scene(2)
     grey = render(scene, cam, np.eye(4), supersample=2)
@@ -230,9 +230,11 @@ def test_color_render_agrees_with_grey_and_chunking_changes_nothing() -> None:
     assert color.image.shape == (96, 96, 3) and grey.image.shape == (96, 96)
     diff = np.abs(cv2.cvtColor(color.image, cv2.COLOR_BGR2GRAY).astype(int) - grey.image)
     assert diff.max() <= 2
-    tiny = render(scene, cam, np.eye(4), supersample=2, chunk_rays=1000)
-    np.testing.assert_array_equal(tiny.image, grey.image)
-    np.testing.assert_array_equal(tiny.depth, grey.depth)
+    # 3-pixel tiles (tight cones, few candidate rectangles) and one tile (every rectangle).
+    for tile_px in (3, 96):
+        other = render(scene, cam, np.eye(4), supersample=2, tile_px=tile_px)
+        np.testing.assert_array_equal(other.image, grey.image)
+        np.testing.assert_array_equal(other.depth, grey.depth)
 
 
 def test_chessboard_corners_found_where_and_in_the_order_promised() -> None:

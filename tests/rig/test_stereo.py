@@ -49,6 +49,9 @@ def shifted_pair(d: float, h: int = 120, w: int = 200, seed: int = 0, noise: flo
 
 
 ROI = (slice(10, -10), slice(80, -10))  # right of the matcher's unmatched left band
+#: The exact search: OpenCV's matcher over the whole range (the coarse-to-fine search's own tests
+#: are in test_stereo_coarse_to_fine.py).
+EXACT = {"coarse_to_fine": False}
 
 
 def test_defaults_follow_ros_names_and_reach_three_and_a_half_baselines() -> None:
@@ -110,7 +113,7 @@ def test_bad_parameters_are_rejected_naming_the_field(kwargs: dict[str, object],
 @pytest.mark.parametrize("algorithm", [0, 1])
 def test_matchers_find_the_shift(algorithm: int) -> None:
     left, right = shifted_pair(23.4)
-    params = StereoParams(stereo_algorithm=algorithm, correlation_window_size=9, disparity_range=64)
+    params = StereoParams(stereo_algorithm=algorithm, correlation_window_size=9, disparity_range=64, **EXACT)
     res = StereoMatcher(params).match(left, right)
     assert res.disparity.dtype == np.float32 and res.valid.dtype == bool
     assert np.isnan(res.disparity[~res.valid]).all()
@@ -122,7 +125,7 @@ def test_matchers_find_the_shift(algorithm: int) -> None:
 @pytest.mark.parametrize("min_disparity", [0, 8])
 def test_disparity_is_opencvs_fixed_point_with_nan_exactly_where_invalid(min_disparity: int) -> None:
     left, right = shifted_pair(23.4)
-    params = StereoParams(min_disparity=min_disparity, disparity_range=64)
+    params = StereoParams(min_disparity=min_disparity, disparity_range=64, **EXACT)
     fixed = create_opencv_matcher(params).compute(left, right)  # the bare OpenCV call
     matcher = StereoMatcher(params)
     res = matcher.match(left, right)
@@ -167,7 +170,7 @@ def test_speckles_removed_after_compute_are_the_bare_matchers(stereo: dict[str, 
     :meth:`~StereoMatcher.finish` (so a pipeline overlaps it with the next pair's match): the
     result is the bare OpenCV matcher's, bit for bit, for every matcher."""
     left, right = speckled_pair()
-    params = StereoParams(disparity_range=64, **stereo)
+    params = StereoParams(disparity_range=64, **EXACT, **stereo)
     bare = create_opencv_matcher(params).compute(left, right)
     matcher = StereoMatcher(params)
     unfiltered = matcher.compute(left, right)
@@ -204,7 +207,7 @@ def test_matching_only_the_seen_columns(stereo: dict[str, int]) -> None:
     # The right lens sees nothing left of column 60: the mirrored run leaves those columns (and
     # the ones only they need) out, and gives the whole image's right disparity elsewhere.
     left, right = shifted_pair(17.6, w=240)
-    params = StereoParams(disparity_range=64, **stereo)
+    params = StereoParams(disparity_range=64, **EXACT, **stereo)
     matcher = StereoMatcher(params)
     whole = matcher.compute(left, right)
     seen = SeenColumns(left=(0, 240), right=(60, 240))
@@ -260,7 +263,7 @@ def test_right_disparity_from_the_mirrored_pair() -> None:
 @pytest.mark.parametrize("d", [10.1, 15.25, 20.4, 25.5, 30.6, 35.75, 40.9])
 def test_subpixel_step_removes_pixel_locking_on_exact_shifts(d: float) -> None:
     left, right = shifted_pair(d)
-    raw = StereoMatcher(StereoParams(disparity_range=64, subpixel=False)).match(left, right)
+    raw = StereoMatcher(StereoParams(disparity_range=64, subpixel=False, **EXACT)).match(left, right)
     ref = refine_disparity(left, right, raw.disparity, raw.valid, 15)
     ok = raw.valid[ROI]
     plain = np.sqrt(np.mean((raw.disparity[ROI][ok] - d) ** 2))
@@ -284,7 +287,7 @@ def test_predicted_sigma_grows_with_noise_and_confidence_falls() -> None:
     sig_medians = []
     for noise in (0.0, 4.0, 12.0):
         left, right = shifted_pair(20.4, noise=noise, seed=3)
-        raw = StereoMatcher(StereoParams(disparity_range=64)).match(left, right)
+        raw = StereoMatcher(StereoParams(disparity_range=64, **EXACT)).match(left, right)
         ref = refine_disparity(left, right, raw.disparity, raw.valid, 15, want_sigma=True)
         assert ref.sigma is not None and ref.sigma.dtype == np.float32
         assert np.isinf(ref.sigma[~raw.valid]).all()

@@ -1,4 +1,5 @@
-"""Subpixel refinement measured on the virtual environment: plain SGBM vs ours.
+"""Subpixel refinement measured on the virtual environment: plain SGBM vs ours, and the
+coarse-to-fine search's own parabola and ours after it.
 
 Prototype lenses (scaled to 640×480), a textured plane at distances chosen so the true
 disparity has fractional parts .1 … .75, VPC 320×240 / 90° (fx = 160), noise-free renders (the
@@ -23,15 +24,21 @@ TRUE_DISPARITIES = (12.1, 16.25, 20.4, 24.5, 28.6, 33.75)  # fx·B/Z with fx = 1
 #: Measured disparity RMS (px) at those disparities (docs/stereo.md's table).
 PLAIN_RMS = (0.069, 0.156, 0.226, 0.236, 0.264, 0.213)
 OURS_RMS = (0.028, 0.031, 0.037, 0.034, 0.044, 0.038)
+C2F_PARABOLA_RMS = (0.066, 0.105, 0.115, 0.115, 0.126, 0.102)
+C2F_OURS_RMS = (0.028, 0.031, 0.037, 0.027, 0.042, 0.038)
 
 
 def test_subpixel_refinement_beats_plain_sgbm_at_every_fractional_distance(lut_cache: Path) -> None:
     pipe = DepthPipeline(prototype_rig(0.5), VPC, cache_dir=lut_cache)
     fx = pipe.pair.fx
+    exact = {"disparity_range": 64, "coarse_to_fine": False}
     variants = {
-        "plain SGBM": StereoParams(disparity_range=64, subpixel=False, median=0),
-        "ours": StereoParams(disparity_range=64, subpixel=True, median=0),
-        "ours+median5": StereoParams(disparity_range=64),
+        "plain SGBM": StereoParams(**exact, subpixel=False, median=0),
+        "ours": StereoParams(**exact, subpixel=True, median=0),
+        "ours+median5": StereoParams(**exact),
+        # The coarse-to-fine search: its parabola through the block costs, then ours after it.
+        "c2f parabola": StereoParams(disparity_range=64, subpixel=False, median=0),
+        "c2f + ours": StereoParams(disparity_range=64, median=0),
     }
     rows = []
     for d in TRUE_DISPARITIES:
@@ -60,3 +67,11 @@ def test_subpixel_refinement_beats_plain_sgbm_at_every_fractional_distance(lut_c
     assert ours.mean() < plain.mean() / 3
     assert tuple(plain) == pytest.approx(PLAIN_RMS, rel=0.15, abs=0.002)
     assert tuple(ours) == pytest.approx(OURS_RMS, rel=0.15, abs=0.002)
+    # The coarse-to-fine search's own parabola locks less than SGBM's, and the same refinement
+    # after it is as accurate as after SGBM.
+    parabola = np.array([r[2]["c2f parabola"] for r in rows])
+    after = np.array([r[2]["c2f + ours"] for r in rows])
+    assert parabola.mean() < plain.mean() and parabola.max() < 0.15
+    assert after.max() < 0.06 and after.mean() < ours.mean() * 1.2
+    assert tuple(parabola) == pytest.approx(C2F_PARABOLA_RMS, rel=0.15, abs=0.002)
+    assert tuple(after) == pytest.approx(C2F_OURS_RMS, rel=0.15, abs=0.002)

@@ -1,6 +1,6 @@
 """The wide-pair study at quick size: its measurements against the renderer's ground truth and its
-files. (The full-size figures are in docs/evaluation/wide-pair/, from ``rig evaluate --study
-wide-pair``.)"""
+files, rendered through the prototype's honest lens (the study's default). (The full-size figures
+are in docs/evaluation/wide-pair/, from ``rig evaluate --study wide-pair``.)"""
 
 from __future__ import annotations
 

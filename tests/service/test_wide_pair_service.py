@@ -134,10 +134,11 @@ def test_dashboard_shows_the_wide_pair(wide_server: LiveServer, tmp_path: Path) 
         page.wait_for_function("document.body.classList.contains('wide')", timeout=20_000)
         page.wait_for_function("document.getElementById('depth-img').naturalWidth > 0", timeout=20_000)
         assert page.eval_on_selector("#depth-img", "e => e.naturalWidth") == cam.width
-        assert "range along each ray" in (page.text_content("#depth-caption") or "")
-        assert "lat-lon pair" in (page.text_content("#vpc-info") or "")
-        # The tall images are 45 % of the window's height, or less where four of them would
-        # not fit side by side in the window's width; in their own aspect, all in one row.
+        assert "range along each ray" in (page.text_content("#depth-what") or "")
+        assert "lat-lon pair" in (page.text_content("#pair-info") or "")
+        # The tall images are 45 % of the window's height, or less where four of them (and the
+        # colour bar) would not fit side by side in the window's width (12em for the gaps, the
+        # colour bar and its labels); in their own aspect, all in one row.
         tops = []
         for img in ("#depth-img", "#confidence-img", "#vpc-left", "#vpc-right"):
             page.wait_for_function(f"document.querySelector('{img}').naturalWidth > 0", timeout=20_000)
@@ -145,7 +146,7 @@ def test_dashboard_shows_the_wide_pair(wide_server: LiveServer, tmp_path: Path) 
                 img, "e => [e.clientWidth, e.clientHeight, e.getBoundingClientRect().top]"
             )
             tops.append(top)
-            expected_h = min(0.45 * 1100, (1400 - 7 * 16) / 4 / (cam.width / cam.height))
+            expected_h = min(0.45 * 1100, (1400 - 12 * 16) / 4 / (cam.width / cam.height))
             assert abs(h - expected_h) <= 1 and abs(w / h - cam.width / cam.height) < 0.02, (img, w, h)
         assert max(tops) - min(tops) < 1, (tops, cam.width, cam.height)
         page.wait_for_function("document.getElementById('overlay-left').width > 0", timeout=20_000)
