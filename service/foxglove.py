@@ -358,7 +358,9 @@ def start_foxglove(
     fox = server.foxglove
     token = server.api_token.get_secret_value() if server.api_token is not None else None
     limits = gate_limits(fox, token, server.max_header_bytes)
-    builder = MessageBuilder(runtime.pipeline, settings.ros, cloud_stride=fox.cloud_stride)
+    builder = MessageBuilder(
+        runtime.pipeline, settings.ros, cloud_stride=fox.cloud_stride, pinhole_depth=settings.pinhole_depth
+    )
     live = FoxgloveLive(fox, builder, runtime.store, health, health_schema, limits=limits)
     live.start()
     return live
