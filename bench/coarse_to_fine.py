@@ -101,7 +101,7 @@ def _rows(pairs: list[Pair], wide: list[Pair] | None, quick: bool) -> dict[str, 
     """Each measured call and the frames it runs on."""
     d = 32 if quick else 96
     exact = StereoMatcher(StereoParams(disparity_range=d, coarse_to_fine=False))
-    c2f = StereoMatcher(StereoParams(disparity_range=d))
+    c2f = StereoMatcher(StereoParams(disparity_range=d, coarse_to_fine=True))
     search = c2f.coarse_to_fine_search
     assert search is not None
     pool = refine_pool()
@@ -121,7 +121,7 @@ def _rows(pairs: list[Pair], wide: list[Pair] | None, quick: bool) -> dict[str, 
         f"SGBM 1/4 resolution, {quarter} disparities (one view)": (_sgbm(quarter, 4), pairs),
     }
     if wide is not None:
-        c2f_256 = StereoMatcher(StereoParams(disparity_range=256))
+        c2f_256 = StereoMatcher(StereoParams(disparity_range=256, coarse_to_fine=True))
         rows["coarse-to-fine search, 256 disparities (its own wider field)"] = (
             lambda p: c2f_256.compute(*p, pool=pool),
             wide,

@@ -7,9 +7,9 @@ frames; its OCamCalib models and poses, read by the test helper :mod:`tests.help
 2. Today's defaults: every adjacent pair through the depth pipeline on every frame; per couple
    of pairs sharing a camera the consistency figures (:mod:`rig.evaluate.consistency`), per pair
    the coverage of its view.
-2b. With the coarse-to-fine search (the default; not with ``--quick``): the exact search
-   (``coarse_to_fine: false``) on the same frames, and both searches' figures on the points
-   both give range for.
+2b. The other search (not with ``--quick``): the coarse-to-fine option (``coarse_to_fine:
+   true``; the exact search when the stereo settings ask for the coarse-to-fine one) on the same
+   frames, and both searches' figures on the points both give range for.
 3. The same after ``rig calibrate refine``'s refinement of each pair on the ring's frames
    (:func:`rig.rectification.refine.refine_frames`, the library behind the command: it turns
    each pair's right camera; each pair then runs on its own refined calibration).
@@ -160,20 +160,28 @@ def _print_study(title: str, study: ConsistencyStudy) -> dict[str, Any]:
     return study.as_dict()
 
 
-def _versus_exact(
+SEARCH_NAMES = {True: "coarse-to-fine", False: "exact"}
+
+
+def _versus_other_search(
     ring: RealRing, pairs: Sequence[PairNames], stereo: StereoParams, study: ConsistencyStudy, cache: str
 ) -> dict[str, Any]:
-    """2b. The exact search (``coarse_to_fine: false``) on the same frames, and both searches'
-    figures on the pixels where both give range (each pair, each frame)."""
-    exact_params = stereo.model_copy(update={"coarse_to_fine": False})
-    exact = consistency_study(
-        ring.rig, ring.frames, pairs, stereo=exact_params, cache_dir=cache, keep_ranges=True
+    """2b. The other search (the exact one's coarse-to-fine option, or back) on the same frames,
+    and both searches' figures on the pixels where both give range (each pair, each frame)."""
+    mine, theirs_c2f = SEARCH_NAMES[stereo.coarse_to_fine], not stereo.coarse_to_fine
+    other = SEARCH_NAMES[theirs_c2f]
+    other_study = consistency_study(
+        ring.rig,
+        ring.frames,
+        pairs,
+        stereo=stereo.model_copy(update={"coarse_to_fine": theirs_c2f}),
+        cache_dir=cache,
+        keep_ranges=True,
     )
-    out = {
-        "exact": _print_study("2b. the exact search (coarse_to_fine: false), the ring's calibration", exact)
-    }
-    ours, theirs = common_figures([study, exact])
-    table = Table(title="2b. on the pixels where both searches give range: coarse-to-fine / exact")
+    title = f"2b. the {other} search (coarse_to_fine: {str(theirs_c2f).lower()}), the ring's calibration"
+    out = {other: _print_study(title, other_study)}
+    ours, theirs = common_figures([study, other_study])
+    table = Table(title=f"2b. on the pixels where both searches give range: {mine} / {other}")
     table.add_column("couple (source → target)")
     for col in ("points both range", "median |e|", "within 3 %", "within 10 %", "median |dd| px"):
         table.add_column(col, justify="right")
@@ -188,9 +196,7 @@ def _versus_exact(
             f"{a.median_abs_px:.2f} / {b.median_abs_px:.2f}",
         )
     console.print(table)
-    out["common"] = {
-        label: {"coarse_to_fine": ours[label].as_dict(), "exact": theirs[label].as_dict()} for label in ours
-    }
+    out["common"] = {label: {mine: ours[label].as_dict(), other: theirs[label].as_dict()} for label in ours}
     return out
 
 
@@ -404,7 +410,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     results: dict[str, Any] = {"pairs": ["|".join(p) for p in pairs], "frames": len(ring.frames)}
     results["loader"], matches = _loader_check(ring, pairs)
     keep = not (args.quick or args.no_analysis)
-    versus = stereo.coarse_to_fine and not args.quick  # against the exact search on the same points
+    versus = not args.quick  # against the other search on the same points
     study = consistency_study(
         ring.rig,
         ring.frames,
@@ -417,7 +423,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     results["stereo"] = stereo.model_dump()
     results["today"] = _print_study(f"2. {settings}, the ring's calibration", study)
     if versus:
-        results["versus_exact"] = _versus_exact(ring, pairs, stereo, study, cache)
+        results["versus_other_search"] = _versus_other_search(ring, pairs, stereo, study, cache)
     if not args.quick:
         rigs, results["refinement"] = _refined(ring, pairs, matches)
         refined = consistency_study(ring.rig, ring.frames, pairs, stereo=stereo, cache_dir=cache, rigs=rigs)

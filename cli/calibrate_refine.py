@@ -4,7 +4,7 @@ refined from the scene of a recording.
 
 Matches up to ``--frames`` pairs spread over the recording (progress bar), prints the correction
 in degrees about the rectified pair's axes with its 1σ, what happened to the baseline direction,
-and the vertical disparity of the consistent matches before and after in the VPC pair of the
+and the vertical disparity of the consistent matches before and after in the pinhole pair of the
 ``--vpc-*`` options; writes the corrected calibration as rig.yaml atomically. ``--out`` may be
 the calibration file itself: its original is then kept as ``<name>.orig<suffix>`` first (once).
 With ``--floor-height M`` the vergence is found from the floor instead (:mod:`cli.calibrate_floor`).
@@ -44,7 +44,7 @@ _DIRECTION = {"auto": "auto", "estimate": "always", "keep": "never"}
 def _vd(m: VerticalDisparity) -> str:
     if not m.ok or m.p50_px is None or m.p95_px is None:
         return f"– ({m.reason})"
-    return f"p50 {m.p50_px:.3f} px, p95 {m.p95_px:.3f} px ({m.count} matches in the VPC pair)"
+    return f"p50 {m.p50_px:.3f} px, p95 {m.p95_px:.3f} px ({m.count} matches in the pair)"
 
 
 def _report(result: RectificationRefinement) -> Table:
@@ -139,7 +139,7 @@ def register_refine(cal: typer.Typer) -> None:
             highlight=False,
         )
         console.print(
-            f"vertical disparity ({vpc.width}x{vpc.height}, {vpc.hfov_deg:g}° VPC): "
+            f"vertical disparity ({vpc.width}x{vpc.height}, {vpc.hfov_deg:g}° pinhole pair): "
             f"before {_vd(result.before)}; after {_vd(result.after)}",
             highlight=False,
         )

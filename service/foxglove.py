@@ -378,7 +378,8 @@ def start_foxglove(
     if runtime.ring is not None:
         builder = RingMessageBuilder(runtime.ring, settings.ros, cloud_stride=fox.cloud_stride)
     else:
-        builder = MessageBuilder(runtime.pipeline, settings.ros, cloud_stride=fox.cloud_stride)
+        stride, pinhole = fox.cloud_stride, settings.pinhole_depth
+        builder = MessageBuilder(runtime.pipeline, settings.ros, cloud_stride=stride, pinhole_depth=pinhole)
     live = FoxgloveLive(fox, builder, runtime.store, health, health_schema, limits=limits)
     live.start()
     return live

@@ -5,7 +5,8 @@ recordings written straight to MCAP (``rig record --format mcap``).
 ``rig process`` does, on the same executor (:func:`rig.recording_depth.process_pairs`: the same
 depth, bit for bit, the same failures, the same stage times), with an MCAP file as the sink
 (:class:`McapDepthSink`): per pair, everything :class:`~rig.ros.messages.MessageBuilder` makes
-(raw frames, camera infos, rectified views, depth, range, confidence, point cloud), after the
+(raw frames, camera infos, rectified views, depth, the pinhole depth of a lat-lon pair, range,
+confidence, point cloud), after the
 static transform tree; header stamps and log times are the frames' timestamps. A pair whose frame
 cannot be read or processed is skipped and reported; the file appears under its name only when
 complete.
@@ -25,6 +26,7 @@ from numpy.typing import NDArray
 
 from rig.capture.recorded import RecordedPairs
 from rig.errors import OutputError, RecordingError
+from rig.pinhole_depth import PinholeDepthConfig
 from rig.pipeline import DepthFrame, DepthPipeline
 from rig.recording import StoredFrame
 from rig.recording_depth import PairFailure, RecordedPair, process_pairs
@@ -146,15 +148,18 @@ def export_mcap(
     names: RosNames | None = None,
     cloud_stride: int = 1,
     rectified_images: bool = True,
+    pinhole_depth: PinholeDepthConfig | None = None,
     compression: Compression = "zstd",
     readahead: int = 4,
     on_pair: Callable[[int, PairFailure | None], None] | None = None,
 ) -> ExportResult:
     """Depth and everything around it for every pair of ``recording`` into ``out`` (see the
-    module docstring). ``on_pair(seq, failure)`` follows progress (failure: why it was skipped).
-    RecordingError when no pair could be processed, OutputError when the file cannot be
-    written (then no file is left behind)."""
-    builder = MessageBuilder(pipeline, names or RosNames(), cloud_stride, rectified_images)
+    module docstring; ``pinhole_depth``: the pinhole depth image's size and field, the default
+    :class:`~rig.pinhole_depth.PinholeDepthConfig` when None). ``on_pair(seq, failure)`` follows
+    progress (failure: why it was skipped). RecordingError when no pair could be processed,
+    OutputError when the file cannot be written (then no file is left behind)."""
+    pinhole = pinhole_depth if pinhole_depth is not None else PinholeDepthConfig()
+    builder = MessageBuilder(pipeline, names or RosNames(), cloud_stride, rectified_images, pinhole)
     with McapRosWriter(out, compression=compression) as writer:
         sink = McapDepthSink(writer, builder)
         run = process_pairs(pipeline, recording, recording.pairs, sink, readahead=readahead, on_pair=on_pair)

@@ -2,10 +2,11 @@
 MCAP recorder and the live Foxglove server, so all three carry the same topics and contents.
 
 :class:`MessageBuilder` turns a pipeline's geometry and its frames into messages: the static
-transforms, the raw frames with their camera infos, and for each processed pair the rectified
-views, depth (REP 118), range, confidence and the point cloud, each stamped with the pair's
-capture time. The encoders (:mod:`rig.ros.cdr` for ROS 2, ``service.foxglove`` for Foxglove's
-schemas) only translate these.
+transforms, the raw frames with their camera infos, and for each processed pair the rectified views,
+depth (REP 118), range, confidence and the point cloud, each stamped with the pair's capture time;
+on a pair that is no pinhole (the lat-lon default), depth z on a pinhole cut from its range too
+(:mod:`rig.pinhole_depth`), the topic pinhole-only ROS tools read correctly. The encoders
+(:mod:`rig.ros.cdr` for ROS 2, ``service.foxglove`` for Foxglove's schemas) only translate these.
 """
 
 from __future__ import annotations
@@ -18,9 +19,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rig.depth import depth_to_png_mm, pack_xyzrgb
+from rig.pinhole_depth import PinholeDepthConfig, PinholeDepthView
 from rig.pipeline import DepthFrame, DepthPipeline, PairGeometry
 from rig.recording import StoredFrame
-from rig.ros.camera_info import CameraInfo, raw_camera_info, rectified_camera_info
+from rig.ros.camera_info import CameraInfo, pinhole_depth_camera_info, raw_camera_info, rectified_camera_info
 from rig.ros.images import RawPixels, raw_pixels
 from rig.ros.names import RosNames
 from rig.ros.tf import StaticTransform, static_transforms
@@ -104,14 +106,16 @@ def raw_image_message(names: RosNames, camera: str, frame: StoredFrame, stamp_ns
 
 @dataclass
 class MessageBuilder:
-    """Messages of one pipeline's rig (see the module docstring). ``cloud_stride``: every
-    n-th pixel of each axis goes into the point cloud; ``rectified_images``: publish the VPC
-    pair (a ``stereo_image_proc`` input) or only its camera infos."""
+    """Messages of one pipeline's rig (see the module docstring). ``cloud_stride``: every n-th
+    pixel of each axis goes into the point cloud; ``rectified_images``: publish the rectified pair
+    (a ``stereo_image_proc`` input) or only its camera infos; ``pinhole_depth``: the pinhole depth
+    image's size and field (None: not published)."""
 
     pipeline: DepthPipeline
     names: RosNames = field(default_factory=RosNames)
     cloud_stride: int = 1
     rectified_images: bool = True
+    pinhole_depth: PinholeDepthConfig | None = field(default_factory=PinholeDepthConfig)
 
     def __post_init__(self) -> None:
         self._built_for: PairGeometry | None = None
@@ -128,6 +132,10 @@ class MessageBuilder:
         self._raw_infos = {c: raw_camera_info(rig.cameras[c], pair, c, self.names) for c in self.cameras}
         self._rect_infos = {c: rectified_camera_info(pair, c, self.names) for c in self.cameras}
         self._transforms = static_transforms(rig, pair, self.names)
+        self._pinhole: PinholeDepthView | None = None
+        if self.pinhole_depth is not None and pair.projection != "pinhole":
+            self._pinhole = PinholeDepthView(pair, self.pinhole_depth)
+            self._pinhole_info = pinhole_depth_camera_info(self._pinhole, self.names)
         self._built_for = geometry
 
     @property
@@ -197,6 +205,7 @@ class MessageBuilder:
         out += [CameraInfoMessage(topic, stamp_ns, info) for topic, info in infos if want(topic)]
         if want(self.names.depth_image):
             out.append(self.depth_image(frame, stamp_ns))
+        out += self.pinhole_depth_outputs(frame, stamp_ns, want=want)
         if want(topic := self.names.range_image):
             out.append(ImageMessage(topic, rect_frame, stamp_ns, raw_pixels(frame.range)))
         if frame.confidence is not None and want(topic := self.names.confidence_image):
@@ -205,6 +214,26 @@ class MessageBuilder:
         if want(self.names.points):
             colour = left_image() if callable(left_image) else left_image
             out.append(self.point_cloud(frame, stamp_ns, colour))
+        return out
+
+    def pinhole_depth_outputs(
+        self, frame: DepthFrame, stamp_ns: int, *, want: Callable[[str], bool] = _everything
+    ) -> list[Message]:
+        """The pinhole depth image (REP 118, the depth topic's encoding) and its camera info, on
+        a pair that is no pinhole; nothing on a pinhole pair (its depth topic is already that)."""
+        self._refresh()
+        if self._pinhole is None:
+            return []
+        out: list[Message] = []
+        if want(topic := self.names.pinhole_depth_info):
+            out.append(CameraInfoMessage(topic, stamp_ns, self._pinhole_info))
+        if want(topic := self.names.pinhole_depth_image):
+            z = self._pinhole.depth(frame.range)
+            if self.names.depth_encoding == "16UC1":
+                pixels = raw_pixels(depth_to_png_mm(z), depth_mm=True)
+            else:
+                pixels = raw_pixels(z)
+            out.append(ImageMessage(topic, self._pinhole_info.frame_id, stamp_ns, pixels))
         return out
 
     def point_cloud(

@@ -8,6 +8,8 @@ layout), under one namespace::
     /rig/rect/left/image_rect           the rectified (VPC) views, a stereo_image_proc pair
     /rig/rect/left/camera_info          their pinhole: plumb_bob, zero distortion
     /rig/depth/image_rect               depth (REP 118), with /rig/depth/camera_info
+    /rig/depth_pinhole/image_rect       depth z on a pinhole cut from the lat-lon pair's range,
+                                        with /rig/depth_pinhole/camera_info (plumb_bob, zero D)
     /rig/range/image                    metres along each pixel's ray
     /rig/confidence/image               confidence in [0, 1]
     /rig/points                         point cloud in the rig frame
@@ -121,6 +123,15 @@ class RosNames(BaseModel):
     @property
     def depth_info(self) -> str:
         return self.topic("depth/camera_info")
+
+    @property
+    def pinhole_depth_image(self) -> str:
+        """z on a pinhole (rig.pinhole_depth): what depth_image_proc, Nav2 and RViz read."""
+        return self.topic("depth_pinhole/image_rect")
+
+    @property
+    def pinhole_depth_info(self) -> str:
+        return self.topic("depth_pinhole/camera_info")
 
     @property
     def range_image(self) -> str:

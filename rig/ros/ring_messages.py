@@ -53,8 +53,12 @@ class RingMessageBuilder:
     rectified_images: bool = True
 
     def __post_init__(self) -> None:
+        # Each pair's range, no pinhole depth: the panorama is the ring's one depth for every
+        # direction (a pinhole view per pair would cost a resampling per pair per set).
         self.pairs = {
-            label: MessageBuilder(p, self.names.for_pair(label), self.cloud_stride, self.rectified_images)
+            label: MessageBuilder(
+                p, self.names.for_pair(label), self.cloud_stride, self.rectified_images, pinhole_depth=None
+            )
             for label, p in self.ring.pipelines.items()
         }
         # Each camera's raw CameraInfo from the first pair it belongs to.

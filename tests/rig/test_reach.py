@@ -46,7 +46,7 @@ def test_min_range_widens_the_search_to_reach_it_and_never_narrows_it() -> None:
     assert capped.disparity_range == 304
     # The coarse-to-fine search's unmatched band is its coarse level's (304 disparities at 1/4:
     # 80 coarse px, 320 columns): the widest whose band fits.
-    c2f = reaching(StereoParams(min_range_m=0.05), "pinhole", 320.0, 0.3, 320)
+    c2f = reaching(StereoParams(min_range_m=0.05, coarse_to_fine=True), "pinhole", 320.0, 0.3, 320)
     assert c2f.disparity_range == 256 and c2f.blind_band_px == 256
     assert c2f.model_copy(update={"disparity_range": 272}).blind_band_px + 16 > 320
 
@@ -56,7 +56,16 @@ def test_a_pair_says_when_it_cannot_reach_the_range_asked_for(tmp_path: Path) ->
     config = RectifiedPairConfig(width=160, height=120)  # fx 80 px: 96 disparities reach 6 cm
     pipe = DepthPipeline(rig, config, StereoParams(min_range_m=0.01), cache_dir=tmp_path, tune_malloc=False)
     in_effect = pipe.in_effect
-    assert in_effect.stereo.blind_band_px + 16 <= 160 and in_effect.stereo.disparity_range == 128
+    assert in_effect.stereo.blind_band_px + 16 <= 160 and in_effect.stereo.disparity_range == 144
+    # The coarse-to-fine search's unmatched band rounds up: its widest that fits is narrower.
+    c2f = DepthPipeline(
+        rig,
+        config,
+        StereoParams(min_range_m=0.01, coarse_to_fine=True),
+        cache_dir=tmp_path,
+        tune_malloc=False,
+    ).in_effect.stereo
+    assert c2f.blind_band_px + 16 <= 160 and c2f.disparity_range == 128
     notes = [line for line in in_effect.field_warnings if "ranges no nearer than" in line]
     assert len(notes) == 1 and "not the 0.01 m of stereo.min_range_m" in notes[0]
     assert in_effect.as_json()["nearest_range_m"] == pytest.approx(in_effect.nearest_range_m)

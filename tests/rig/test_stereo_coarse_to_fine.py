@@ -22,7 +22,7 @@ U8 = NDArray[np.uint8]
 @pytest.mark.parametrize("d", [9.3, 23.4, 41.75])
 def test_finds_the_shift_in_both_views(d: float, subpixel: bool) -> None:
     left, right = shifted_pair(d, noise=1.0)
-    params = StereoParams(disparity_range=64, subpixel=subpixel)
+    params = StereoParams(coarse_to_fine=True, disparity_range=64, subpixel=subpixel)
     assert params.coarse_factor == 2
     matcher = StereoMatcher(params)
     raw = matcher.compute(left, right)
@@ -128,7 +128,9 @@ def test_band_search_is_a_brute_force_block_matcher(window: int) -> None:
 
 def test_band_layout_does_not_change_the_result() -> None:
     left, right = shifted_pair(17.6, h=150, w=120, noise=2.0)
-    raw = StereoMatcher(StereoParams(disparity_range=64, subpixel=False)).compute(left, right)
+    raw = StereoMatcher(StereoParams(coarse_to_fine=True, disparity_range=64, subpixel=False)).compute(
+        left, right
+    )
     from rig.band_search import quantise_normalised
 
     ref, other = (quantise_normalised(normalise_contrast(i)) for i in (left, right))
@@ -150,7 +152,7 @@ def test_band_layout_does_not_change_the_result() -> None:
 
 def test_the_refinement_gets_the_normalisation_it_would_make() -> None:
     left, right = shifted_pair(20.4, noise=2.0)
-    raw = StereoMatcher(StereoParams(disparity_range=64)).compute(left, right)
+    raw = StereoMatcher(StereoParams(coarse_to_fine=True, disparity_range=64)).compute(left, right)
     assert raw.normalised is not None
     np.testing.assert_array_equal(raw.normalised[0], normalise_contrast(left))
     np.testing.assert_array_equal(raw.normalised[1], normalise_contrast(right))
@@ -161,7 +163,7 @@ def test_the_refinement_gets_the_normalisation_it_would_make() -> None:
     [(64, 2, 32), (96, 2, 48), (128, 2, 64), (192, 4, 48), (256, 4, 64)],  # (without "beyond")
 )
 def test_the_coarse_level(disparities: int, scale: int, coarse_range: int) -> None:
-    p = StereoParams(disparity_range=disparities)
+    p = StereoParams(coarse_to_fine=True, disparity_range=disparities)
     coarse = p.coarse_level()
     _, core, beyond = p.coarse_span()
     assert p.coarse_factor == scale and core == coarse_range and coarse.disparity_range == core + beyond
@@ -172,11 +174,11 @@ def test_the_coarse_level(disparities: int, scale: int, coarse_range: int) -> No
     assert p.blind_band_px == StereoParams(disparity_range=disparities, coarse_to_fine=False).blind_band_px
     # A stiffer smoothness penalty, within SGBM's 16-bit path costs.
     assert coarse.penalties()[1] == 4 * p.penalties()[1]
-    assert StereoParams(disparity_range=96, coarse_scale=4).coarse_factor == 4
+    assert StereoParams(coarse_to_fine=True, disparity_range=96, coarse_scale=4).coarse_factor == 4
     assert StereoParams(coarse_to_fine=False).coarse_factor == 1
     assert StereoParams(stereo_algorithm=0).coarse_factor == 1, "block matching searches the whole range"
     # A range that is no multiple of 16 coarse px: its unmatched band is the coarse level's.
-    odd = StereoParams(disparity_range=112)
+    odd = StereoParams(coarse_to_fine=True, disparity_range=112)
     assert odd.coarse_level().disparity_range == 64 + 16 and odd.blind_band_px == 128
 
 
@@ -188,7 +190,7 @@ def test_nothing_outside_the_range(subpixel: bool) -> None:
     # range (the exact search places 23 % of this one within the range, far too far).
     for d in (1.6, 30.6, 44.0):
         left, right = shifted_pair(d, w=240)
-        params = StereoParams(disparity_range=32, min_disparity=1, subpixel=subpixel)
+        params = StereoParams(coarse_to_fine=True, disparity_range=32, min_disparity=1, subpixel=subpixel)
         res = StereoMatcher(params).match(left, right)
         found = res.disparity[res.valid]
         assert found.size == 0 or (found.min() >= 0.5 and found.max() <= 32.5), d

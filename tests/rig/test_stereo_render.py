@@ -37,8 +37,8 @@ def test_subpixel_refinement_beats_plain_sgbm_at_every_fractional_distance(lut_c
         "ours": StereoParams(**exact, subpixel=True, median=0),
         "ours+median5": StereoParams(**exact),
         # The coarse-to-fine search: its parabola through the block costs, then ours after it.
-        "c2f parabola": StereoParams(disparity_range=64, subpixel=False, median=0),
-        "c2f + ours": StereoParams(disparity_range=64, median=0),
+        "c2f parabola": StereoParams(disparity_range=64, subpixel=False, median=0, coarse_to_fine=True),
+        "c2f + ours": StereoParams(disparity_range=64, median=0, coarse_to_fine=True),
     }
     rows = []
     for d in TRUE_DISPARITIES:

@@ -26,7 +26,7 @@ from rig.temporal_prior import MAX_AGE, TemporalPrior
 from tests.helpers.shots import add_noise, prototype_rig, render_for_pair
 
 VPC = RectifiedPairConfig(width=320, height=240)
-STEREO = StereoParams(disparity_range=64)
+STEREO = StereoParams(coarse_to_fine=True, disparity_range=64)
 NOISE = 1.5
 U8 = NDArray[np.uint8]
 
