@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass
 from types import TracebackType
 
-from rig.capture.frame import Frame, FramePair
+from rig.capture.frame import Frame, FramePair, FrameSet
 from service.runtime import Runtime
 from service.settings import Settings
 from service.store import PublishedResult
@@ -41,6 +41,11 @@ class GatedPairs:
         if not self.open.wait(timeout_s):
             return None
         return self.source.next_pair(timeout_s, newest=newest)
+
+    def next_set(self, timeout_s: float, *, newest: bool = True) -> FrameSet | None:
+        if not self.open.wait(timeout_s):
+            return None
+        return self.source.next_set(timeout_s, newest=newest)
 
     def report_undecodable(self, frame: Frame, err: Exception) -> None:
         self.source.report_undecodable(frame, err)

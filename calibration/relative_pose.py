@@ -385,4 +385,4 @@ def rig_with_relative_pose(rig: Rig, left: str, right: str, T_right_left: ArrayL
     T = np.asarray(T_right_left, dtype=np.float64)
     poses = {n: p.copy() for n, p in rig.T_rig_cam.items()}
     poses[right] = rig.T_rig_cam[left] @ invert_transform(T)
-    return Rig(dict(rig.cameras), poses)
+    return Rig(dict(rig.cameras), poses, rig.pairs)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -13,7 +13,7 @@ from calibration.errors import ModelError
 from calibration.geometry import invert_transform, is_rotation
 from calibration.models import CameraModel
 
-__all__ = ["MAX_TRANSLATION", "Rig", "translation_problem"]
+__all__ = ["MAX_TRANSLATION", "Rig", "pairs_problem", "translation_problem"]
 
 F64 = NDArray[np.float64]
 
@@ -34,6 +34,27 @@ def translation_problem(t: F64) -> str | None:
     )
 
 
+def pairs_problem(pairs: Sequence[Sequence[str]], cameras: Sequence[str]) -> tuple[int, str] | None:
+    """What is wrong with an explicit list of stereo pairs (each ``[left, right]`` of ``cameras``),
+    as (index of the entry at fault, message), or None. (File readers name the field.)"""
+    if not pairs:
+        return -1, "the list is empty"
+    seen: set[tuple[str, str]] = set()
+    for i, pair in enumerate(pairs):
+        if len(pair) != 2:
+            return i, f"a pair names two cameras, got {list(pair)!r}"
+        left, right = pair
+        for name in (left, right):
+            if name not in cameras:
+                return i, f"the rig has no camera {name!r} (cameras: {', '.join(cameras)})"
+        if left == right:
+            return i, f"camera {left!r} cannot pair with itself"
+        if (left, right) in seen:
+            return i, f"{left}|{right} is listed twice"
+        seen.add((left, right))
+    return None
+
+
 def _check_translation(t: F64, what: str) -> None:
     """ModelError naming ``what`` unless the translation ``t`` (3,) is in range."""
     problem = translation_problem(t)
@@ -43,10 +64,13 @@ def _check_translation(t: F64, what: str) -> None:
 
 @dataclass
 class Rig:
-    """``cameras[name]`` is a model; ``T_rig_cam[name]`` (4, 4) maps camera points into the rig."""
+    """``cameras[name]`` is a model; ``T_rig_cam[name]`` (4, 4) maps camera points into the rig;
+    ``pairs``, when given, the stereo pairs ``(left, right)`` (None: from the geometry,
+    ``rig.ring.adjacent_pairs``)."""
 
     cameras: dict[str, CameraModel]
     T_rig_cam: dict[str, F64] = field(default_factory=dict)
+    pairs: list[tuple[str, str]] | None = None
 
     def __post_init__(self) -> None:
         if set(self.cameras) != set(self.T_rig_cam):
@@ -61,6 +85,12 @@ class Rig:
                 raise ModelError(f"T_rig_cam of camera '{name}' must end with row [0, 0, 0, 1]")
             _check_translation(T[:3, 3], f"T_rig_cam of camera '{name}':")
             self.T_rig_cam[name] = T
+        if self.pairs is not None:
+            problem = pairs_problem(self.pairs, list(self.cameras))
+            if problem is not None:
+                where = "pairs" if problem[0] < 0 else f"pairs[{problem[0]}]"
+                raise ModelError(f"{where}: {problem[1]}")
+            self.pairs = [(str(a), str(b)) for a, b in self.pairs]
 
     @property
     def names(self) -> list[str]:
@@ -85,7 +115,10 @@ class Rig:
             entry = model.to_dict()
             entry["T_rig_cam"] = [[float(x) for x in row] for row in self.T_rig_cam[name]]
             cams[name] = entry
-        return {"cameras": cams}
+        doc: dict[str, Any] = {"cameras": cams}
+        if self.pairs is not None:
+            doc["pairs"] = [[a, b] for a, b in self.pairs]
+        return doc
 
     @classmethod
     def from_relative_pose(
@@ -154,4 +187,18 @@ class Rig:
                 poses[str(name)] = np.asarray(entry["T_rig_cam"], dtype=np.float64)
             except (TypeError, ValueError) as err:
                 raise ModelError(f"cameras.{name}.T_rig_cam must be a 4x4 matrix of numbers") from err
-        return cls(cameras, poses)
+        return cls(cameras, poses, _pairs_field(d.get("pairs")))
+
+
+def _pairs_field(value: Any) -> list[tuple[str, str]] | None:
+    """The ``pairs`` field of a rig document (None when absent); ModelError naming the entry."""
+    if value is None:
+        return None
+    if not isinstance(value, list | tuple):
+        raise ModelError("field 'pairs' must be a list of [left, right] camera names")
+    out = []
+    for i, pair in enumerate(value):
+        if not isinstance(pair, list | tuple) or len(pair) != 2 or not all(isinstance(n, str) for n in pair):
+            raise ModelError(f"pairs[{i}]: a pair is [left, right], two camera names; got {pair!r}")
+        out.append((pair[0], pair[1]))
+    return out

@@ -6,6 +6,9 @@ textured plane at 2…20 baselines through every model's pipeline, compares the 
 writes results.json, CSV tables, PNG figures and report.md into DIR (see rig.evaluate.report).
 ``--quick`` runs a reduced version (half-size images, 3 distances, 2 textures).
 
+``rig evaluate --study consistency REC --calibration RIG`` measures how the stereo pairs of a rig of
+N cameras agree with each other on a recording (see cli.evaluate_consistency and docs/ring.md).
+
 ``rig evaluate --study wide-pair --preset prototype --out DIR`` measures instead how much of what
 both lenses see the pinhole and lat-lon pairs turn into range, and how accurate (see
 rig.evaluate.wide_pair and docs/wide-pair.md).
@@ -24,6 +27,8 @@ from rich.table import Table
 
 from cli.console import console, progress_bar
 from cli.errors import fail
+from cli.evaluate_consistency import consistency_command
+from cli.pair_options import CacheDirOption, CalibrationOption
 from cli.pipeline_options import StereoOption, load_stereo_params
 from cli.sim import PresetOption, parse_distances
 from rig.evaluate import DEFAULT_MODELS, EvaluationRun, make_config, run_evaluation, write_outputs
@@ -95,9 +100,14 @@ def _summary(run: EvaluationRun) -> Table:
 def register(app: typer.Typer) -> None:
     @app.command("evaluate")
     def evaluate(
+        recording: Annotated[
+            Path | None,
+            typer.Argument(metavar="REC", help="--study consistency: a recording of the rig's cameras."),
+        ] = None,
         out: Annotated[
-            Path, typer.Option("--out", "-o", metavar="DIR", help="Output directory (new or empty).")
-        ],
+            Path | None,
+            typer.Option("--out", "-o", metavar="DIR", help="Output directory (new or empty)."),
+        ] = None,
         preset: PresetOption = "paper-sim",
         models: Annotated[
             str | None,
@@ -131,11 +141,20 @@ def register(app: typer.Typer) -> None:
             str,
             typer.Option(
                 metavar="STUDY",
-                help="paper (the paper's analysis) or wide-pair (coverage and range error of the "
-                "pinhole and lat-lon pairs over the lenses' overlap, in the room).",
+                help="paper (the paper's analysis), wide-pair (coverage and range error of the "
+                "pinhole and lat-lon pairs over the lenses' overlap, in the room) or consistency (how "
+                "the pairs of a rig of N cameras agree on REC).",
             ),
         ] = "paper",
+        calibration: CalibrationOption = None,
         stereo_file: StereoOption = None,
+        cache_dir: CacheDirOption = None,
+        json_path: Annotated[
+            Path | None,
+            typer.Option(
+                "--json", metavar="FILE", help="--study consistency: also write the figures as JSON."
+            ),
+        ] = None,
         lens: Annotated[
             str | None,
             typer.Option(
@@ -151,10 +170,22 @@ def register(app: typer.Typer) -> None:
         Calibration of every model, distortion removal, depth error against distance, matcher
         comparison: results.json, CSV tables, figures and report.md in --out.
         """
+        if study not in ("paper", "wide-pair", "consistency"):
+            fail(f"--study must be paper, wide-pair or consistency, got {study!r}")
+        if study == "consistency":
+            if out is not None:
+                fail("--out applies to --study paper and wide-pair; consistency prints (and --json writes)")
+            consistency_command(recording, calibration, stereo_file, cache_dir, json_path)
+            return
+        given = [
+            o for o, v in (("REC", recording), ("--calibration", calibration), ("--json", json_path)) if v
+        ]
+        if given:
+            fail(f"{', '.join(given)} apply to --study consistency")
+        if out is None:
+            fail(f"--study {study} needs --out DIR")
         if preset not in PRESETS:
             fail(f"--preset must be one of {', '.join(PRESETS)}, got {preset!r}")
-        if study not in ("paper", "wide-pair"):
-            fail(f"--study must be paper or wide-pair, got {study!r}")
         if lens is not None and lens not in LENS_CHOICES:
             fail(f"--lens must be one of {', '.join(LENS_CHOICES)}, got {lens!r}")
         _check_out(out, force)

@@ -34,16 +34,25 @@ from cli.pair_options import (
 from cli.pipeline_options import (
     NoCheckOption,
     StereoOption,
-    build_pipeline,
+    build_pipelines,
     check_against_frames,
     describe_pipeline,
 )
-from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption, open_source
+from cli.source_options import (
+    LeftTopicOption,
+    MaxSkewOption,
+    RightTopicOption,
+    TopicOption,
+    open_source,
+    parse_topics,
+)
 from rig.errors import ConfigError
-from rig.ros.mcap_export import export_mcap
+from rig.rig_pipeline import RigPipeline
+from rig.ros.mcap_export import export_mcap, export_ring_mcap
 from rig.ros.names import DepthEncoding, RosNames
 
 if TYPE_CHECKING:
+    from rig.capture.recorded import RecordedPairs
     from rig.recording_depth import PairFailure
 
 __all__ = ["register"]
@@ -117,16 +126,23 @@ def register(app: typer.Typer) -> None:
         ] = "zstd",
         cache_dir: CacheDirOption = None,
         no_check: NoCheckOption = False,
+        topic: TopicOption = None,
     ) -> None:
-        """Depth and everything around it for every pair of REC, as a ROS 2 MCAP file."""
+        """Depth and everything around it for every pair of REC, as a ROS 2 MCAP file (a rig of N
+        cameras: every pair's, the panorama and the fused cloud)."""
         names = _names(namespace, frame_prefix, depth_encoding)
-        rec = open_source(recording, left_topic, right_topic, max_skew_ms)
+        rec = open_source(recording, left_topic, right_topic, max_skew_ms, parse_topics(topic))
         config = make_pair_config(
             vpc_size, vpc_hfov, yaw, pitch, projection=projection, px_per_deg=px_per_deg, field=field
         )
-        pipeline, cal_path = build_pipeline(calibration, rec.calibration_path, config, stereo, cache_dir)
+        pipeline, cal_path = build_pipelines(
+            calibration, rec.calibration_path, config, stereo, cache_dir, rings=True
+        )
         if not no_check:
             check_against_frames(pipeline, rec)
+        if isinstance(pipeline, RigPipeline):
+            _export_ring(rec, pipeline, out, names, cloud_stride, rectified_images, compression)
+            return
         with progress_bar(RateColumn("pairs"), TimeRemainingColumn()) as progress:
             task = progress.add_task("export", total=len(rec.pairs))
 
@@ -156,3 +172,44 @@ def register(app: typer.Typer) -> None:
             highlight=False,
             soft_wrap=True,
         )
+
+
+def _export_ring(
+    rec: RecordedPairs,
+    ring: RigPipeline,
+    out: Path,
+    names: RosNames,
+    cloud_stride: int,
+    rectified_images: bool,
+    compression: Literal["zstd", "lz4", "none"],
+) -> None:
+    """``rig export mcap`` of a rig of N cameras (rig.ros.mcap_export.export_ring_mcap)."""
+    with progress_bar(RateColumn("sets"), TimeRemainingColumn()) as progress:
+        task = progress.add_task("export", total=len(rec.pairs))
+
+        def on_set(seq: int, failure: PairFailure | None) -> None:
+            if failure is not None:
+                progress.console.print(
+                    f"[yellow]skipped seq {seq}:[/yellow] {one_line(failure.reason)}",
+                    highlight=False,
+                    soft_wrap=True,
+                )
+            progress.advance(task)
+
+        result = export_ring_mcap(
+            rec,
+            ring,
+            out,
+            names=names,
+            cloud_stride=cloud_stride,
+            rectified_images=rectified_images,
+            compression=compression,
+            on_set=on_set,
+        )
+    note = f", [yellow]{len(result.skipped)} skipped[/yellow]" if result.skipped else ""
+    console.print(
+        f"exported {result.pairs} of {len(rec.pairs)} sets{note} -> {result.path} "
+        f"({result.messages} messages; pairs {', '.join(ring.labels)}, the panorama and the fused cloud)",
+        highlight=False,
+        soft_wrap=True,
+    )

@@ -184,14 +184,25 @@ def _in_options(error: Any, values: dict[str, Any]) -> str:
     return f"{_OPTION_OF.get(field, field or 'rectified')}: {error['msg'].removeprefix('Value error, ')}{got}"
 
 
-def load_calibration(path: Path | None, fallback: Path | None = None) -> tuple[Rig, Path]:
-    """The rig from ``path`` (or ``fallback`` when no path was given)."""
+def load_calibration(
+    path: Path | None, fallback: Path | None = None, *, rings: bool = False
+) -> tuple[Rig, Path]:
+    """The rig from ``path`` (or ``fallback`` when no path was given): a two-camera rig with
+    cameras ``left`` and ``right``, or with ``rings`` (a command that works on every pair of a rig)
+    also a rig of more than two cameras."""
     chosen = path or fallback
     if chosen is None:
         raise ConfigError("--calibration FILE is required (the recording carries no calibration.yaml)")
     from calibration import load_rig
 
     rig = load_rig(chosen)
+    if len(rig.names) > 2:
+        if rings:
+            return rig, chosen
+        raise ConfigError(
+            f"{chosen}: field 'cameras': a rig of {len(rig.names)} cameras ({', '.join(rig.names)}); this "
+            "command works on a two-camera rig (left and right)"
+        )
     for name in ("left", "right"):
         if name not in rig.cameras:
             raise ConfigError(f"{chosen}: rig has no camera '{name}' (cameras: {', '.join(rig.names)})")

@@ -20,12 +20,14 @@ if TYPE_CHECKING:  # the libraries load when an option is used, not for --help
     from rig.capture.recorded import RecordedPairs
     from rig.pipeline import DepthPipeline
     from rig.rectified import RectifiedPairConfig
+    from rig.rig_pipeline import RigPipeline
     from rig.stereo import StereoParams
 
 __all__ = [
     "NoCheckOption",
     "StereoOption",
     "build_pipeline",
+    "build_pipelines",
     "check_against_frames",
     "describe_pipeline",
     "load_stereo_params",
@@ -75,28 +77,82 @@ def build_pipeline(
     here once, so the pipeline logs it only at DEBUG."""
     from rig.pipeline import DepthPipeline
 
-    rig, cal_path = load_calibration(calibration, fallback)
+    pipeline, cal_path = build_pipelines(calibration, fallback, config, stereo, cache_dir)
+    assert isinstance(pipeline, DepthPipeline)  # a rig of more than two cameras was refused
+    return pipeline, cal_path
+
+
+def build_pipelines(
+    calibration: Path | None,
+    fallback: Path | None,
+    config: RectifiedPairConfig,
+    stereo: Path | None,
+    cache_dir: Path | None,
+    *,
+    rings: bool = False,
+    panorama_px_per_deg: float | None = None,
+) -> tuple[DepthPipeline | RigPipeline, Path]:
+    """:func:`build_pipeline`, and with ``rings`` for a rig of more than two cameras its
+    :class:`~rig.rig_pipeline.RigPipeline` (every pair's warnings said, each naming its pair;
+    its panorama at ``panorama_px_per_deg``, default the panorama's own)."""
+    from rig.panorama import DEFAULT_PANORAMA_PX_PER_DEG
+    from rig.pipeline import DepthPipeline
+    from rig.rig_pipeline import RigPipeline
+
+    rig, cal_path = load_calibration(calibration, fallback, rings=rings)
     params = load_stereo_params(stereo) if stereo is not None else None
+    if len(rig.names) > 2:
+        ring = RigPipeline(
+            rig,
+            config,
+            params,
+            cache_dir=cache_dir,
+            panorama_px_per_deg=panorama_px_per_deg or DEFAULT_PANORAMA_PX_PER_DEG,
+            log_field_warnings=False,
+        )
+        for label, pipeline in ring.pipelines.items():
+            for line in pipeline.in_effect.field_warnings:
+                warn(f"{label}: {line}")
+        return ring, cal_path
+    if panorama_px_per_deg is not None:
+        raise ConfigError("--panorama-px-per-deg applies to a rig of more than two cameras (a ring)")
     pipeline = DepthPipeline(rig, config, params, cache_dir=cache_dir, log_field_warnings=False)
     for line in pipeline.in_effect.field_warnings:
         warn(line)
     return pipeline, cal_path
 
 
-def describe_pipeline(pipeline: DepthPipeline, cal_path: Path) -> str:
-    """One line naming the calibration file, the rectified pair and the baseline."""
+def describe_pipeline(pipeline: DepthPipeline | RigPipeline, cal_path: Path) -> str:
+    """One line naming the calibration file, the rectified pair and the baseline (a ring: its
+    pairs, its first pair's rectified pair and the panorama)."""
+    from rig.rig_pipeline import RigPipeline
+
+    if isinstance(pipeline, RigPipeline):
+        return (
+            f"calibration {cal_path}, {len(pipeline.rig.names)} cameras, pairs {', '.join(pipeline.labels)} "
+            f"({pipeline.first.pair.describe()} first), panorama {pipeline.panorama.camera.width}x"
+            f"{pipeline.panorama.camera.height}"
+        )
     return f"calibration {cal_path}, {pipeline.pair.describe()}, B {pipeline.baseline_m:.4f} m"
 
 
-def check_against_frames(pipeline: DepthPipeline, recording: RecordedPairs) -> None:
+def check_against_frames(pipeline: DepthPipeline | RigPipeline, recording: RecordedPairs) -> None:
     """The calibration against the recording's first readable pair
-    (:func:`rig.calibration_check.check_recording`): an error stops the command (one line, exit
+    (:func:`rig.calibration_check.check_recording`; a ring: every pair, after the recording is
+    checked to hold every camera of the calibration): an error stops the command (one line, exit
     status 2), each warning is printed once."""
     from rig.calibration_check import check_recording
+    from rig.rig_depth import check_recording_cameras
+    from rig.rig_pipeline import RigPipeline
 
-    findings = check_recording(pipeline, recording)
-    for finding in findings:
+    if isinstance(pipeline, RigPipeline):
+        check_recording_cameras(recording, pipeline.cameras)
+        pairs = list(pipeline.pipelines.items())
+    else:
+        pairs = [("", pipeline)]
+    findings = [(label, finding) for label, one in pairs for finding in check_recording(one, recording)]
+    for label, finding in findings:
         if finding.severity == "error":
-            fail(finding.message)
-    for finding in findings:
-        warn(finding.message)
+            fail(f"{label}: {finding.message}" if label else finding.message)
+    for label, finding in findings:
+        warn(f"{label}: {finding.message}" if label else finding.message)

@@ -2,6 +2,11 @@
 many recordings, headless, on the staged pipeline the service runs, here or on a Dask cluster (see
 docs/offline.md); the rectified projections: docs/wide-pair.md.
 
+A calibration of more than two cameras (a ring, docs/ring.md) processes every stereo pair of each
+synchronised set into ``DIR/<A>-<B>/`` (the layout above) and fuses them into the 360° range
+panorama (``DIR/panorama/``, ``DIR/panorama.json``; ``--ply``: the fused cloud in ``DIR/cloud/``),
+in this process (:mod:`rig.ring_outputs`).
+
 RECORDING is a recording directory (see docs/cameras.md) or a ROS bag with ``--left-topic`` and
 ``--right-topic`` (see docs/ros.md); several may be given, or a quoted glob (``'recs/*'``). One
 recording's outputs go to DIR, those of several (or of a glob) to ``DIR/NAME/`` (NAME = the
@@ -53,11 +58,11 @@ from cli.pair_options import (
 from cli.pipeline_options import (
     NoCheckOption,
     StereoOption,
-    build_pipeline,
+    build_pipelines,
     check_against_frames,
     describe_pipeline,
 )
-from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption
+from cli.source_options import LeftTopicOption, MaxSkewOption, RightTopicOption, TopicOption, parse_topics
 from rig.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -65,6 +70,7 @@ if TYPE_CHECKING:
     from rig.recording_depth import PairFailure
     from rig.recording_jobs import ProcessOptions, RecordingJob, RecordingSource, RecordingSummary
     from rig.rectified import RectifiedPairConfig
+    from rig.rig_pipeline import RigPipeline
 
 __all__ = ["register"]
 
@@ -103,15 +109,22 @@ def _output_dirs(sources: Sequence[RecordingSource], out: Path, per_recording: b
 
 class _Pipelines:
     """One pipeline per calibration (by its file's content): recordings with the same
-    calibration share its lookup tables."""
+    calibration share its lookup tables. A rig of more than two cameras has a
+    :class:`~rig.rig_pipeline.RigPipeline`."""
 
     def __init__(
-        self, calibration: Path | None, config: RectifiedPairConfig, stereo: Path | None, cache: Path | None
+        self,
+        calibration: Path | None,
+        config: RectifiedPairConfig,
+        stereo: Path | None,
+        cache: Path | None,
+        panorama_px_per_deg: float | None = None,
     ):
         self._options = (calibration, config, stereo, cache)
-        self._built: dict[str, DepthPipeline] = {}
+        self._panorama = panorama_px_per_deg
+        self._built: dict[str, DepthPipeline | RigPipeline] = {}
 
-    def for_recording(self, fallback: Path | None) -> tuple[DepthPipeline, Path]:
+    def for_recording(self, fallback: Path | None) -> tuple[DepthPipeline | RigPipeline, Path]:
         calibration, config, stereo, cache = self._options
         chosen = calibration or fallback
         if chosen is None:
@@ -121,17 +134,19 @@ class _Pipelines:
         except OSError as err:
             raise ConfigError(f"{chosen}: unreadable calibration ({err.strerror or err})") from err
         if key not in self._built:
-            self._built[key] = build_pipeline(calibration, fallback, config, stereo, cache)[0]
+            self._built[key] = build_pipelines(
+                calibration, fallback, config, stereo, cache, rings=True, panorama_px_per_deg=self._panorama
+            )[0]
         return self._built[key], chosen  # the file this recording names, not the first alike
 
 
-def _report(summary: RecordingSummary, described: str) -> None:
+def _report(summary: RecordingSummary, described: str, unit: str = "pairs") -> None:
     processed = summary.written + summary.resumed
     notes = f", {summary.resumed} already complete" if summary.resumed else ""
     if summary.failures:
         notes += f", [yellow]{len(summary.failures)} skipped[/yellow]"
     console.print(
-        f"processed {processed} of {summary.total} pairs{notes} -> {summary.out} ({described})",
+        f"processed {processed} of {summary.total} {unit}{notes} -> {summary.out} ({described})",
         highlight=False,
         soft_wrap=True,
     )
@@ -224,7 +239,10 @@ def register(app: typer.Typer) -> None:
         pitch: PitchOption = None,
         stereo: StereoOption = None,
         ply: Annotated[
-            bool, typer.Option("--ply", help="Also write DIR/cloud/NNNNNN.ply (rig frame).")
+            bool,
+            typer.Option(
+                "--ply", help="Also write DIR/cloud/NNNNNN.ply (rig frame; a ring: the fused cloud)."
+            ),
         ] = False,
         preview: Annotated[
             bool,
@@ -234,6 +252,7 @@ def register(app: typer.Typer) -> None:
         left_topic: LeftTopicOption = None,
         right_topic: RightTopicOption = None,
         max_skew_ms: MaxSkewOption = None,
+        topic: TopicOption = None,
         resume: Annotated[
             bool, typer.Option("--resume", help="Skip the pairs whose outputs are complete in DIR.")
         ] = False,
@@ -271,26 +290,40 @@ def register(app: typer.Typer) -> None:
             typer.Option("--summary", metavar="FILE", help="Also write the summary (every failure) as JSON."),
         ] = None,
         no_check: NoCheckOption = False,
+        panorama_px_per_deg: Annotated[
+            float | None,
+            typer.Option(
+                "--panorama-px-per-deg",
+                min=0.25,
+                max=20.0,
+                metavar="PPD",
+                help="A ring's 360° panorama: pixels per degree.",
+                show_default="4",
+            ),
+        ] = None,
     ) -> None:
         """Range (and the pinhole pair's depth) for every pair of each RECORDING into --out: range/,
-        depth/, left/, right/, vpc.json, run.json."""
+        depth/, left/, right/, vpc.json, run.json. A rig of more than two cameras: that layout in
+        --out/<A>-<B>/ per stereo pair, and the 360° range panorama in panorama/ with panorama.json."""
         from rig.recording_jobs import ProcessOptions, RecordingSource
 
         paths, per_recording = expand_recordings(recordings)
         config = make_pair_config(
             vpc_size, vpc_hfov, yaw, pitch, projection=projection, px_per_deg=px_per_deg, field=field
         )
-        sources = [RecordingSource(p, left_topic, right_topic, max_skew_ms) for p in paths]
-        pipelines = _Pipelines(calibration, config, stereo, cache_dir)
+        topics = parse_topics(topic)
+        sources = [RecordingSource(p, left_topic, right_topic, max_skew_ms, topics) for p in paths]
+        pipelines = _Pipelines(calibration, config, stereo, cache_dir, panorama_px_per_deg)
         jobs, described = _jobs(sources, _output_dirs(sources, out, per_recording), pipelines, not no_check)
-        where = _scheduler(scheduler, len(jobs))
+        rings = any(job.ring is not None for job in jobs)
+        where = None if rings and scheduler is None else _scheduler(scheduler, len(jobs))
         extra = (("cloud",) if ply else ()) + (("preview",) if preview else ())
         depth = ("depth",) if config.projection == "pinhole" else ()  # the lat-lon pair's depth is its range
         products = ("range", *depth, "left", "right", *extra)
         options = ProcessOptions(products=products, resume=resume, chunk_pairs=chunk_size)
         summaries = _run(jobs, options, where, workers, scheduler_timeout)
-        for result, text in zip(summaries, described, strict=True):
-            _report(result, text)
+        for result, text, job in zip(summaries, described, jobs, strict=True):
+            _report(result, text, "sets" if job.ring is not None else "pairs")
         if summary is not None:
             _write_summary(summary, summaries)
         empty = [
@@ -311,11 +344,18 @@ def _jobs(
 
     opened = [source.open() for source in sources]
     jobs, described = [], []
+    from rig.rig_depth import check_recording_cameras
+    from rig.rig_pipeline import RigPipeline
+
     for source, recording, out_dir in zip(sources, opened, outs, strict=True):
         pipeline, cal_path = pipelines.for_recording(recording.calibration_path)
         if check:
             check_against_frames(pipeline, recording)
-        jobs.append(RecordingJob(source, recording, pipeline, out_dir))
+        if isinstance(pipeline, RigPipeline):
+            check_recording_cameras(recording, pipeline.cameras)
+            jobs.append(RecordingJob(source, recording, pipeline.first, out_dir, ring=pipeline))
+        else:
+            jobs.append(RecordingJob(source, recording, pipeline, out_dir))
         described.append(describe_pipeline(pipeline, cal_path))
     return jobs, described
 

@@ -1,5 +1,5 @@
-"""`rig record`: record synchronised pairs from the cameras, or re-record a recording (see
-docs/cameras.md)."""
+"""`rig record`: record synchronised pairs from the cameras (sets of N frames from a rig of N
+cameras, the config's ``cameras.rig``), or re-record a recording (see docs/cameras.md)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import typer
 
 from cli.console import console, err_console, progress_bar
 from cli.errors import fail
-from rig.capture.capture import StereoCapture
+from rig.capture.capture import RigCapture
 from rig.capture.config import CaptureConfig, load_capture_config
 from rig.capture.health import CaptureHealth
 from rig.capture.recorder import Recorder, RecordResult, copy_calibration, replay_capture_config
@@ -180,13 +180,13 @@ def register(app: typer.Typer) -> None:
 
         def open_writer() -> PairWriter:
             if format == "mcap":
-                return McapRecordingWriter(out, fsync=fsync)
-            writer = RecordingWriter(out, meta=meta, fsync=fsync)
+                return McapRecordingWriter(out, cameras=capture_cfg.names, fsync=fsync)
+            writer = RecordingWriter(out, meta=meta, cameras=capture_cfg.names, fsync=fsync)
             if source_rec is not None:
                 copy_calibration(source_rec, out)
             return writer
 
-        capture = StereoCapture(capture_cfg)
+        capture = RigCapture(capture_cfg)
         recorder = Recorder(capture, open_writer)
         progress = progress_bar(disable=not err_console.is_terminal)
         task = progress.add_task("recording pairs", total=total)

@@ -67,7 +67,7 @@ def recording_overrides(
     calib = calibration or rec.calibration_path
     if calib is None:
         fail(f"--recording {recording}: it has no calibration.yaml; give --calibration FILE")
-    return replay_overrides(rec.root, calib, "recorded", fields)
+    return replay_overrides(rec.root, calib, "recorded", fields, rec.cameras)
 
 
 def demo_recording() -> Path:

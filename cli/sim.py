@@ -3,6 +3,9 @@
 ``rig sim --preset paper-sim --scene plane --distances 3,5,10 --out DIR`` writes the usual
 recording layout (see docs/cameras.md) plus ``calibration.yaml`` and ``ground_truth/`` (see
 ``rig.sim.simulate``).
+``rig sim --rig ring4 --out DIR`` renders a ring of N cameras instead (the room; see
+``rig.sim.ring_recording``): an N-camera recording with the exact range of every stereo pair and
+of the 360° panorama.
 ``--scene plane`` renders the fronto-parallel target at each distance (in baselines),
 ``--frames-per-distance`` pairs each; ``--scene room`` renders ``--frames`` pairs along a path
 through the demo room (``--distances`` does not apply there). Numbers are parsed here, so a bad
@@ -15,7 +18,7 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.progress import TimeRemainingColumn
@@ -31,10 +34,13 @@ from cli.pair_options import (
 )
 from cli.pipeline_options import load_stereo_params
 from rig.sim.lens_effects import LENS_CHOICES
-from rig.sim.presets import PRESETS, get_preset
+from rig.sim.presets import PRESETS, RING_PRESETS, Preset, get_preset, get_ring_preset
 from rig.sim.simulate import DEFAULT_DISTANCES, DEFAULT_ROOM_FRAMES, SCENES, simulate_recording
 from rig.sim.textures import TEXTURES, texture_name
 from rig.stereo import StereoParams
+
+if TYPE_CHECKING:
+    from rig.rectified import RectifiedPairConfig
 
 __all__ = ["PresetOption", "parse_distances", "register"]
 
@@ -80,9 +86,22 @@ def register(app: typer.Typer) -> None:
             Path, typer.Option("--out", "-o", metavar="DIR", help="New (or empty) recording directory.")
         ],
         preset: PresetOption = "paper-sim",
+        ring: Annotated[
+            str | None,
+            typer.Option(
+                "--rig",
+                metavar="RING",
+                help=f"Render a ring of N cameras instead of --preset's pair: {', '.join(RING_PRESETS)}.",
+            ),
+        ] = None,
         scene: Annotated[
-            str, typer.Option(metavar="SCENE", help="plane (the paper's target) or room (demo).")
-        ] = "plane",
+            str | None,
+            typer.Option(
+                metavar="SCENE",
+                help="plane (the paper's target) or room (demo).",
+                show_default="plane; room with --rig",
+            ),
+        ] = None,
         distances: Annotated[
             str | None,
             typer.Option(
@@ -167,9 +186,19 @@ def register(app: typer.Typer) -> None:
             ),
         ] = None,
         color: Annotated[bool, typer.Option("--color/--gray", help="Render BGR colour frames.")] = False,
+        panorama_px_per_deg: Annotated[
+            str | None,
+            typer.Option(
+                "--panorama-px-per-deg",
+                metavar="PPD",
+                help="--rig: the panorama's resolution (rig process's --panorama-px-per-deg).",
+                show_default="4",
+            ),
+        ] = None,
     ) -> None:
         """Render a simulated recording with ground truth (range, depth and Reference images of the
         rectified pair)."""
+        scene = _scene_of(ring, scene, panorama_px_per_deg)
         if preset not in PRESETS:
             fail(f"unknown --preset {preset!r}; valid presets: {', '.join(PRESETS)}")
         if scene not in SCENES:
@@ -198,6 +227,11 @@ def register(app: typer.Typer) -> None:
         vpc = make_pair_config(vpc_size, hfov, projection=projection, px_per_deg=px_per_deg, field=field)
         params = load_stereo_params(stereo) if stereo is not None else StereoParams()
 
+        if ring is not None:
+            pano = _float("--panorama-px-per-deg", panorama_px_per_deg or "4", 0.25, 20.0)
+            options = (n_frames, seed_value, noise_std, vig, ss, color, vpc, params.blind_band_px, pano)
+            _ring(get_ring_preset(ring).scaled(factor), out, *options)
+            return
         chosen = get_preset(preset)
         if factor != 1.0:
             chosen = chosen.scaled(factor)
@@ -254,3 +288,64 @@ def register(app: typer.Typer) -> None:
             "calibration: calibration.yaml",
             highlight=False,
         )
+
+
+def _scene_of(ring: str | None, scene: str | None, panorama_px_per_deg: str | None) -> str:
+    """The scene to render (a ring's: the room; a pair's default: the plane), checking that
+    ``--rig`` and ``--panorama-px-per-deg`` go together and with the room."""
+    if ring is None:
+        if panorama_px_per_deg is not None:
+            fail("--panorama-px-per-deg applies to --rig (a ring's panorama)")
+        return scene or "plane"
+    if ring not in RING_PRESETS:
+        fail(f"unknown --rig {ring!r}; valid rings: {', '.join(RING_PRESETS)}")
+    if scene not in (None, "room"):
+        fail(f"--rig renders --scene room, not {scene}")
+    return "room"
+
+
+def _ring(
+    chosen: Preset,
+    out: Path,
+    frames: int | None,
+    seed: int,
+    noise_std: float | None,
+    vignetting: float | None,
+    supersample: int,
+    color: bool,
+    vpc: RectifiedPairConfig,
+    blind_band_px: int,
+    panorama_px_per_deg: float,
+) -> None:
+    """``rig sim --rig``: the ring's recording (rig.sim.ring_recording)."""
+    from rig.sim.ring_recording import simulate_ring_recording
+
+    start = time.monotonic()
+    count = frames or DEFAULT_ROOM_FRAMES
+    with progress_bar(TimeRemainingColumn(), transient=False, on_stdout=True) as bar:
+        task = bar.add_task(f"rendering room ({chosen.name})", total=count)
+        simulate_ring_recording(
+            chosen,
+            out,
+            frames=count,
+            seed=seed,
+            noise_std=noise_std,
+            vignetting=vignetting,
+            supersample=supersample,
+            color=color,
+            vpc=vpc,
+            blind_band_px=blind_band_px,
+            panorama_px_per_deg=panorama_px_per_deg,
+            progress=lambda done, total: bar.update(task, completed=done, total=total),
+        )
+    pairs = json.loads((out / "recording.json").read_text())["pairs"]
+    console.print(
+        f"[green]wrote[/green] {count} sets of {len(chosen.rig.names)} cameras ({chosen.name}, room path) "
+        f"to {out} in {time.monotonic() - start:.1f} s",
+        highlight=False,
+    )
+    console.print(
+        f"ground truth: {out / 'ground_truth'} (range of the pairs {', '.join(pairs)} and of the panorama, "
+        ".npy; panorama.json); calibration: calibration.yaml",
+        highlight=False,
+    )

@@ -11,7 +11,14 @@ import typer
 if TYPE_CHECKING:
     from rig.capture.recorded import RecordedPairs
 
-__all__ = ["LeftTopicOption", "MaxSkewOption", "RightTopicOption", "open_source"]
+__all__ = [
+    "LeftTopicOption",
+    "MaxSkewOption",
+    "RightTopicOption",
+    "TopicOption",
+    "open_source",
+    "parse_topics",
+]
 
 LeftTopicOption = Annotated[
     str | None,
@@ -25,6 +32,14 @@ RightTopicOption = Annotated[
     str | None,
     typer.Option("--right-topic", metavar="TOPIC", help="A ROS bag's image topic of the right camera."),
 ]
+TopicOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--topic",
+        metavar="CAMERA=TOPIC",
+        help="A ROS bag's image topic of one camera of a rig of N cameras (repeat per camera).",
+    ),
+]
 MaxSkewOption = Annotated[
     float | None,
     typer.Option(
@@ -37,10 +52,39 @@ MaxSkewOption = Annotated[
 ]
 
 
+def parse_topics(values: list[str] | None) -> tuple[tuple[str, str], ...] | None:
+    """``["cam1=/cam1/image_raw", ...]`` as (camera, topic) pairs (None: none given);
+    ConfigError naming --topic otherwise."""
+    from rig.errors import ConfigError
+
+    if not values:
+        return None
+    out: dict[str, str] = {}
+    for value in values:
+        camera, sep, topic = value.partition("=")
+        if not sep or not camera or not topic:
+            raise ConfigError(f"--topic must look like CAMERA=TOPIC (cam1=/cam1/image_raw), got {value!r}")
+        if camera in out:
+            raise ConfigError(f"--topic: camera {camera!r} is named twice")
+        out[camera] = topic
+    return tuple(out.items())
+
+
 def open_source(
-    recording: Path, left_topic: str | None, right_topic: str | None, max_skew_ms: float | None
+    recording: Path,
+    left_topic: str | None,
+    right_topic: str | None,
+    max_skew_ms: float | None,
+    topics: tuple[tuple[str, str], ...] | None = None,
 ) -> RecordedPairs:
-    """A recording directory, or a ROS bag (MCAP, .db3, bag directory) with its two image topics."""
+    """A recording directory, or a ROS bag (MCAP, .db3, bag directory) with its two image topics
+    (or a topic per camera of a rig)."""
     from rig.capture.recorded import open_recording
 
-    return open_recording(recording, left_topic=left_topic, right_topic=right_topic, max_skew_ms=max_skew_ms)
+    return open_recording(
+        recording,
+        left_topic=left_topic,
+        right_topic=right_topic,
+        max_skew_ms=max_skew_ms,
+        topics=None if topics is None else dict(topics),
+    )

@@ -272,9 +272,12 @@ def check_recording(pipeline: DepthPipeline, recording: RecordedPairs) -> list[F
     frame sizes (:func:`check_frame_sizes`; frames of another size end the check), then
     :func:`check_calibration`, each of its messages naming the pair. What ``rig process`` and
     ``rig export mcap`` check before processing."""
+    # A recording of the pair's own cameras (a ring's) is read by their names, else as left, right.
+    named = all(n in recording.cameras for n in pipeline.names)
+    columns = pipeline.names if named else ("left", "right")
     for pair in recording.pairs[:CHECK_TRIES]:
         try:  # the sizes from the headers: nothing of another size is decoded
-            stored = recording.read_frame(pair, "left"), recording.read_frame(pair, "right")
+            stored = recording.read_frame(pair, columns[0]), recording.read_frame(pair, columns[1])
             sizes = {
                 pipeline.pair.left: stored[0].declared_size(),
                 pipeline.pair.right: stored[1].declared_size(),

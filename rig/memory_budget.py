@@ -38,6 +38,7 @@ __all__ = [
     "MemoryEstimate",
     "available_memory",
     "pipeline_parts",
+    "ring_parts",
 ]
 
 FRAMES_ALIVE = 6
@@ -47,6 +48,14 @@ _LUT_BYTES = 8 + 6 + 1
 _FINISH_TEMPORARIES = 60
 _SGBM_THREAD_BYTES_PER_WD = 32
 _QUEUED_FRAME_BYTES = 2
+# A ring's panorama, per pixel: per frame alive its range, sigma (float32), source, flags and
+# samples (uint8) and its PNG and npy bodies; once, its rays (3 float64) and each pair's
+# far-field pixels of them (an index and two float64, for the share a pair sees: at most all);
+# while fusing, per pair two float64 and five more of the fusion's (P, K) arrays.
+_PANORAMA_BYTES_PER_FRAME = 4 + 4 + 1 + 1 + 1 + 2 + 4
+_PANORAMA_RAYS = 24
+_PANORAMA_FAR_FIELD_PER_PAIR = 24
+_PANORAMA_FUSION_PER_PAIR = 7 * 8
 MIB = 1 << 20
 
 
@@ -98,6 +107,37 @@ def pipeline_parts(
             "capture_buffers": queued_frames_per_camera * _QUEUED_FRAME_BYTES * c,
         }
     )
+
+
+def ring_parts(
+    pairs: Sequence[tuple[tuple[int, int], tuple[str, str]]],
+    stereo: StereoParams,
+    camera_sizes: dict[str, tuple[int, int]],
+    panorama_size: tuple[int, int],
+    *,
+    queued_frames_per_camera: int = 12,
+    threads: int | None = None,
+) -> MemoryEstimate:
+    """The parts of a rig of N cameras: ``pairs`` each a rectified size (w, h) and its two
+    cameras; every pair has its own tables, rectified frames and matcher (:func:`pipeline_parts`),
+    each camera's frames count once however many pairs use them, and the panorama of
+    ``panorama_size`` (w, h) adds its frames, rays and the fusion's arrays."""
+    parts: dict[str, int] = {}
+    for size, _ in pairs:
+        one = pipeline_parts(size, stereo, [], queued_frames_per_camera=0, threads=threads).parts
+        for name in ("lookup_tables", "rectified_frames", "matcher"):
+            parts[name] = parts.get(name, 0) + one[name]
+    used = {n for _, names in pairs for n in names}
+    c = sum(w * h for n, (w, h) in camera_sizes.items() if n in used)
+    q = panorama_size[0] * panorama_size[1]
+    parts["camera_frames"] = FRAMES_ALIVE * _CAMERA_BYTES_PER_FRAME * c
+    parts["capture_buffers"] = queued_frames_per_camera * _QUEUED_FRAME_BYTES * c
+    parts["panorama"] = q * (
+        FRAMES_ALIVE * _PANORAMA_BYTES_PER_FRAME
+        + _PANORAMA_RAYS
+        + len(pairs) * (_PANORAMA_FAR_FIELD_PER_PAIR + _PANORAMA_FUSION_PER_PAIR)
+    )
+    return MemoryEstimate(parts)
 
 
 def available_memory(meminfo: Path = Path("/proc/meminfo"), cgroup: Path | None = None) -> int | None:

@@ -30,7 +30,7 @@ import hashlib
 import json
 import os
 import struct
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -54,6 +54,7 @@ __all__ = [
     "OutputLayout",
     "Product",
     "depth_preview",
+    "png_bytes",
     "recording_identity",
     "run_settings",
 ]
@@ -64,7 +65,7 @@ RUN_FORMAT = 1
 _NO_SPACE = {errno.ENOSPC, errno.EDQUOT}
 
 
-def _png(image: NDArray[Any]) -> bytes:
+def png_bytes(image: NDArray[Any]) -> bytes:
     ok, buf = cv2.imencode(".png", image)
     if not ok:
         raise PipelineError(f"PNG encoding failed for an image of shape {image.shape}")
@@ -73,11 +74,13 @@ def _png(image: NDArray[Any]) -> bytes:
 
 @dataclass(frozen=True)
 class Product:
-    """One kind of output file: its directory, file suffix and encoder."""
+    """One kind of output file: its directory, file suffix and encoder (of a pair's
+    ``(pipeline, frame)``; a ring's products, :mod:`rig.ring_outputs`, of its
+    ``(rig pipeline, rig frame)``)."""
 
     name: str
     suffix: str
-    encode: Callable[[DepthPipeline, DepthFrame], bytes]
+    encode: Callable[[Any, Any], bytes]
 
     def file_name(self, seq: int) -> str:
         return f"{seq:06d}{self.suffix}"
@@ -90,12 +93,12 @@ def _cloud(pipeline: DepthPipeline, frame: DepthFrame) -> bytes:
 PRODUCTS: dict[str, Product] = {
     p.name: p
     for p in (
-        Product("range", ".png", lambda _, f: _png(depth_to_png_mm(f.range))),
-        Product("depth", ".png", lambda _, f: _png(depth_to_png_mm(f.depth))),
-        Product("left", ".png", lambda _, f: _png(f.left_rect)),
-        Product("right", ".png", lambda _, f: _png(f.right_rect)),
+        Product("range", ".png", lambda _, f: png_bytes(depth_to_png_mm(f.range))),
+        Product("depth", ".png", lambda _, f: png_bytes(depth_to_png_mm(f.depth))),
+        Product("left", ".png", lambda _, f: png_bytes(f.left_rect)),
+        Product("right", ".png", lambda _, f: png_bytes(f.right_rect)),
         Product("cloud", ".ply", _cloud),
-        Product("preview", ".png", lambda _, f: _png(depth_preview(f.left_rect, f.depth))),
+        Product("preview", ".png", lambda _, f: png_bytes(depth_preview(f.left_rect, f.depth))),
     )
 }
 BASE_PRODUCTS = ("range", "left", "right")
@@ -114,14 +117,14 @@ def run_settings(pipeline: DepthPipeline, products: Sequence[str]) -> dict[str, 
 
 
 def recording_identity(recording: RecordedPairs) -> str:
-    """What tells a recording from another, wherever it lies: a SHA-256 of its pair index (each
-    pair's seq and both capture times) and of the bytes of its first and last pairs' frames (two
+    """What tells a recording from another, wherever it lies: a SHA-256 of its index (each
+    set's seq and every camera's capture time) and of the bytes of its first and last pairs' frames (two
     renders of one scene can share the index)."""
     digest = hashlib.sha256()
     for pair in recording.pairs:
-        digest.update(struct.pack("<qqq", pair.seq, pair.left_ts_ns, pair.right_ts_ns))
+        digest.update(struct.pack(f"<q{len(pair.stamps)}q", pair.seq, *pair.stamps))
     for pair in {id(p): p for p in (recording.pairs[:1] + recording.pairs[-1:])}.values():
-        for camera in ("left", "right"):
+        for camera in recording.cameras:
             try:
                 stored = recording.read_frame(pair, camera)
             except RigError:
@@ -146,20 +149,29 @@ def _differing_key(a: dict[str, Any], b: dict[str, Any], prefix: str = "") -> st
 
 
 class OutputLayout:
-    """The output directory ``root`` of one recording with ``products`` (names of
-    :data:`PRODUCTS`); ``fsync`` forces each file to the disk before it is named."""
+    """The output directory ``root`` of one recording with ``products`` (names of ``catalog``,
+    by default a pair's :data:`PRODUCTS`); ``fsync`` forces each file to the disk before it is
+    named."""
 
-    def __init__(self, root: str | Path, products: Sequence[str] = BASE_PRODUCTS, *, fsync: bool = True):
-        unknown = [p for p in products if p not in PRODUCTS]
+    def __init__(
+        self,
+        root: str | Path,
+        products: Sequence[str] = BASE_PRODUCTS,
+        *,
+        fsync: bool = True,
+        catalog: Mapping[str, Product] = PRODUCTS,
+    ):
+        unknown = [p for p in products if p not in catalog]
         if unknown:
-            known = ", ".join(PRODUCTS)
+            known = ", ".join(catalog)
             raise ConfigError(f"unknown output product(s) {', '.join(unknown)} (known: {known})")
         self.root = Path(root)
-        self.products = [PRODUCTS[p] for p in products]
+        self.catalog = dict(catalog)
+        self.products = [catalog[p] for p in products]
         self.fsync = fsync
 
     def path(self, product: str, seq: int) -> Path:
-        return self.root / product / PRODUCTS[product].file_name(seq)
+        return self.root / product / self.catalog[product].file_name(seq)
 
     # ----- before a run ------------------------------------------------------------------------
     def prepare(
@@ -177,8 +189,29 @@ class OutputLayout:
         left for the others (see the module doc). ConfigError when ``resume`` meets a
         ``run.json`` of other settings or another recording; OutputError/DiskFullError when the
         directory cannot be written."""
-        seqs = list(seqs)
         settings = run_settings(pipeline, [p.name for p in self.products])
+        return self.prepare_files(
+            settings,
+            {VPC_FILE: pipeline.pair.as_json()},
+            recording,
+            seqs,
+            resume=resume,
+            recording_id=recording_id,
+        )
+
+    def prepare_files(
+        self,
+        settings: dict[str, Any],
+        documents: Mapping[str, dict[str, Any]],
+        recording: Path,
+        seqs: Iterable[int],
+        *,
+        resume: bool,
+        recording_id: str | None = None,
+    ) -> set[int]:
+        """:meth:`prepare` with the run's ``settings`` (``run.json`` without the recording)
+        and the JSON ``documents`` to write beside it (file name → content) given."""
+        seqs = list(seqs)
         source = {"recording": str(recording.resolve())}
         if recording_id is not None:
             source["recording_id"] = recording_id
@@ -191,7 +224,8 @@ class OutputLayout:
             for product in self.products:
                 (self.root / product.name).mkdir(exist_ok=True)
             run = {**source, **settings}
-            self._write_json(VPC_FILE, pipeline.pair.as_json())
+            for name, doc in documents.items():
+                self._write_json(name, doc)
             self._write_json(RUN_FILE, run)
             fsync_directory(self.root)
         except OSError as err:
@@ -229,7 +263,7 @@ class OutputLayout:
         """The finished file names in each product directory (every product: a run without
         ``--ply`` still removes an earlier run's clouds of the pairs it redoes)."""
         names: dict[str, set[str]] = {}
-        for name in PRODUCTS:
+        for name in self.catalog:
             directory = self.root / name
             sweep_temporaries(directory)
             try:
@@ -243,7 +277,7 @@ class OutputLayout:
 
     def _remove(self, seqs: set[int], names: dict[str, set[str]]) -> None:
         for name, present in names.items():
-            product = PRODUCTS[name]
+            product = self.catalog[name]
             for seq in seqs:
                 if product.file_name(seq) in present:
                     (self.root / name / product.file_name(seq)).unlink(missing_ok=True)
@@ -252,8 +286,9 @@ class OutputLayout:
         write_atomic(self.root / name, json.dumps(doc, indent=2).encode() + b"\n", fsync=self.fsync)
 
     # ----- during and after a run --------------------------------------------------------------
-    def write(self, pipeline: DepthPipeline, frame: DepthFrame) -> None:
-        """Every product of one processed pair, each file atomically."""
+    def write(self, pipeline: Any, frame: Any) -> None:
+        """Every product of one processed pair (``pipeline``, ``frame``: what the products
+        encode, :class:`Product`), each file atomically."""
         for product in self.products:
             data = product.encode(pipeline, frame)
             path = self.root / product.name / product.file_name(frame.seq)

@@ -25,9 +25,10 @@ calibration error: never an average of wrong values). Nothing fills holes.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -71,6 +72,10 @@ class PanoramaSpec:
     camera: EquirectModel
     R_rig_pano: F64
     origin: F64
+    # Each pair's far-field pixels of the panorama's rays, by the pair design's id (_far_field).
+    _far_fields: dict[int, tuple[RectifiedPair, NDArray[np.intp], F64]] = field(
+        default_factory=dict, compare=False, repr=False
+    )
 
     @classmethod
     def for_rig(cls, rig: Rig, px_per_deg: float = DEFAULT_PANORAMA_PX_PER_DEG) -> PanoramaSpec:
@@ -87,6 +92,16 @@ class PanoramaSpec:
         R = np.column_stack([np.cross(down, forward), down, forward])
         origin = np.mean([rig.center(n) for n in rig.names], axis=0)
         return cls(EquirectModel.whole_sphere(px_per_deg), R, origin)
+
+    @functools.cached_property
+    def rays_rig(self) -> F64:
+        """The unit ray of every panorama pixel (H·W, 3), row-major, in the rig frame (made once)."""
+        cam = self.camera
+        v, u = np.mgrid[0 : cam.height, 0 : cam.width]
+        rays, _ = cam.unproject(np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64), in_image=False)
+        out: F64 = rays @ self.R_rig_pano.T
+        out.setflags(write=False)
+        return out
 
     @property
     def px_per_deg(self) -> float:
@@ -145,27 +160,58 @@ class PanoramaFrame:
     samples: NDArray[np.uint8]
 
 
+def _far_field(spec: PanoramaSpec, pair: RectifiedPair) -> tuple[NDArray[np.intp], F64]:
+    """The panorama rays that land in ``pair``'s left view when seen from its camera as if
+    infinitely far (indices (M,) into :attr:`PanoramaSpec.rays_rig`), and those pixels (M, 2):
+    where every ray's fixed-point steps start. Made once per pair design (kept with the spec)."""
+    cache = spec._far_fields
+    hit = cache.get(id(pair))
+    if hit is not None and hit[0] is pair:
+        return hit[1], hit[2]
+    R = pair.T_rig_rect[pair.left][:3, :3]
+    q, ok = pair.camera.project(spec.rays_rig @ R, in_image=False)
+    c = pair.camera
+    inside = ok & (q[:, 0] > -1.0) & (q[:, 0] < c.width) & (q[:, 1] > -1.0) & (q[:, 1] < c.height)
+    index = np.flatnonzero(inside)
+    pixels = q[index]
+    if len(cache) >= 16:  # designs replaced by a correction: keep the newest
+        cache.clear()
+    cache[id(pair)] = (pair, index, pixels)
+    return index, pixels
+
+
 def _pull(
-    spec: PanoramaSpec, rays: F64, p: PairOutput, default_sigma_px: float, iterations: int
-) -> tuple[F64, F64]:
-    """Pair ``p``'s range along the panorama ``rays`` (N, 3, rig frame, from the origin) and its
-    relative predicted error: the point ``origin + r·ray`` that the pair ranges, found by a few
-    fixed-point steps from the direction seen from the pair's camera (exact where they converge;
-    NaN where they do not, or the pair has no range there)."""
+    spec: PanoramaSpec, p: PairOutput, default_sigma_px: float, iterations: int
+) -> tuple[NDArray[np.intp], F64, F64]:
+    """Pair ``p``'s range along every panorama ray (:attr:`PanoramaSpec.rays_rig`, from the
+    origin) and its relative predicted error: the point ``origin + r·ray`` that the pair ranges,
+    found by a few fixed-point steps from the direction seen from the pair's camera (exact where
+    they converge; NaN where they do not, or the pair has no range there). A ray whose first
+    step finds no range keeps none (the next step would start from the same pixel), so the
+    later steps run on the rays the first one ranged. Returns the indices of those rays into
+    :attr:`PanoramaSpec.rays_rig`, and their range and relative error."""
     pair = p.pair
     T = pair.T_rig_rect[pair.left]
     centre, R = T[:3, 3], T[:3, :3]
     rng = p.range.astype(np.float64)
     offset = spec.origin - centre
-    r = np.full(rays.shape[0], np.inf)
-    q = np.zeros((rays.shape[0], 2))
-    for _ in range(iterations):
-        seen_from_pair = np.where(np.isfinite(r)[:, None], offset + r[:, None] * rays, rays)
-        q, ok = pair.camera.project(seen_from_pair @ R, in_image=False)
+    index, far = _far_field(spec, pair)
+    keep = _near_valid(np.isfinite(rng), far)
+    index, rays, far = index[keep], spec.rays_rig[index[keep]], far[keep]
+    r = np.full(index.shape[0], np.inf)
+    for step in range(iterations):
+        q, ok = far, np.ones(far.shape[0], bool)  # the first step: the rays seen from infinity
+        if step:
+            seen_from_pair = np.where(np.isfinite(r)[:, None], offset + r[:, None] * rays, rays)
+            q, ok = pair.camera.project(seen_from_pair @ R, in_image=False)
         r_pair = np.where(ok, sample_surface(rng, q), np.nan)
         pix_rays, _ = pair.camera.unproject(q, in_image=False)
         point = (pix_rays @ R.T) * r_pair[:, None] - offset  # from the origin
-        r = np.einsum("nk,nk->n", point, rays)
+        r_before, r = r, np.einsum("nk,nk->n", point, rays)
+        with np.errstate(invalid="ignore"):
+            moved = np.abs(r - r_before) > 1e-7 * np.abs(r)
+        if not moved.any():
+            break  # every ray converged (or has no range)
     # Converged: the pair's point lies on the panorama ray (within a thousandth of its range).
     miss = np.linalg.norm(point - r[:, None] * rays, axis=1)
     r = np.where(np.isfinite(r) & (miss <= 1e-3 * np.abs(r)) & (r > 0), r, np.nan)
@@ -178,7 +224,22 @@ def _pull(
     with np.errstate(invalid="ignore", divide="ignore"):
         rel = np.where(disparity > 0, sigma_px / disparity, np.nan)
     r[~np.isfinite(rel)] = np.nan
-    return r, rel
+    return index, r, rel
+
+
+def _near_valid(valid: NDArray[np.bool_], q: F64) -> NDArray[np.bool_]:
+    """Where :func:`rig.resample.sample_surface` of a map whose finite pixels are ``valid``
+    gives a value at pixels ``q`` (N, 2, finite): some pixel of the 2×2 around each is valid."""
+    h, w = valid.shape
+    padded = np.zeros((h + 2, w + 2), bool)  # a row and column either side: q may lie in (-1, 0)
+    padded[1:-1, 1:-1] = valid
+    any4 = padded[:-1, :-1] | padded[:-1, 1:] | padded[1:, :-1] | padded[1:, 1:]  # (h+1, w+1)
+    u = np.floor(q[:, 0]).astype(np.intp) + 1
+    v = np.floor(q[:, 1]).astype(np.intp) + 1
+    inside = (u >= 0) & (u <= w) & (v >= 0) & (v <= h)
+    out = np.zeros(q.shape[0], bool)
+    out[inside] = any4[v[inside], u[inside]]
+    return out
 
 
 def fuse_panorama(
@@ -187,23 +248,29 @@ def fuse_panorama(
     *,
     agree_sigmas: float = 3.0,
     default_sigma_px: float = 0.25,
-    iterations: int = 4,
+    iterations: int = 3,
 ) -> PanoramaFrame:
     """The panorama of ``pairs``' ranges (see the module doc)."""
     if not pairs:
         raise ConfigError("panorama: no pair to fuse")
     cam = spec.camera
-    v, u = np.mgrid[0 : cam.height, 0 : cam.width]
-    rays, _ = cam.unproject(np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64), in_image=False)
-    rays = rays @ spec.R_rig_pano.T
-    pulled = [_pull(spec, rays, p, default_sigma_px, iterations) for p in pairs]
-    shape = (len(pairs), cam.height, cam.width)
-    r = np.stack([x[0] for x in pulled]).reshape(shape)  # (P, H, W)
-    rel = np.stack([x[1] for x in pulled]).reshape(shape)
+    pulled = [_pull(spec, p, default_sigma_px, iterations) for p in pairs]
+    # The fusion runs on the pixels some pair ranges (K of them); the others stay empty.
+    size = cam.height * cam.width
+    ranged = np.zeros(size, bool)
+    for index, r_pair, _ in pulled:
+        ranged[index[np.isfinite(r_pair)]] = True
+    pixels = np.flatnonzero(ranged)
+    position = np.full(size, -1, np.intp)
+    position[pixels] = np.arange(pixels.size)
+    shape = (len(pairs), pixels.size)
+    r, rel = np.full(shape, np.nan), np.full(shape, np.nan)
+    for k, (index, r_pair, rel_pair) in enumerate(pulled):
+        hit = np.isfinite(r_pair)
+        r[k, position[index[hit]]], rel[k, position[index[hit]]] = r_pair[hit], rel_pair[hit]
     have = np.isfinite(r)
     sigma = np.where(have, rel * r, np.inf)
     best = np.argmin(sigma, axis=0)
-    any_sample = have.any(axis=0)
     r_best = np.take_along_axis(r, best[None], axis=0)[0]
     s_best = np.take_along_axis(sigma, best[None], axis=0)[0]
     with np.errstate(invalid="ignore"):
@@ -211,19 +278,23 @@ def fuse_panorama(
     weights = np.where(agree, 1.0 / np.maximum(sigma, 1e-9) ** 2, 0.0)
     total = weights.sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        fused = np.where(total > 0, np.nansum(np.where(agree, r, 0.0) * weights, axis=0) / total, np.nan)
+        fused = np.where(total > 0, np.sum(np.where(agree, r, 0.0) * weights, axis=0) / total, np.nan)
         fused_sigma = np.where(total > 0, 1.0 / np.sqrt(total), np.nan)
-    n_agree = agree.sum(axis=0)
-    disagree = (have & ~agree).any(axis=0)
-    flags = np.zeros(r_best.shape, np.uint8)
-    flags[n_agree > 1] |= FUSED
-    flags[disagree] |= DISAGREE
+    flags = np.zeros(pixels.size, np.uint8)
+    flags[agree.sum(axis=0) > 1] |= FUSED
+    flags[(have & ~agree).any(axis=0)] |= DISAGREE
+
+    def full(values: NDArray[Any], empty: float, dtype: type[np.generic]) -> NDArray[Any]:
+        out = np.full(size, empty, dtype)
+        out[pixels] = values
+        return out.reshape(cam.height, cam.width)
+
     return PanoramaFrame(
-        range=np.where(any_sample, fused, np.nan).astype(np.float32),
-        sigma=np.where(any_sample, fused_sigma, np.nan).astype(np.float32),
-        source=np.where(any_sample, best, -1).astype(np.int8),
-        flags=flags,
-        samples=have.sum(axis=0).astype(np.uint8),
+        range=full(fused, np.nan, np.float32),
+        sigma=full(fused_sigma, np.nan, np.float32),
+        source=full(best, -1, np.int8),
+        flags=full(flags, 0, np.uint8),
+        samples=full(have.sum(axis=0), 0, np.uint8),
     )
 
 
@@ -231,10 +302,8 @@ def lenses_seeing(rig: Rig, spec: PanoramaSpec) -> NDArray[np.uint8]:
     """How many of ``rig``'s lenses see each panorama direction (H, W), the direction taken from
     each camera's own centre (far surfaces: parallax left out)."""
     cam = spec.camera
-    v, u = np.mgrid[0 : cam.height, 0 : cam.width]
-    rays, _ = cam.unproject(np.stack([u.ravel(), v.ravel()], axis=1).astype(np.float64), in_image=False)
-    in_rig = rays @ spec.R_rig_pano.T
-    count = np.zeros(rays.shape[0], np.uint8)
+    in_rig = spec.rays_rig
+    count = np.zeros(in_rig.shape[0], np.uint8)
     for name in rig.names:
         in_cam = in_rig @ rig.T_rig_cam[name][:3, :3]
         count += rig.cameras[name].project(in_cam)[1].astype(np.uint8)

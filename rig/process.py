@@ -16,6 +16,10 @@ predecessor ended with, so the output is the same, bit for bit, however the pair
 ``resume`` and the filter on, the pairs before the last missing one are processed again (not
 written) to rebuild that history.
 
+A rig of more than two cameras (``RecordingJob.ring``) is processed set by set here
+(:func:`rig.rig_depth.process_sets`), into its pairs' directories and the panorama
+(:class:`rig.ring_outputs.RingLayout`).
+
 A pair that cannot be read or processed is reported (:class:`~rig.recording_depth.PairFailure`)
 and skipped; an output directory that cannot be written (a full disk) stops the run with
 :class:`~rig.errors.OutputError` and every pair written before stays complete.
@@ -25,8 +29,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from rig.recording_depth import PairFailure, process_pairs
+from rig.errors import ConfigError
+from rig.outputs import OutputLayout
+from rig.recording_depth import PairFailure, PairsResult, process_pairs
 from rig.recording_jobs import OnProgress, ProcessOptions, RecordingJob, RecordingSummary, plan_recordings
+from rig.rig_depth import process_sets
+from rig.ring_outputs import RingLayout
 
 __all__ = ["process_recordings"]
 
@@ -36,29 +44,60 @@ def _process_here(
 ) -> list[RecordingSummary]:
     summaries = []
     for job in jobs:
-        layout = job.layout
-        assert layout is not None
         name = job.name
 
         def on_pair(seq: int, failure: PairFailure | None, name: str = name) -> None:
             if on_progress is not None:
                 on_progress(name, 1, [failure] if failure is not None else [])
 
-        try:
-            result = process_pairs(
-                job.pipeline,
-                job.recording,
-                job.compute,
-                layout.sink(job.pipeline),
-                write=job.write,
-                readahead=options.readahead,
-                on_pair=on_pair,
-            )
-        finally:
-            layout.sync()
-        layout.close()
+        result = _process_job(job, options, on_pair)
         summaries.append(job.summary(result.written, result.failures))
     return summaries
+
+
+def _process_job(
+    job: RecordingJob, options: ProcessOptions, on_pair: Callable[[int, PairFailure | None], None]
+) -> PairsResult:
+    """One recording's pairs (or a ring's sets) through the staged executor into its outputs."""
+    if job.ring is not None:
+        ring, ring_layout = job.ring, job.ring_layout
+        assert ring_layout is not None
+        return _written(
+            ring_layout,
+            lambda: process_sets(
+                ring,
+                job.recording,
+                job.compute,
+                ring_layout.sink(),
+                write=job.write,
+                readahead=2 * options.readahead,
+                on_set=on_pair,
+            ),
+        )
+    layout = job.layout
+    assert layout is not None
+    return _written(
+        layout,
+        lambda: process_pairs(
+            job.pipeline,
+            job.recording,
+            job.compute,
+            layout.sink(job.pipeline),
+            write=job.write,
+            readahead=options.readahead,
+            on_pair=on_pair,
+        ),
+    )
+
+
+def _written(layout: OutputLayout | RingLayout, run: Callable[[], PairsResult]) -> PairsResult:
+    """``run()`` into ``layout``: its renames made durable whatever happens, then closed."""
+    try:
+        result = run()
+    finally:
+        layout.sync()
+    layout.close()
+    return result
 
 
 def process_recordings(
@@ -77,6 +116,12 @@ def process_recordings(
     does). ``on_plan`` sees the jobs once their output directories are ready and their pairs to
     write known (``len(job.write)``)."""
     options = options or ProcessOptions()
+    rings = [job.name for job in jobs if job.ring is not None]
+    if scheduler is not None and rings:
+        raise ConfigError(
+            f"--scheduler {scheduler}: {rings[0]} is a recording of a rig of more than two cameras; "
+            "its sets are processed in this process (--scheduler none)"
+        )
     if scheduler is None:
         plan_recordings(jobs, options, on_plan)
         return _process_here(jobs, options, on_progress)

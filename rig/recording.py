@@ -3,14 +3,18 @@ the renderer, read by the file cameras and ``rig process``.
 
 Layout::
 
-    recording.json   {"version": 1, "cameras": ["left", "right"], ...}
-    frames.csv       seq,left_ts_ns,right_ts_ns,left_file,right_file   (append-only)
+    recording.json   {"version": 1, "cameras": ["left", "right"], ...}   (N ≥ 1 names, in order)
+    frames.csv       seq,left_ts_ns,right_ts_ns,left_file,right_file   (append-only; rig.frame_sets)
     left/NNNNNN.jpg  frames as the camera delivered them (MJPEG byte-exact; .png when rendered)
     right/NNNNNN.jpg
     calibration.yaml (optional) and ground_truth/ (renderer only)
 
-Crash safety: both frame files of a pair are written and flushed before its row is appended to
-``frames.csv`` in one write and flushed, so a ``kill -9`` loses at most the pair in flight and
+A recording of N cameras has a folder per camera and the columns ``seq``, ``<name>_ts_ns`` per
+camera, ``<name>_file`` per camera (:func:`rig.frame_sets.frames_header`); the two-camera
+recording is its case N = 2, byte for byte.
+
+Crash safety: every frame file of a set is written and flushed before its row is appended to
+``frames.csv`` in one write and flushed, so a ``kill -9`` loses at most the set in flight and
 every indexed row points at complete files.
 """
 
@@ -24,7 +28,6 @@ import json
 import logging
 import os
 from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -34,98 +37,26 @@ from numpy.typing import NDArray
 
 from calibration.atomic import write_atomic as _atomic_write
 from rig.errors import DiskFullError, RecordingError, ResourceExhausted
-from rig.image_size import declared_size, size_problem
+from rig.frame_sets import FRAMES_HEADER, FrameSetRecord, PairRecord, camera_name_problem, frames_header
+from rig.image_size import size_problem
+from rig.stored_frame import StoredFrame
 
 __all__ = [
     "FRAMES_HEADER",
     "RECORDING_VERSION",
+    "FrameSetRecord",
     "PairRecord",
     "PairWriter",
     "Recording",
     "RecordingWriter",
     "StoredFrame",
+    "frames_header",
 ]
 
 log = logging.getLogger(__name__)
 
 RECORDING_VERSION = 1
-FRAMES_HEADER = ("seq", "left_ts_ns", "right_ts_ns", "left_file", "right_file")
 _NO_SPACE = {errno.ENOSPC, errno.EDQUOT}
-
-
-@dataclass(frozen=True)
-class PairRecord:
-    """One row of ``frames.csv``: a synchronised pair, file paths relative to the recording."""
-
-    seq: int
-    left_ts_ns: int
-    right_ts_ns: int
-    left_file: str
-    right_file: str
-
-    def file(self, camera: str) -> str:
-        if camera == "left":
-            return self.left_file
-        if camera == "right":
-            return self.right_file
-        raise RecordingError(f"unknown camera {camera!r} (expected 'left' or 'right')")
-
-    def ts_ns(self, camera: str) -> int:
-        if camera == "left":
-            return self.left_ts_ns
-        if camera == "right":
-            return self.right_ts_ns
-        raise RecordingError(f"unknown camera {camera!r} (expected 'left' or 'right')")
-
-
-@dataclass(frozen=True, eq=False)
-class StoredFrame:
-    """One recorded frame as stored: ``format`` ``jpeg``/``png`` with its ``raw`` bytes, or
-    ``bgr`` with only a decoded ``image`` (gray (H, W) or BGR (H, W, 3) uint8: frames a bag
-    holds as raw pixels). ``source`` names it in messages (file, or bag and topic)."""
-
-    format: str
-    raw: bytes | None = None
-    image: NDArray[Any] | None = None
-    source: str = ""
-
-    def declared_size(self) -> tuple[int, int]:
-        """(width, height) of the frame, from its header when encoded (nothing is decoded);
-        RecordingError naming the source when the header cannot be read."""
-        if self.image is not None:
-            return int(self.image.shape[1]), int(self.image.shape[0])
-        try:
-            return declared_size(self.raw or b"", self.format)
-        except ValueError as err:
-            raise RecordingError(f"{self.source or 'frame'}: not a readable image ({err})") from None
-
-    def decoded(self, expected_size: tuple[int, int] | None = None) -> NDArray[Any]:
-        """The image as OpenCV decodes it (``IMREAD_UNCHANGED``); RecordingError naming the
-        source when the bytes are not an image, or their header declares another size than
-        ``expected_size`` (width, height; without one, beyond any camera's): checked before
-        decoding, so a small file declaring a huge image is never allocated."""
-        if self.image is not None:
-            return self.image
-        data = self.raw or b""
-        problem = size_problem(data, self.format, expected_size) if data else "empty"
-        if problem is not None:
-            raise RecordingError(f"{self.source or 'frame'}: not a readable image ({problem})")
-        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise RecordingError(f"{self.source or 'frame'}: not a readable image")
-        return np.asarray(img)
-
-    def pipeline_image(self, expected_size: tuple[int, int] | None = None) -> NDArray[np.uint8]:
-        """The image as the depth pipeline takes frames: uint8 gray or BGR (16-bit scaled to
-        8, alpha dropped); ``expected_size`` as for :meth:`decoded`."""
-        img = self.decoded(expected_size)
-        if img.dtype == np.uint16:
-            img = (img >> 8).astype(np.uint8)
-        if img.ndim == 3 and img.shape[2] == 4:
-            img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
-        elif img.ndim == 3 and img.shape[2] == 1:
-            img = img[:, :, 0]
-        return np.asarray(img, dtype=np.uint8)
 
 
 class Recording:
@@ -140,12 +71,10 @@ class Recording:
         if not self.root.is_dir():
             raise RecordingError(f"{self.root}: not a recording directory (does not exist)")
         self.meta = self._read_meta()
-        cams = self.meta.get("cameras")
-        if not isinstance(cams, list) or not all(isinstance(c, str) for c in cams):
-            raise RecordingError(f"{self.root / 'recording.json'}: field 'cameras' must be a list of names")
-        self.cameras: list[str] = cams
+        self.cameras: list[str] = _camera_list(self.meta.get("cameras"), self.root / "recording.json")
         self.truncated_tail = False
-        self.pairs: list[PairRecord] = self._read_index()
+        #: The rows of ``frames.csv``: one synchronised frame set each (a pair's for two cameras).
+        self.pairs: list[FrameSetRecord] = self._read_index()
 
     # ----- reading -----------------------------------------------------------------------------
     def _read_meta(self) -> dict[str, Any]:
@@ -165,7 +94,7 @@ class Recording:
             )
         return meta
 
-    def _read_index(self) -> list[PairRecord]:
+    def _read_index(self) -> list[FrameSetRecord]:
         path = self.root / "frames.csv"
         try:
             text = path.read_text(encoding="utf-8")
@@ -177,9 +106,10 @@ class Recording:
         complete_tail = text.endswith("\n")
         if complete_tail:
             lines = lines[:-1]
-        if not lines or tuple(lines[0].strip().split(",")) != FRAMES_HEADER:
-            raise RecordingError(f"{path}: line 1: header must be {','.join(FRAMES_HEADER)}")
-        pairs: list[PairRecord] = []
+        header = frames_header(self.cameras)
+        if not lines or tuple(lines[0].strip().split(",")) != header:
+            raise RecordingError(f"{path}: line 1: header must be {','.join(header)}")
+        pairs: list[FrameSetRecord] = []
         seen: set[int] = set()
         for lineno, line in enumerate(lines[1:], start=2):
             last = lineno == len(lines)
@@ -199,27 +129,13 @@ class Recording:
             pairs.append(pair)
         return pairs
 
-    @staticmethod
-    def _parse_row(line: str) -> PairRecord:
-        fields = next(csv.reader([line]))
-        if len(fields) != len(FRAMES_HEADER):
-            raise RecordingError(f"expected {len(FRAMES_HEADER)} fields, got {len(fields)}")
-        try:
-            seq, lts, rts = (int(f) for f in fields[:3])
-        except ValueError:
-            raise RecordingError("seq, left_ts_ns and right_ts_ns must be integers") from None
-        if seq < 0:
-            raise RecordingError(f"seq must be >= 0, got {seq}")
-        if not fields[3] or not fields[4]:
-            raise RecordingError("left_file and right_file must not be empty")
-        if "\x00" in fields[3] or "\x00" in fields[4]:
-            raise RecordingError("left_file and right_file must not contain NUL characters")
-        return PairRecord(seq, lts, rts, fields[3], fields[4])
+    def _parse_row(self, line: str) -> FrameSetRecord:
+        return FrameSetRecord.parse(next(csv.reader([line])), self.cameras)
 
     def __len__(self) -> int:
         return len(self.pairs)
 
-    def __iter__(self) -> Iterator[PairRecord]:
+    def __iter__(self) -> Iterator[FrameSetRecord]:
         return iter(self.pairs)
 
     def path(self, relative: str) -> Path:
@@ -232,7 +148,7 @@ class Recording:
             raise RecordingError(f"{self.root / 'frames.csv'}: file {relative!r} lies outside the recording")
         return p
 
-    def read_bytes(self, pair: PairRecord, camera: str) -> bytes:
+    def read_bytes(self, pair: FrameSetRecord, camera: str) -> bytes:
         """The frame file exactly as stored (MJPEG bytes for camera recordings); RecordingError
         if it is missing or unreadable, ResourceExhausted if the process has no file descriptor
         left to open it (the file is fine: not a broken frame)."""
@@ -246,7 +162,7 @@ class Recording:
                 f"{p}: {camera} frame of seq {pair.seq} unreadable ({err.strerror})"
             ) from err
 
-    def read_frame(self, pair: PairRecord, camera: str) -> StoredFrame:
+    def read_frame(self, pair: FrameSetRecord, camera: str) -> StoredFrame:
         """The frame file as a :class:`StoredFrame` (format from its extension, bytes as stored);
         RecordingError naming the file for a missing file or an unsupported file type."""
         path = self.path(pair.file(camera))
@@ -259,7 +175,9 @@ class Recording:
             raise RecordingError(f"{path}: unsupported frame file type (expected .jpg or .png)")
         return StoredFrame(fmt, raw=self.read_bytes(pair, camera), source=str(path))
 
-    def read_image(self, pair: PairRecord, camera: str, flags: int = cv2.IMREAD_UNCHANGED) -> NDArray[Any]:
+    def read_image(
+        self, pair: FrameSetRecord, camera: str, flags: int = cv2.IMREAD_UNCHANGED
+    ) -> NDArray[Any]:
         """Decoded frame; RecordingError naming the file and seq if it is missing or corrupt (or
         its header declares a frame larger than any camera's)."""
         data = self.read_bytes(pair, camera)
@@ -290,10 +208,18 @@ class PairWriter(Protocol):
     root: Path
     count: int
 
+    def write_set(
+        self, seq: int, stamps: Sequence[int], frames: Sequence[bytes], ext: str = ".jpg"
+    ) -> object:
+        """One encoded frame per camera, stored byte-exact."""
+
+    def write_set_images(self, seq: int, stamps: Sequence[int], images: Sequence[NDArray[Any]]) -> object:
+        """One decoded frame per camera, stored losslessly."""
+
     def write_pair(
         self, seq: int, left_ts_ns: int, right_ts_ns: int, left: bytes, right: bytes, ext: str = ".jpg"
     ) -> object:
-        """Two encoded frames, stored byte-exact."""
+        """Two encoded frames (a two-camera recording), stored byte-exact."""
 
     def write_images(
         self, seq: int, left_ts_ns: int, right_ts_ns: int, left: NDArray[Any], right: NDArray[Any]
@@ -305,7 +231,8 @@ class PairWriter(Protocol):
 
 
 class RecordingWriter:
-    """Writes a recording pair by pair; see the module docstring for the crash-safety order.
+    """Writes a recording of ``cameras`` set by set (pair by pair for two); see the module
+    docstring for the crash-safety order.
 
     ``fsync=True`` also forces data to the device (survives power loss, costs latency);
     flushing alone already survives a killed process.
@@ -320,7 +247,7 @@ class RecordingWriter:
         fsync: bool = False,
     ) -> None:
         self.root = Path(root)
-        self.cameras = list(cameras)
+        self.cameras = _camera_list(list(cameras), self.root / "recording.json")
         self.fsync = fsync
         self.count = 0
         self._meta_bytes = 0  # recording.json as written here
@@ -339,7 +266,7 @@ class RecordingWriter:
             self._meta_bytes = len(meta_bytes)
             # Unbuffered: each row reaches the kernel in one write() the moment it is appended.
             self._index: io.FileIO | None = open(index, "ab", buffering=0)  # noqa: SIM115
-            self._append_index((",".join(FRAMES_HEADER) + "\n").encode())
+            self._append_index((",".join(frames_header(self.cameras)) + "\n").encode())
         except OSError as err:
             raise self._translate(err, self.root) from err
         self._seqs: set[int] = set()
@@ -350,6 +277,62 @@ class RecordingWriter:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def write_set(
+        self, seq: int, stamps: Sequence[int], frames: Sequence[bytes], ext: str = ".jpg"
+    ) -> FrameSetRecord:
+        """Store one encoded frame per camera (in :attr:`cameras` order) byte-exact, with its
+        capture time, then index them. Returns the indexed row."""
+        if self._index is None:
+            raise RecordingError(f"{self.root}: recording already closed")
+        if len(stamps) != len(self.cameras) or len(frames) != len(self.cameras):
+            raise RecordingError(
+                f"{self.root}: a set of this recording holds {len(self.cameras)} frames "
+                f"({', '.join(self.cameras)}), got {len(frames)}"
+            )
+        if seq in self._seqs or seq < 0:
+            # Writing it would overwrite the frame files of an indexed set.
+            raise RecordingError(f"{self.root}: seq {seq} already written or negative")
+        record = FrameSetRecord(
+            seq,
+            tuple(self.cameras),
+            tuple(int(t) for t in stamps),
+            tuple(f"{cam}/{seq:06d}{ext}" for cam in self.cameras),
+        )
+        written: list[Path] = []
+        try:
+            for rel, data in zip(record.files, frames, strict=True):
+                p = self.root / rel
+                with open(p, "wb") as f:
+                    written.append(p)
+                    f.write(data)
+                    f.flush()
+                    if self.fsync:
+                        os.fsync(f.fileno())
+            self._append_index(record.csv_row().encode())
+            if self.fsync:
+                os.fsync(self._index.fileno())
+        except OSError as err:
+            # An unindexed partial set is removed so the directory holds only complete sets.
+            for p in written:
+                p.unlink(missing_ok=True)
+            raise self._translate(err, self.root) from err
+        self._seqs.add(seq)
+        self.count += 1
+        self._frame_bytes += sum(len(data) for data in frames)
+        return record
+
+    def write_set_images(
+        self, seq: int, stamps: Sequence[int], images: Sequence[NDArray[Any]]
+    ) -> FrameSetRecord:
+        """Store one decoded image per camera losslessly as PNG (rendered frames)."""
+        enc = []
+        for img in images:
+            ok, buf = cv2.imencode(".png", img)
+            if not ok:
+                raise RecordingError(f"{self.root}: could not encode frame {seq} as PNG")
+            enc.append(buf.tobytes())
+        return self.write_set(seq, stamps, enc, ext=".png")
+
     def write_pair(
         self,
         seq: int,
@@ -358,49 +341,15 @@ class RecordingWriter:
         left: bytes,
         right: bytes,
         ext: str = ".jpg",
-    ) -> PairRecord:
-        """Store two encoded frames byte-exact, then index them. Returns the indexed row."""
-        if self._index is None:
-            raise RecordingError(f"{self.root}: recording already closed")
-        if seq in self._seqs or seq < 0:
-            # Writing it would overwrite the frame files of an indexed pair.
-            raise RecordingError(f"{self.root}: seq {seq} already written or negative")
-        rel = {cam: f"{cam}/{seq:06d}{ext}" for cam in ("left", "right")}
-        written: list[Path] = []
-        try:
-            for cam, data in (("left", left), ("right", right)):
-                p = self.root / rel[cam]
-                with open(p, "wb") as f:
-                    written.append(p)
-                    f.write(data)
-                    f.flush()
-                    if self.fsync:
-                        os.fsync(f.fileno())
-            row = f"{seq},{int(left_ts_ns)},{int(right_ts_ns)},{rel['left']},{rel['right']}\n"
-            self._append_index(row.encode())
-            if self.fsync:
-                os.fsync(self._index.fileno())
-        except OSError as err:
-            # An unindexed partial pair is removed so the directory holds only complete pairs.
-            for p in written:
-                p.unlink(missing_ok=True)
-            raise self._translate(err, self.root) from err
-        self._seqs.add(seq)
-        self.count += 1
-        self._frame_bytes += len(left) + len(right)
-        return PairRecord(seq, int(left_ts_ns), int(right_ts_ns), rel["left"], rel["right"])
+    ) -> FrameSetRecord:
+        """Two encoded frames (a two-camera recording) byte-exact: :meth:`write_set`."""
+        return self.write_set(seq, (left_ts_ns, right_ts_ns), (left, right), ext)
 
     def write_images(
         self, seq: int, left_ts_ns: int, right_ts_ns: int, left: NDArray[Any], right: NDArray[Any]
-    ) -> PairRecord:
-        """Store two decoded images losslessly as PNG (rendered frames)."""
-        enc = []
-        for img in (left, right):
-            ok, buf = cv2.imencode(".png", img)
-            if not ok:
-                raise RecordingError(f"{self.root}: could not encode frame {seq} as PNG")
-            enc.append(buf.tobytes())
-        return self.write_pair(seq, left_ts_ns, right_ts_ns, enc[0], enc[1], ext=".png")
+    ) -> FrameSetRecord:
+        """Two decoded images losslessly as PNG: :meth:`write_set_images`."""
+        return self.write_set_images(seq, (left_ts_ns, right_ts_ns), (left, right))
 
     @property
     def data_bytes(self) -> int:
@@ -447,6 +396,20 @@ class RecordingWriter:
         if err.errno in (errno.EMFILE, errno.ENFILE):
             return RecordingError(f"{root}: cannot write recording: {fd_exhaustion(err)}")
         return RecordingError(f"{root}: cannot write recording ({err.strerror or err})")
+
+
+def _camera_list(cams: Any, where: Path) -> list[str]:
+    """The ``cameras`` of a recording: a non-empty list of distinct valid names
+    (:func:`rig.frame_sets.camera_name_problem`); RecordingError naming ``where`` and the field."""
+    if not isinstance(cams, list) or not cams or not all(isinstance(c, str) for c in cams):
+        raise RecordingError(f"{where}: field 'cameras' must be a list of names")
+    for c in cams:
+        problem = camera_name_problem(c)
+        if problem is not None:
+            raise RecordingError(f"{where}: field 'cameras': {problem}")
+    if len(set(cams)) != len(cams):
+        raise RecordingError(f"{where}: field 'cameras' names a camera twice ({', '.join(cams)})")
+    return list(cams)
 
 
 def fd_exhaustion(err: OSError) -> str:

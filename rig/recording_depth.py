@@ -28,14 +28,19 @@ from rig.capture.recorded import RecordedPairs
 from rig.errors import OutputError, RigError
 from rig.pipeline import DepthFrame, DepthPipeline
 from rig.recording import PairRecord, StoredFrame
-from rig.staged import END, EndOfPairs, PairJob, StagedExecutor
+from rig.staged import END, EndOfPairs, OnError, PairJob, Sink, StagedExecutor
 
 __all__ = [
+    "JobsOf",
+    "Loader",
     "PairFailure",
     "PairSink",
     "PairsResult",
     "RecordedPair",
     "RecordingReader",
+    "RunProgress",
+    "frame_sizes",
+    "pair_jobs",
     "process_pairs",
 ]
 
@@ -78,10 +83,26 @@ class PairsResult:
     temporal_state: NDArray[np.float32] | None
 
 
+Loader = Callable[[], NDArray[Any]]
+JobsOf = Callable[[PairRecord, dict[str, StoredFrame | None], dict[str, Loader]], list[PairJob[Any]]]
+"""``jobs_of(row, frames, loaders)``: the executor's jobs for one row of a recording, from its
+frames as stored (None: unreadable) and a loader per camera (it raises the read's error)."""
+
+
+def pair_jobs(
+    pair: PairRecord, frames: dict[str, StoredFrame | None], loaders: dict[str, Loader]
+) -> list[PairJob[Any]]:
+    """A two-camera recording's one job per row: its pair (key :class:`RecordedPair`)."""
+    key = RecordedPair(pair, frames["left"], frames["right"])
+    return [PairJob(key, pair.seq, pair.first_ts_ns, loaders["left"], loaders["right"])]
+
+
 class RecordingReader:
-    """Reads ``pairs`` of ``recording`` in order on its own thread, at most ``readahead`` pairs
-    ahead of the pipeline; :meth:`take` is the staged executor's source. A pair whose frame
-    cannot be read becomes a job whose loader raises that error (reported in order)."""
+    """Reads ``pairs`` of ``recording`` in order on its own thread, at most ``readahead`` jobs
+    ahead of the pipeline; :meth:`take` is the staged executor's source. Each row's ``cameras``
+    are read (default a pair's, ``left`` and ``right``) and become jobs by ``jobs_of`` (default
+    :func:`pair_jobs`). A frame that cannot be read gives a loader that raises that error
+    (reported in order)."""
 
     def __init__(
         self,
@@ -89,11 +110,16 @@ class RecordingReader:
         pairs: Sequence[PairRecord],
         readahead: int = 4,
         sizes: dict[str, tuple[int, int]] | None = None,
+        *,
+        cameras: Sequence[str] = ("left", "right"),
+        jobs_of: JobsOf = pair_jobs,
     ) -> None:
         self._recording = recording
         self._sizes = sizes or {}  # camera -> (width, height) its frames must declare
         self._pairs = list(pairs)
-        self._queue: queue.Queue[PairJob[RecordedPair] | EndOfPairs] = queue.Queue(maxsize=max(1, readahead))
+        self._cameras = list(cameras)
+        self._jobs_of = jobs_of
+        self._queue: queue.Queue[PairJob[Any] | EndOfPairs] = queue.Queue(maxsize=max(1, readahead))
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="rig-process-read", daemon=True)
 
@@ -104,13 +130,13 @@ class RecordingReader:
         self._stop.set()
         self._thread.join(5.0)
 
-    def take(self, timeout_s: float) -> PairJob[RecordedPair] | EndOfPairs | None:
+    def take(self, timeout_s: float) -> PairJob[Any] | EndOfPairs | None:
         try:
             return self._queue.get(timeout=timeout_s)
         except queue.Empty:
             return None
 
-    def _put(self, item: PairJob[RecordedPair] | EndOfPairs) -> bool:
+    def _put(self, item: PairJob[Any] | EndOfPairs) -> bool:
         while not self._stop.is_set():
             try:
                 self._queue.put(item, timeout=_POLL_S)
@@ -121,24 +147,24 @@ class RecordingReader:
 
     def _run(self) -> None:
         for pair in self._pairs:
-            if not self._put(self._read(pair)):
-                return
+            for job in self._read(pair):
+                if not self._put(job):
+                    return
         self._put(END)
 
-    def _read(self, pair: PairRecord) -> PairJob[RecordedPair]:
-        frames: list[StoredFrame | None] = []
-        loaders = []
-        for camera in ("left", "right"):
+    def _read(self, pair: PairRecord) -> list[PairJob[Any]]:
+        frames: dict[str, StoredFrame | None] = {}
+        loaders: dict[str, Loader] = {}
+        for camera in self._cameras:
             try:
                 stored = self._recording.read_frame(pair, camera)
             except Exception as err:
-                frames.append(None)
-                loaders.append(_raiser(err))
+                frames[camera] = None
+                loaders[camera] = _raiser(err)
             else:
-                frames.append(stored)
-                loaders.append(functools.partial(stored.pipeline_image, self._sizes.get(camera)))
-        key = RecordedPair(pair, frames[0], frames[1])
-        return PairJob(key, pair.seq, pair.left_ts_ns, loaders[0], loaders[1])
+                frames[camera] = stored
+                loaders[camera] = functools.partial(stored.pipeline_image, self._sizes.get(camera))
+        return self._jobs_of(pair, frames, loaders)
 
 
 def frame_sizes(pipeline: DepthPipeline) -> dict[str, tuple[int, int]]:
@@ -164,6 +190,68 @@ def _reason(err: BaseException) -> str:
     return f"internal error: {type(err).__name__}: {err}"
 
 
+class RunProgress:
+    """What a run over a recording did, kept from the executor's threads: rows handed to the
+    sink (``written``), rows that failed (``failures``) and errors that stop the run (``fatal``:
+    the sink's OutputError, or the source's). ``write``: the seqs whose outputs count (None:
+    all); ``on_pair(seq, failure)`` after each of them."""
+
+    def __init__(
+        self,
+        write: Container[int] | None,
+        on_pair: Callable[[int, PairFailure | None], None] | None,
+    ) -> None:
+        self._write = write
+        self._on_pair = on_pair
+        self._lock = threading.Lock()
+        self.written = 0
+        self.failures: list[PairFailure] = []
+        self.fatal: list[BaseException] = []
+
+    def wanted(self, seq: int) -> bool:
+        return self._write is None or seq in self._write
+
+    def delivered(self, seq: int) -> None:
+        with self._lock:
+            self.written += 1
+        if self._on_pair is not None:
+            self._on_pair(seq, None)
+
+    def failed(self, seq: int | None, err: BaseException) -> None:
+        """Row ``seq`` failed with ``err`` (None, or an OutputError: the run stops)."""
+        if isinstance(err, OutputError) or seq is None:
+            with self._lock:
+                self.fatal.append(err)
+            return
+        failure = PairFailure(seq, _reason(err))
+        with self._lock:
+            self.failures.append(failure)
+        if self._on_pair is not None and self.wanted(seq):
+            self._on_pair(seq, failure)
+
+    def drive(
+        self, pipeline: DepthPipeline, reader: RecordingReader, deliver: Sink, on_error: OnError
+    ) -> None:
+        """Run the staged executor (``pipeline`` for jobs naming none) on ``reader``'s jobs into
+        ``deliver`` until the reader's end, or the first fatal error, which is raised after
+        the stages stopped."""
+        stages = StagedExecutor(
+            pipeline, reader.take, deliver, on_error=on_error, deliver_thread=True, prefix="rig-process"
+        )
+        reader.start()
+        stages.start()
+        try:
+            while not stages.wait(_POLL_S):
+                if self.fatal:
+                    break
+        finally:
+            stages.stop()
+            reader.stop()
+        if self.fatal:
+            raise self.fatal[0]
+        self.failures.sort(key=lambda f: f.seq)
+
+
 def process_pairs(
     pipeline: DepthPipeline,
     recording: RecordedPairs,
@@ -180,47 +268,18 @@ def process_pairs(
     history, as at a recording's start). ``on_pair(seq, failure)`` after each pair of
     ``write``. Raises the sink's OutputError (the outputs cannot be written) after stopping the
     stages."""
-    lock = threading.Lock()
-    failures: list[PairFailure] = []
-    written = 0
-    fatal: list[BaseException] = []
+    progress = RunProgress(write, on_pair)
 
     def deliver(pair: RecordedPair, frame: DepthFrame) -> None:
-        nonlocal written
-        if write is not None and pair.seq not in write:
+        if not progress.wanted(pair.seq):
             return  # computed for the temporal filter's history only
         sink(pair, frame)
-        with lock:
-            written += 1
-        if on_pair is not None:
-            on_pair(pair.seq, None)
+        progress.delivered(pair.seq)
 
     def on_error(pair: RecordedPair | None, err: BaseException) -> None:
-        if isinstance(err, OutputError) or pair is None:
-            with lock:
-                fatal.append(err)
-            return
-        failure = PairFailure(pair.seq, _reason(err))
-        with lock:
-            failures.append(failure)
-        if on_pair is not None and (write is None or pair.seq in write):
-            on_pair(pair.seq, failure)
+        progress.failed(None if pair is None else pair.seq, err)
 
     pipeline.restore_temporal_state(temporal_state)
     reader = RecordingReader(recording, pairs, readahead, frame_sizes(pipeline))
-    stages = StagedExecutor(
-        pipeline, reader.take, deliver, on_error=on_error, deliver_thread=True, prefix="rig-process"
-    )
-    reader.start()
-    stages.start()
-    try:
-        while not stages.wait(_POLL_S):
-            if fatal:
-                break
-    finally:
-        stages.stop()
-        reader.stop()
-    if fatal:
-        raise fatal[0]
-    failures.sort(key=lambda f: f.seq)
-    return PairsResult(written, failures, pipeline.temporal_state())
+    progress.drive(pipeline, reader, deliver, on_error)
+    return PairsResult(progress.written, progress.failures, pipeline.temporal_state())

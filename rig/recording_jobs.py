@@ -17,6 +17,8 @@ from rig.outputs import BASE_PRODUCTS, OutputLayout, recording_identity
 from rig.pipeline import DepthPipeline
 from rig.recording import PairRecord
 from rig.recording_depth import PairFailure
+from rig.rig_pipeline import RigPipeline
+from rig.ring_outputs import RingLayout
 
 __all__ = [
     "OnProgress",
@@ -36,12 +38,13 @@ last call (any thread)."""
 @dataclass(frozen=True)
 class RecordingSource:
     """Where a recording is and how to open it (a directory, or a ROS bag and its two image
-    topics): what a worker on another machine needs to read it."""
+    topics, or a topic per camera of a rig): what a worker on another machine needs to read it."""
 
     path: Path
     left_topic: str | None = None
     right_topic: str | None = None
     max_skew_ms: float | None = None
+    topics: tuple[tuple[str, str], ...] | None = None  # a rig's bag: (camera, topic) each
 
     @property
     def name(self) -> str:
@@ -50,7 +53,11 @@ class RecordingSource:
 
     def open(self) -> RecordedPairs:
         return open_recording(
-            self.path, left_topic=self.left_topic, right_topic=self.right_topic, max_skew_ms=self.max_skew_ms
+            self.path,
+            left_topic=self.left_topic,
+            right_topic=self.right_topic,
+            max_skew_ms=self.max_skew_ms,
+            topics=None if self.topics is None else dict(self.topics),
         )
 
 
@@ -70,13 +77,17 @@ class ProcessOptions:
 @dataclass
 class RecordingJob:
     """One recording to process: its source (opened as ``recording``), the pipeline for its
-    calibration and its output directory. :func:`plan_recording` fills in the plan."""
+    calibration and its output directory. :func:`plan_recording` fills in the plan. A rig of
+    more than two cameras has its ``ring`` pipeline (``pipeline`` is then its first pair's) and
+    is written by a :class:`~rig.ring_outputs.RingLayout` (``ring_layout``)."""
 
     source: RecordingSource
     recording: RecordedPairs
     pipeline: DepthPipeline
     out: Path
     layout: OutputLayout | None = None
+    ring: RigPipeline | None = None
+    ring_layout: RingLayout | None = None
     compute: list[PairRecord] = field(default_factory=list)  # pairs to run, in order
     write: set[int] = field(default_factory=set)  # seqs whose outputs are written
     resumed: int = 0  # pairs complete before this run
@@ -107,20 +118,21 @@ class RecordingSummary:
 
 def plan_recording(job: RecordingJob, options: ProcessOptions) -> None:
     """Get ``job``'s output directory ready and decide which pairs to compute and write."""
-    layout = OutputLayout(job.out, options.products, fsync=options.fsync)
     pairs = list(job.recording.pairs)
-    complete = layout.prepare(
-        job.pipeline,
-        job.source.path,
-        [p.seq for p in pairs],
-        resume=options.resume,
-        recording_id=recording_identity(job.recording),
-    )
+    seqs = [p.seq for p in pairs]
+    where, identity = job.source.path, recording_identity(job.recording)
+    if job.ring is not None:
+        job.ring_layout = RingLayout(job.out, job.ring, options.products, fsync=options.fsync)
+        complete = job.ring_layout.prepare(where, seqs, resume=options.resume, recording_id=identity)
+        pipelines = list(job.ring.pipelines.values())
+    else:
+        job.layout = OutputLayout(job.out, options.products, fsync=options.fsync)
+        complete = job.layout.prepare(job.pipeline, where, seqs, resume=options.resume, recording_id=identity)
+        pipelines = [job.pipeline]
     todo = [p for p in pairs if p.seq not in complete]
-    job.layout = layout
     job.write = {p.seq for p in todo}
     job.resumed = len(complete)
-    if todo and job.pipeline.stereo.temporal_alpha > 0.0:
+    if todo and any(p.stereo.temporal_alpha > 0.0 for p in pipelines):
         last = pairs.index(todo[-1])
         job.compute = pairs[: last + 1]  # the history the filter needs
     else:

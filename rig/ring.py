@@ -19,6 +19,9 @@ camera is the one that makes the rectified y = z × x (z the mean optical axis) 
 images upright. For cameras looking out of a ring that is the one of smaller azimuth (its
 clockwise neighbour is its right); for a two-camera rig it gives today's (left, right). A
 pair is kept only where the two lenses see a common direction (:func:`rig.field.overlap`).
+
+**Explicit pairs.** A rig.yaml's ``pairs:`` (``Rig.pairs``) overrides the geometry:
+:func:`stereo_pairs` is the one place a rig's pairs are chosen.
 """
 
 from __future__ import annotations
@@ -30,12 +33,21 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from calibration.rig import Rig
+from calibration.rig import Rig, pairs_problem
 from rig.errors import ConfigError
 from rig.field import overlap
 from rig.rectified import rectified_frame
 
-__all__ = ["PLANE_SPREAD", "PairNames", "StereoPairs", "adjacent_pairs", "axis_azimuths", "rig_up"]
+__all__ = [
+    "PLANE_SPREAD",
+    "PairNames",
+    "StereoPairs",
+    "adjacent_pairs",
+    "axis_azimuths",
+    "pair_label",
+    "rig_up",
+    "stereo_pairs",
+]
 
 F64 = NDArray[np.float64]
 
@@ -121,21 +133,20 @@ def adjacent_pairs(rig: Rig, pairs: Sequence[tuple[str, str]] | None = None) -> 
 
 
 def _checked(rig: Rig, pairs: Sequence[tuple[str, str]]) -> StereoPairs:
-    out: StereoPairs = []
-    for i, pair in enumerate(pairs):
-        if len(pair) != 2:
-            raise ConfigError(f"pairs[{i}]: a pair names two cameras, got {list(pair)!r}")
-        left, right = str(pair[0]), str(pair[1])
-        for name in (left, right):
-            if name not in rig.cameras:
-                raise ConfigError(
-                    f"pairs[{i}]: the rig has no camera {name!r} (cameras: {', '.join(rig.names)})"
-                )
-        if left == right:
-            raise ConfigError(f"pairs[{i}]: camera {left!r} cannot pair with itself")
-        if (left, right) in out:
-            raise ConfigError(f"pairs[{i}]: {left}|{right} is listed twice")
-        out.append((left, right))
-    if not out:
-        raise ConfigError("pairs: the list is empty")
-    return out
+    problem = pairs_problem(pairs, rig.names)
+    if problem is not None:
+        where = "pairs" if problem[0] < 0 else f"pairs[{problem[0]}]"
+        raise ConfigError(f"{where}: {problem[1]}")
+    return [(str(left), str(right)) for left, right in pairs]
+
+
+def stereo_pairs(rig: Rig) -> StereoPairs:
+    """The stereo pairs of ``rig``: its explicit ``pairs`` (rig.yaml's ``pairs:``) or, without
+    them, the pairs of its geometry (:func:`adjacent_pairs`). Every consumer of a rig's pairs
+    asks here."""
+    return adjacent_pairs(rig, rig.pairs)
+
+
+def pair_label(names: PairNames) -> str:
+    """A pair's name in files, URLs and topics: ``"A-B"`` (left camera, right camera)."""
+    return f"{names[0]}-{names[1]}"

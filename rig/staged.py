@@ -28,11 +28,16 @@ leave in the order they were taken. How pairs are taken is the caller's:
 
 A pair that fails in any stage is reported to ``on_error(key, err)`` and the stages go on; a
 source that returns :data:`END` ends the run once every pair before it is delivered.
+
+A job may name its own pipeline (:attr:`PairJob.pipeline`): a rig of N cameras hands in the pairs
+of each frame set one after the other, each through its pair's pipeline
+(:mod:`rig.rig_depth`), on the same stages and in the same order.
 """
 
 from __future__ import annotations
 
 import enum
+import functools
 import logging
 import threading
 import time
@@ -85,13 +90,15 @@ END: EndOfPairs = _Marker.END
 class PairJob(Generic[K]):
     """One pair to process: the caller's ``key`` (a frame pair, a recording's row), the left
     frame's ``seq`` and ``ts_ns``, and a loader per camera returning its image (uint8 gray or BGR,
-    decoded now; it raises for a frame that cannot be read or decoded)."""
+    decoded now; it raises for a frame that cannot be read or decoded); ``pipeline``: the pair's
+    own (None: the executor's)."""
 
     key: K
     seq: int
     ts_ns: int
     left: Callable[[], NDArray[Any]]
     right: Callable[[], NDArray[Any]]
+    pipeline: DepthPipeline | None = None
 
 
 Take = Callable[[float], "PairJob[Any] | EndOfPairs | None"]
@@ -337,21 +344,27 @@ class StagedExecutor:
         self._to_match.put(_Prepared(job, rect, decode_ms))
         return True
 
+    def pipeline_of(self, job: PairJob[Any]) -> DepthPipeline:
+        """The pipeline ``job`` runs through: its own, or the executor's."""
+        return job.pipeline or self.pipeline
+
     def _rectify(self, job: PairJob[Any]) -> tuple[RectifiedImages, float]:
         """Load and remap one pair, the two cameras on two threads: JPEG decoding is
         single-threaded, and two remaps at once beat one parallelised after another."""
-        left_name, right_name = self.pipeline.names
+        pipeline = self.pipeline_of(job)
+        left_name, right_name = pipeline.names
         # One geometry for both frames: a corrected calibration swapped in meanwhile
         # (DepthPipeline.apply) starts with the next pair.
-        geometry = self.pipeline.geometry
+        geometry = pipeline.geometry
         decoder = self._decoder
+        load = functools.partial(self._load_rectify, pipeline)
         if decoder is None:
-            left = self._load_rectify(left_name, job.left, geometry)
-            right = self._load_rectify(right_name, job.right, geometry)
+            left = load(left_name, job.left, geometry)
+            right = load(right_name, job.right, geometry)
         else:
-            future: Future[_Rectified] = decoder.submit(self._load_rectify, left_name, job.left, geometry)
+            future: Future[_Rectified] = decoder.submit(load, left_name, job.left, geometry)
             try:
-                right = self._load_rectify(right_name, job.right, geometry)
+                right = load(right_name, job.right, geometry)
             finally:
                 left = future.result()  # also when the right failed: no thread left on this pair
         right_rect, right_gray, right_decode, right_remap = right
@@ -362,13 +375,14 @@ class StagedExecutor:
         )
         return rect, left_decode + right_decode
 
+    @staticmethod
     def _load_rectify(
-        self, name: str, load: Callable[[], NDArray[Any]], geometry: PairGeometry
+        pipeline: DepthPipeline, name: str, load: Callable[[], NDArray[Any]], geometry: PairGeometry
     ) -> _Rectified:
         t0 = time.perf_counter()
         image = load()
         t1 = time.perf_counter()
-        vpc, gray = self.pipeline.rectify_camera(name, image, geometry)
+        vpc, gray = pipeline.rectify_camera(name, image, geometry)
         t2 = time.perf_counter()
         return vpc, gray, (t1 - t0) * 1e3, (t2 - t1) * 1e3
 
@@ -389,7 +403,8 @@ class StagedExecutor:
             self._to_postprocess.put(END)
             return False
         try:
-            matched = self.pipeline.match(item.rect, temporal_prior=self._temporal_prior)
+            # Each pair's matcher keeps its own stream's prior (a ring: one per pair).
+            matched = self.pipeline_of(item.job).match(item.rect, temporal_prior=self._temporal_prior)
         except Exception as err:
             self._on_error(item.job.key, err)
             matched = None
@@ -416,7 +431,7 @@ class StagedExecutor:
             return False
         job = item.job
         try:
-            frame = self.pipeline.postprocess(item.matched, job.seq, job.ts_ns)
+            frame = self.pipeline_of(job).postprocess(item.matched, job.seq, job.ts_ns)
         except Exception as err:
             self._on_error(job.key, err)
             return True

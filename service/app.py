@@ -33,6 +33,7 @@ from service.routes import (
     metrics,
     readout,
     recordings,
+    ring,
     stream,
 )
 from service.runtime import Runtime
@@ -140,6 +141,7 @@ def create_app(settings: Settings | None = None, *, runtime: Runtime | None = No
         health,
         counters,
         depth,
+        ring,
         readout,
         stream,
         frames,

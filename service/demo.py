@@ -15,7 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import shutil
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -158,11 +158,16 @@ def _rendered(directory: Path) -> bool:
 
 
 def replay_overrides(
-    recording: Path, calibration: Path, pace: float | str, source: Mapping[str, Any] | None = None
+    recording: Path,
+    calibration: Path,
+    pace: float | str,
+    source: Mapping[str, Any] | None = None,
+    cameras: Sequence[str] = ("left", "right"),
 ) -> dict[str, Any]:
     """Settings overrides: file cameras replaying ``recording`` at ``pace`` (fps or
     ``"recorded"``), looping with live timestamps, and ``calibration`` for the rig. ``source``:
-    more file-camera fields (a bag's ``left_topic``, ``right_topic``, ``max_skew_ms``)."""
+    more file-camera fields (a bag's ``left_topic``, ``right_topic``, ``max_skew_ms``, or
+    ``topics``); ``cameras``: the recording's (other than ``left``, ``right``: ``cameras.rig``)."""
     camera = {
         "kind": "file",
         "recording": str(recording),
@@ -171,13 +176,9 @@ def replay_overrides(
         "timestamps": "live",
         **(source or {}),
     }
-    return {
-        "cameras": {
-            "left": {**camera, "camera": "left"},
-            "right": {**camera, "camera": "right"},
-        },
-        "calibration": {"path": str(calibration)},
-    }
+    named = {name: {**camera, "camera": name} for name in cameras}
+    section = named if list(cameras) == ["left", "right"] else {"rig": named}
+    return {"cameras": section, "calibration": {"path": str(calibration)}}
 
 
 def demo_overrides(loop_recording: Path, fps: float = DEMO_FPS) -> dict[str, Any]:

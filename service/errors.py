@@ -12,6 +12,7 @@ __all__ = [
     "ApiError",
     "ConfidenceOff",
     "ConfigChanged",
+    "NoPanorama",
     "NotFound",
     "NotReady",
     "RecordingConflict",
@@ -24,6 +25,7 @@ __all__ = [
     "TooManyStreams",
     "Unauthorized",
     "UnknownCamera",
+    "UnknownPair",
 ]
 
 
@@ -73,6 +75,14 @@ class RecordingNotFound(NotFound):
 
 class UnknownCamera(NotFound):
     """No camera of that name (the rig has 'left' and 'right')."""
+
+
+class UnknownPair(NotFound):
+    """No stereo pair of that name (``A-B``); the message lists the rig's pairs."""
+
+
+class NoPanorama(NotFound):
+    """A panorama was asked of a two-camera rig (one pair: no 360° fusion)."""
 
 
 class Unauthorized(ServiceError):

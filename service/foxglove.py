@@ -24,7 +24,7 @@ import json
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -62,6 +62,7 @@ from rig.ros.messages import (
     TransformsMessage,
 )
 from rig.ros.names import RosNames
+from rig.ros.ring_messages import RingMessageBuilder
 from service.errors import SettingsError
 from service.foxglove_gate import FoxgloveGate, GateLimits
 from service.runtime import Runtime
@@ -151,15 +152,16 @@ _CHANNELS: dict[type, Any] = {
 }
 
 
-def _kind_of(topic: str, names: RosNames) -> type:
-    """Which message a topic carries (the raw image topics by their ``/compressed`` suffix)."""
+def _kind_of(topic: str, names: RosNames, cameras: Sequence[str] = ("left", "right")) -> type:
+    """Which message a topic carries (the raw image topics of ``cameras`` by their
+    ``/compressed`` suffix; a rig's pairs' clouds by their ``/points``)."""
     if topic.endswith("/camera_info") or topic == names.depth_info:
         return CameraInfoMessage
-    if topic == names.points:
+    if topic == names.points or topic.endswith("/points"):
         return PointCloudMessage
     if topic == names.tf_static:
         return TransformsMessage
-    compressed = {names.raw_image(c, compressed=True) for c in ("left", "right")}
+    compressed = {names.raw_image(c, compressed=True) for c in cameras}
     return CompressedImageMessage if topic in compressed else ImageMessage
 
 
@@ -193,7 +195,7 @@ class FoxgloveLive:
     def __init__(
         self,
         settings: FoxgloveSettings,
-        builder: MessageBuilder,
+        builder: MessageBuilder | RingMessageBuilder,
         store: ResultStore,
         health: Callable[[], bytes],
         health_schema: dict[str, Any] | None = None,
@@ -270,7 +272,8 @@ class FoxgloveLive:
     def _channel(self, topic: str) -> Any:
         channel = self._channels.get(topic)
         if channel is None:
-            channel = _CHANNELS[_kind_of(topic, self.names)](topic, context=self._ctx)
+            kind = _kind_of(topic, self.names, self.builder.cameras)
+            channel = _CHANNELS[kind](topic, context=self._ctx)
             self._channels[topic] = channel
         return channel
 
@@ -286,6 +289,19 @@ class FoxgloveLive:
         b, want = self.builder, self._wanted
         stamp = result.ts_ns
         messages: list[Message] = []
+        if isinstance(b, RingMessageBuilder):
+            ring = result.ring
+            assert ring is not None  # a rig's worker publishes its sets
+            for frame in ring.frames.frames:
+                compressed = frame.format == "jpeg" and frame.raw is not None
+                pixels = want(self.names.raw_image(frame.camera, compressed=compressed))
+                messages += b.raw_frame(frame.camera, _stored(frame, pixels), frame.ts_ns, want=want)
+            messages += b.set_outputs(
+                ring.pairs, stamp, panorama=ring.panorama, fused_cloud=ring.rig_frame, want=want
+            )
+            self._log(messages, stamp)
+            self._last_stamp = stamp
+            return
         for cam, frame in (("left", result.left), ("right", result.right)):
             compressed = frame.format == "jpeg" and frame.raw is not None
             pixels = want(self.names.raw_image(cam, compressed=compressed))
@@ -358,9 +374,12 @@ def start_foxglove(
     fox = server.foxglove
     token = server.api_token.get_secret_value() if server.api_token is not None else None
     limits = gate_limits(fox, token, server.max_header_bytes)
-    builder = MessageBuilder(
-        runtime.pipeline, settings.ros, cloud_stride=fox.cloud_stride, pinhole_depth=settings.pinhole_depth
-    )
+    builder: MessageBuilder | RingMessageBuilder
+    if runtime.ring is not None:
+        builder = RingMessageBuilder(runtime.ring, settings.ros, cloud_stride=fox.cloud_stride)
+    else:
+        stride, pinhole = fox.cloud_stride, settings.pinhole_depth
+        builder = MessageBuilder(runtime.pipeline, settings.ros, cloud_stride=stride, pinhole_depth=pinhole)
     live = FoxgloveLive(fox, builder, runtime.store, health, health_schema, limits=limits)
     live.start()
     return live

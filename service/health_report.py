@@ -16,15 +16,17 @@ from dataclasses import dataclass
 from typing import Literal, Protocol
 
 from rig.calibration_check import CalibrationCheck
-from rig.capture.capture import StereoCapture
+from rig.capture.capture import RigCapture
 from rig.capture.health import CaptureHealth
 from rig.rectification.monitor import RectificationMonitor, RectificationStatus
+from rig.rig_pipeline import RigPipeline
 from service.host import HostInfo, host_info
 from service.recordings import RecordingManager, RecordingStatus
 from service.settings import Settings
+from service.store import ResultStore
 from service.worker import DepthWorker, WorkerStats
 
-__all__ = ["HealthReport", "HealthSnapshot", "HealthSources", "HealthStatus", "health_report"]
+__all__ = ["HealthReport", "HealthSnapshot", "HealthSources", "HealthStatus", "PairHealth", "health_report"]
 
 HealthStatus = Literal["ok", "degraded", "down"]
 HealthSnapshot = tuple[bytes, int]
@@ -36,14 +38,27 @@ class HealthSources(Protocol):
     """What the report reads: the parts of a running service (service.runtime.Runtime)."""
 
     settings: Settings
-    capture: StereoCapture
+    capture: RigCapture
     worker: DepthWorker
+    store: ResultStore
+    ring: RigPipeline | None
     recordings: RecordingManager
     rectification: RectificationMonitor | None
     calibration_check: CalibrationCheck | None
     started_ns: int
 
     def depth_collapse(self) -> str | None: ...
+
+
+@dataclass(frozen=True)
+class PairHealth:
+    """One stereo pair of a rig of N cameras: its cameras, baseline and, on the latest published
+    set, the share of its pixels with depth (None before the first set)."""
+
+    cameras: tuple[str, str]
+    baseline_m: float
+    seq: int | None
+    valid_fraction: float | None
 
 
 @dataclass(frozen=True)
@@ -56,6 +71,7 @@ class HealthReport:
     host: HostInfo
     recording: RecordingStatus | None
     rectification: RectificationStatus | None = None
+    pairs: dict[str, PairHealth] | None = None
 
 
 def _camera_reasons(cap: CaptureHealth) -> list[str]:
@@ -104,6 +120,10 @@ def health_report(runtime: HealthSources) -> HealthReport:
     rectification = None if runtime.rectification is None else runtime.rectification.status()
     if rectification is not None and rectification.state == "degraded":
         reasons.append(f"rectification: {rectification.reason}")
+    pairs = _pair_health(runtime)
+    for label, pair in (pairs or {}).items():
+        if pair.valid_fraction == 0.0:
+            reasons.append(f"pair {label}: no depth on the latest set")
     down = not cap.running or not worker.alive or not any(c.connected for c in cap.cameras.values())
     if not cap.running:
         reasons.append("capture not running")
@@ -117,4 +137,19 @@ def health_report(runtime: HealthSources) -> HealthReport:
         host=host_info(runtime.settings.server.recordings_dir),
         recording=recording,
         rectification=rectification,
+        pairs=pairs,
     )
+
+
+def _pair_health(runtime: HealthSources) -> dict[str, PairHealth] | None:
+    """Each pair of a rig of N cameras on the latest published set (None: a two-camera rig)."""
+    if runtime.ring is None:
+        return None
+    latest = runtime.store.latest
+    ring = latest.ring if latest is not None else None
+    out = {}
+    for label, p in runtime.ring.pipelines.items():
+        frame = ring.pairs.get(label) if ring is not None else None
+        valid = None if frame is None else float(frame.valid.mean())
+        out[label] = PairHealth(p.names, p.baseline_m, None if frame is None else frame.seq, valid)
+    return out

@@ -16,15 +16,16 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 
 from calibration.rig import Rig
-from rig.memory_budget import MIB, MemoryEstimate, available_memory, pipeline_parts
+from rig.memory_budget import MIB, MemoryEstimate, available_memory, pipeline_parts, ring_parts
 from rig.rectified import RectifiedPair
 from rig.stereo import StereoParams
 from service.errors import SettingsError
 from service.settings import Settings
 
-__all__ = ["BASE_BYTES", "WARN_SHARE", "check_memory", "describe_pair", "service_estimate"]
+__all__ = ["BASE_BYTES", "WARN_SHARE", "check_memory", "describe_pair", "ring_estimate", "service_estimate"]
 
 log = logging.getLogger("service.memory")
 
@@ -44,16 +45,43 @@ def service_estimate(
     """The budget of a service with ``settings`` for the cameras of ``rig``, the rectified pair
     ``pair`` (as designed: its real size) and the stereo parameters ``stereo`` (see module doc)."""
     sizes = [(rig.cameras[n].width, rig.cameras[n].height) for n in (pair.left, pair.right)]
-    server = settings.server
-    pairing = settings.cameras.pairing if settings.cameras is not None else None
-    queued = (pairing.buffer_size + pairing.pair_buffer) if pairing is not None else 12
     width, height = pair.camera.width, pair.camera.height
-    parts = pipeline_parts((width, height), stereo, sizes, queued_frames_per_camera=queued)
-    camera_px = sum(w * h for w, h in sizes)
+    parts = pipeline_parts((width, height), stereo, sizes, queued_frames_per_camera=_queued(settings))
+    return _with_service(parts, settings, sum(w * h for w, h in sizes), width * height)
+
+
+def ring_estimate(
+    settings: Settings,
+    rig: Rig,
+    pairs: Sequence[RectifiedPair],
+    stereo: StereoParams,
+    panorama_size: tuple[int, int],
+) -> MemoryEstimate:
+    """:func:`service_estimate` of a rig of N cameras: every pair of ``pairs`` (as designed),
+    each camera once, and the panorama of ``panorama_size`` (:func:`rig.memory_budget.ring_parts`)."""
+    sizes = {n: (rig.cameras[n].width, rig.cameras[n].height) for n in rig.names}
+    designed = [((p.camera.width, p.camera.height), (p.left, p.right)) for p in pairs]
+    parts = ring_parts(designed, stereo, sizes, panorama_size, queued_frames_per_camera=_queued(settings))
+    used = {n for p in pairs for n in (p.left, p.right)}
+    camera_px = sum(w * h for n, (w, h) in sizes.items() if n in used)
+    return _with_service(parts, settings, camera_px, max(w * h for (w, h), _ in designed))
+
+
+def _queued(settings: Settings) -> int:
+    pairing = settings.cameras.pairing if settings.cameras is not None else None
+    return (pairing.buffer_size + pairing.pair_buffer) if pairing is not None else 12
+
+
+def _with_service(
+    parts: MemoryEstimate, settings: Settings, camera_px: int, stream_px: int
+) -> MemoryEstimate:
+    """``parts`` and the service's own: the recording queue of ``camera_px`` camera pixels per
+    set, connections, streams of at most ``stream_px`` pixels a part, the interpreter."""
+    server = settings.server
     return parts.plus(
         recording_queue=server.recording_queue * _QUEUED_FRAME_BYTES * camera_px,
         connections=server.max_connections * (server.max_body_bytes + _CONNECTION_BUFFERS),
-        streams=server.max_streams * (width * height + _STREAM_SOCKET),
+        streams=server.max_streams * (stream_px + _STREAM_SOCKET),
         interpreter=BASE_BYTES,
     )
 

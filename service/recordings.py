@@ -21,6 +21,7 @@ import queue
 import re
 import shutil
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -29,7 +30,8 @@ from typing import Any
 from calibration import save_rig
 from calibration.atomic import write_atomic
 from calibration.rig import Rig
-from rig.capture.frame import FramePair
+from rig.capture.frame import FrameSet
+from rig.capture.recorder import store_set
 from rig.errors import DiskFullError, RecordingError, RigError
 from rig.priority import apply_to_current_thread
 from rig.recording import RecordingWriter
@@ -108,19 +110,13 @@ class _Active:
                 self.error = str(err)
                 log.error("recording %s stopped writing: %s", self.name, err)
 
-    def _write(self, pair: FramePair) -> None:
+    def _write(self, pair: FrameSet) -> None:
         if self.last_seq is not None and pair.seq <= self.last_seq:
             raise RecordingError(
-                f"{self.path}: left camera seq went from {self.last_seq} back to {pair.seq} "
+                f"{self.path}: {pair.cameras[0]} camera seq went from {self.last_seq} back to {pair.seq} "
                 "(a looping replay with recorded timestamps; use timestamps: live)"
             )
-        left, right = pair.left, pair.right
-        if left.raw is not None and right.raw is not None and left.extension == right.extension:
-            self.writer.write_pair(
-                pair.seq, left.ts_ns, right.ts_ns, left.raw, right.raw, ext=left.extension or ".jpg"
-            )
-        else:
-            self.writer.write_images(pair.seq, left.ts_ns, right.ts_ns, left.image, right.image)
+        store_set(self.writer, pair)
         self.last_seq = pair.seq
 
 
@@ -193,10 +189,18 @@ class _PairCounts:
 class RecordingManager:
     """Starts, feeds, stops and lists recordings under ``root`` (see module doc). Thread-safe."""
 
-    def __init__(self, root: Path, *, queue_size: int = 64, rig: Rig | None = None) -> None:
+    def __init__(
+        self,
+        root: Path,
+        *,
+        queue_size: int = 64,
+        rig: Rig | None = None,
+        cameras: Sequence[str] = ("left", "right"),
+    ) -> None:
         self.root = root.expanduser()
         self.queue_size = queue_size
         self.rig = rig
+        self.cameras = list(cameras)
         self._lock = threading.Lock()
         self._active: _Active | None = None
         self._pair_counts = _PairCounts()
@@ -243,7 +247,7 @@ class RecordingManager:
 
     def _open(self, name: str, path: Path, meta: dict[str, Any] | None) -> _Active:
         doc = {"source": "rig serve", "name": name, "started_at": _now_iso(), **(meta or {})}
-        writer = RecordingWriter(path, meta=doc)
+        writer = RecordingWriter(path, meta=doc, cameras=self.cameras)
         active = _Active(name, path, writer, self.queue_size)
         active.started_at = doc["started_at"]
         if self.rig is not None:
@@ -256,8 +260,8 @@ class RecordingManager:
         active.thread.start()
         return active
 
-    def offer(self, pair: FramePair) -> None:
-        """Queue a pair for the running recording (if any); never blocks, counts drops."""
+    def offer(self, pair: FrameSet) -> None:
+        """Queue a pair (a set) for the running recording (if any); never blocks, counts drops."""
         active = self._active
         if active is None:
             return

@@ -22,8 +22,8 @@ from calibration import load_rig
 from calibration.rig import Rig
 from rig import priority
 from rig.calibration_check import CalibrationCheck, check_calibration
-from rig.capture.capture import CAMERA_NAMES, StereoCapture
-from rig.capture.config import CaptureConfig, FileCameraConfig
+from rig.capture.capture import RigCapture
+from rig.capture.config import FileCameraConfig
 from rig.capture.recorded import open_recording
 from rig.depth_watch import Coverage, DepthWatch
 from rig.errors import CorruptFrameError
@@ -34,14 +34,16 @@ from rig.pinhole_depth import PinholeDepthView
 from rig.pipeline import DepthPipeline
 from rig.rectification.monitor import RectificationMonitor
 from rig.rectified import design_rectified_pair
+from rig.rig_pipeline import RigPipeline
 from rig.stereo import StereoParams
 from service.encoders import confidence_png, depth_png, disparity_png, npy_bytes
 from service.errors import ConfigChanged, SettingsError, StereoParamsRefused, TooManyStreams
 from service.health_report import HealthReport, HealthSnapshot, health_report
 from service.memo import DocumentMemo
-from service.memory import check_memory, service_estimate
+from service.memory import check_memory, ring_estimate, service_estimate
 from service.metrics import MetricsSnapshot, ServiceMetrics
 from service.recordings import RecordingManager
+from service.rig_setup import check_sizes, check_two_cameras, resolve_calibration, ring_pipeline
 from service.settings import Settings
 from service.store import PublishedResult, ResultStore
 from service.worker import DepthWorker
@@ -49,26 +51,6 @@ from service.worker import DepthWorker
 __all__ = ["Runtime", "etag", "resolve_calibration"]
 
 log = logging.getLogger("service.runtime")
-
-
-def resolve_calibration(settings: Settings) -> Path:
-    """``calibration.path``, else the ``calibration.yaml`` of the recording both file cameras
-    replay; SettingsError naming the field otherwise."""
-    if settings.calibration.path is not None:
-        return settings.calibration.path
-    cams = settings.cameras
-    if (
-        cams is not None
-        and isinstance(cams.left, FileCameraConfig)
-        and isinstance(cams.right, FileCameraConfig)
-    ):
-        candidate = cams.left.recording / "calibration.yaml"
-        if cams.left.recording == cams.right.recording and candidate.is_file():
-            return candidate
-    raise SettingsError(
-        "settings: field 'calibration.path': not set, and the cameras replay no recording with a "
-        "calibration.yaml"
-    )
 
 
 _NONE = Coverage(0.0, 0.0, 0)
@@ -79,19 +61,6 @@ def etag(revision: int) -> str:
     return f'"{revision}"'
 
 
-def _check_sizes(settings_cams: CaptureConfig, capture: StereoCapture, rig: Rig) -> None:
-    """Frames of another size than the calibration's would give wrong depth: refuse at start."""
-    for name in CAMERA_NAMES:
-        info = capture.camera(name).info()
-        model = rig.cameras[name]
-        if info.width and info.height and (info.width, info.height) != (model.width, model.height):
-            source = "recording" if isinstance(settings_cams.camera(name), FileCameraConfig) else "config"
-            raise SettingsError(
-                f"settings: field 'cameras.{name}': the camera's {source} gives {info.width}x{info.height} "
-                f"frames but its calibration is {model.width}x{model.height}"
-            )
-
-
 class Runtime:
     """The running parts of one service (see module doc)."""
 
@@ -100,17 +69,22 @@ class Runtime:
         settings: Settings,
         rig: Rig,
         pipeline: DepthPipeline,
-        capture: StereoCapture,
+        capture: RigCapture,
         calibration_path: Path | None = None,
+        ring: RigPipeline | None = None,
     ) -> None:
         self.settings = settings
         self.rig = rig
-        self.pipeline = pipeline
+        self.pipeline = pipeline  # a rig of N cameras: its first pair's (ring holds them all)
+        self.ring = ring
         self.capture = capture
         self.calibration_path = calibration_path
         self.store = ResultStore()
         self.recordings = RecordingManager(
-            settings.server.recordings_dir, queue_size=settings.server.recording_queue, rig=rig
+            settings.server.recordings_dir,
+            queue_size=settings.server.recording_queue,
+            rig=rig,
+            cameras=capture.names,
         )
         self.metrics = ServiceMetrics(self.metrics_snapshot)
         scale, level = settings.server.depth_scale_m, settings.server.png_compression
@@ -136,6 +110,7 @@ class Runtime:
             on_pair=self.recordings.offer,
             on_result=self._observe,
             prefetch=self.frame_bodies,
+            ring=ring,
         )
         self.rectification: RectificationMonitor | None = None
         if settings.rectification.enabled:
@@ -179,17 +154,17 @@ class Runtime:
             )
         calibration = resolve_calibration(settings)
         rig = load_rig(calibration)
-        for name in CAMERA_NAMES:
-            if name not in rig.cameras:
-                raise SettingsError(
-                    f"{calibration}: the rig has no camera {name!r} (has {', '.join(rig.names)})"
-                )
-        # Before any table is built: a size that cannot fit is refused with the reason.
         stereo = settings.stereo
-        planned = design_rectified_pair(rig, settings.rectified, blind_band_px=stereo.blind_band_px)
-        check_memory(service_estimate(settings, rig, planned, stereo), planned, stereo)
-        pipeline = DepthPipeline(rig, settings.rectified, stereo, cache_dir=settings.cache_dir)
-        for name in CAMERA_NAMES:
+        ring = ring_pipeline(settings, rig, calibration) if len(rig.names) > 2 else None
+        if ring is None:
+            check_two_cameras(settings.cameras, rig, calibration)
+            # Before any table is built: a size that cannot fit is refused with the reason.
+            planned = design_rectified_pair(rig, settings.rectified, blind_band_px=stereo.blind_band_px)
+            check_memory(service_estimate(settings, rig, planned, stereo), planned, stereo)
+            pipeline = DepthPipeline(rig, settings.rectified, stereo, cache_dir=settings.cache_dir)
+        else:
+            pipeline = ring.first
+        for name in settings.cameras.names:
             cam = settings.cameras.camera(name)
             if isinstance(cam, FileCameraConfig):
                 # RecordingError naming the file (or bag topic), before any thread starts.
@@ -198,10 +173,11 @@ class Runtime:
                     left_topic=cam.left_topic,
                     right_topic=cam.right_topic,
                     max_skew_ms=cam.max_skew_ms,
+                    topics=cam.topics,
                 )
-        capture = StereoCapture(settings.cameras)
-        _check_sizes(settings.cameras, capture, rig)
-        return cls(settings, rig, pipeline, capture, calibration)
+        capture = RigCapture(settings.cameras)
+        check_sizes(settings.cameras, capture, rig)
+        return cls(settings, rig, pipeline, capture, calibration, ring)
 
     # ----- lifecycle ---------------------------------------------------------------------------
     def start(self) -> None:
@@ -330,11 +306,14 @@ class Runtime:
                     "GET /config and apply the change to what it shows"
                 )
             params = merge(now.stereo)
-            estimate = service_estimate(self.settings, self.rig, now.pair, params)
+            estimate = self._estimate(params)
             try:
                 check_memory(estimate, now.pair, params, already_held=self.memory_budget.total)
             except SettingsError as err:
                 raise StereoParamsRefused(str(err).removeprefix("settings: field 'rectified': ")) from err
+            if self.ring is not None:  # every pair of the rig, the first (the revision) last
+                for p in list(self.ring.pipelines.values())[1:]:
+                    p.apply(stereo=params)
             return self.pipeline.apply(stereo=params)
 
     def pinhole_view(self) -> PinholeDepthView:
@@ -366,9 +345,16 @@ class Runtime:
 
     @property
     def memory_budget(self) -> MemoryEstimate:
-        """The budget of the pair and stereo parameters in effect (a change re-estimates it)."""
-        now = self.pipeline.in_effect
-        return service_estimate(self.settings, self.rig, now.pair, now.stereo)
+        """The budget of the pair (every pair and the panorama of a rig of N cameras) and stereo
+        parameters in effect (a change re-estimates it)."""
+        return self._estimate(self.pipeline.in_effect.stereo)
+
+    def _estimate(self, stereo: StereoParams) -> MemoryEstimate:
+        if self.ring is None:
+            return service_estimate(self.settings, self.rig, self.pipeline.in_effect.pair, stereo)
+        pairs = [p.in_effect.pair for p in self.ring.pipelines.values()]
+        panorama = self.ring.panorama.camera
+        return ring_estimate(self.settings, self.rig, pairs, stereo, (panorama.width, panorama.height))
 
     # ----- state -------------------------------------------------------------------------------
     def metrics_snapshot(self) -> MetricsSnapshot:

@@ -242,6 +242,13 @@ class RecordingInfo(BaseModel):
     )
 
 
+class PairHealthModel(BaseModel):
+    cameras: tuple[str, str] = Field(description="the pair's left and right camera")
+    baseline_m: float
+    seq: int | None = Field(description="the latest published set's seq; null before the first")
+    valid_fraction: float | None = Field(description="the share of the pair's pixels with depth on that set")
+
+
 class HealthModel(BaseModel):
     status: Literal["ok", "degraded", "down"]
     reasons: list[str]
@@ -253,6 +260,9 @@ class HealthModel(BaseModel):
     recording: RecordingInfo | None
     rectification: RectificationHealthModel | None = Field(
         None, description="null while rectification.enabled is false"
+    )
+    pairs: dict[str, PairHealthModel] | None = Field(
+        None, description="a rig of N cameras: each stereo pair (A-B) on the latest set; null for two cameras"
     )
 
 

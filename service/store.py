@@ -17,11 +17,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from rig.capture.frame import Frame
+from rig.capture.frame import Frame, FrameSet
+from rig.panorama import PanoramaFrame
 from rig.pipeline import DepthFrame
+from rig.rig_pipeline import RigFrame, RigPipeline
 from service.errors import ConfidenceOff
 
-__all__ = ["EncodeCache", "EncodeCounter", "PublishedResult", "RectifiedRenderer", "ResultStore"]
+__all__ = [
+    "EncodeCache",
+    "EncodeCounter",
+    "PublishedResult",
+    "RectifiedRenderer",
+    "ResultStore",
+    "RingResult",
+]
 
 
 class EncodeCounter:
@@ -70,6 +79,32 @@ class EncodeCache:
             return cached
 
 
+class RingResult:
+    """What a rig of N cameras adds to a published result: every pair's depth by its name
+    (``"A-B"``), the set's raw frames, and the panorama, fused from the pairs the first time it is
+    asked for (once per result, whoever asks: the fusion costs more than the pairs' matching, so
+    the worker never waits for it)."""
+
+    def __init__(self, pipeline: RigPipeline, frames: FrameSet, pairs: dict[str, DepthFrame]) -> None:
+        self.pipeline = pipeline
+        self.frames = frames
+        self.pairs = pairs
+        self._panorama: PanoramaFrame | None = None
+        self._lock = threading.Lock()
+
+    def panorama(self) -> PanoramaFrame:
+        if self._panorama is None:
+            with self._lock:
+                if self._panorama is None:
+                    self._panorama = self.pipeline.fuse(self.pairs)
+        return self._panorama
+
+    def rig_frame(self) -> RigFrame:
+        """The set as :class:`~rig.rig_pipeline.RigFrame` (the panorama fused if not yet)."""
+        first = next(iter(self.pairs.values()))
+        return RigFrame(first.seq, first.ts_ns, self.pairs, self.panorama())
+
+
 RectifiedRenderer = Callable[[str, Frame], NDArray[np.uint8]]
 """``(camera, raw frame) → that camera's VPC image`` from the frame's full (colour) image."""
 
@@ -80,7 +115,8 @@ class PublishedResult:
     the pair's (left camera's); ``left``/``right`` the raw frames as the cameras delivered them;
     ``published_ns`` when the worker published it (time.monotonic_ns), ``age_ms`` the time from the
     later frame's arrival to then. ``render_rectified`` makes the
-    colour VPC images on request (:meth:`rect_image`)."""
+    colour VPC images on request (:meth:`rect_image`). A rig of N cameras: ``frame``, ``left``
+    and ``right`` are its first pair's, and ``ring`` holds every pair and the panorama."""
 
     index: int
     frame: DepthFrame
@@ -90,6 +126,7 @@ class PublishedResult:
     age_ms: float
     cache: EncodeCache = field(default_factory=EncodeCache)
     render_rectified: RectifiedRenderer | None = None
+    ring: RingResult | None = None
     # Made on request and kept with the result (carried over by dataclasses.replace).
     _rect_images: dict[str, NDArray[np.uint8]] = field(default_factory=dict, repr=False)
     _rect_locks: dict[str, threading.Lock] = field(

@@ -15,6 +15,12 @@ there as skipped) instead of holding a stale one. Publishing is a reference swap
 encode what they need from the published result in their own threads. A failing frame is
 counted and reported, and the worker goes on: one that does not decode against its camera
 (``frames_undecodable``), any other failure (a wrong size, say) as the worker's error.
+
+A rig of N cameras (``ring``): the worker takes the newest synchronised set and hands the executor
+its pairs one after the other, each through its pair's pipeline; when the last pair of a set is
+finished the set is published (``frame``/``left``/``right`` its first pair's, every pair in
+:class:`~service.store.RingResult`, the panorama fused when first asked for). A set one of whose
+pairs fails is counted once and not published.
 """
 
 from __future__ import annotations
@@ -31,12 +37,14 @@ from typing import Any, Protocol
 
 from numpy.typing import NDArray
 
-from rig.capture.frame import Frame, FramePair
+from rig.capture.frame import Frame, FramePair, FrameSet
 from rig.counters import Counts, Tally, complete
 from rig.errors import CorruptFrameError, RigError
 from rig.pipeline import DepthFrame, DepthPipeline
+from rig.rig_depth import SetCollector
+from rig.rig_pipeline import RigPipeline
 from rig.staged import EndOfPairs, JustInTime, PairJob, StagedExecutor
-from service.store import PublishedResult, ResultStore
+from service.store import PublishedResult, ResultStore, RingResult
 
 __all__ = ["DepthWorker", "PairSource", "WorkerStats", "render_rectified"]
 
@@ -48,8 +56,18 @@ STAGES = ("decode", "remap", "match", "refine", "filters", "depth", "total")
 class PairSource(Protocol):
     def next_pair(self, timeout_s: float, *, newest: bool = True) -> FramePair | None: ...
 
+    def next_set(self, timeout_s: float, *, newest: bool = True) -> FrameSet | None: ...
+
     def report_undecodable(self, frame: Frame, err: Exception) -> None:
         """A frame of a pair taken from this source did not decode (the camera's fault)."""
+
+
+@dataclass(frozen=True, eq=False)
+class _Part:
+    """One pair of a rig's set: the executor's key of its job."""
+
+    set: FrameSet
+    label: str
 
 
 @dataclass(frozen=True)
@@ -95,14 +113,18 @@ class DepthWorker:
         pipeline: DepthPipeline,
         store: ResultStore,
         *,
-        on_pair: Callable[[FramePair], None] | None = None,
+        on_pair: Callable[[FrameSet], None] | None = None,
         on_result: Callable[[PublishedResult, dict[str, float]], None] | None = None,
         poll_s: float = 0.1,
         window_s: float = 2.0,
         prefetch: Mapping[str, Callable[[PublishedResult], bytes]] | None = None,
+        ring: RigPipeline | None = None,
     ) -> None:
         self.source = source
         self.pipeline = pipeline
+        self.ring = ring
+        self._pending: deque[PairJob[_Part]] = deque()  # a set's pairs not yet taken
+        self._sets: SetCollector[FrameSet] = SetCollector(len(ring.pipelines) if ring else 1)
         self.store = store
         self._on_pair = on_pair
         self._on_result = on_result
@@ -138,8 +160,11 @@ class DepthWorker:
         return self._stages.is_alive()
 
     # ----- the stages' source and sinks --------------------------------------------------------
-    def _take(self, timeout_s: float) -> PairJob[FramePair] | EndOfPairs | None:
-        """The newest pair of :attr:`source` (read on every take: a benchmark may gate it)."""
+    def _take(self, timeout_s: float) -> PairJob[Any] | EndOfPairs | None:
+        """The newest pair of :attr:`source` (read on every take: a benchmark may gate it); a
+        rig's: the next pair of the newest set."""
+        if self.ring is not None:
+            return self._take_part(self.ring, timeout_s)
         pair = self.source.next_pair(timeout_s, newest=True)
         if pair is None:
             return None
@@ -153,6 +178,27 @@ class DepthWorker:
             functools.partial(self._luma, pair.right),
         )
 
+    def _take_part(self, ring: RigPipeline, timeout_s: float) -> PairJob[_Part] | None:
+        if not self._pending:
+            frames = self.source.next_set(timeout_s, newest=True)
+            if frames is None:
+                return None
+            if self._on_pair is not None:
+                self._on_pair(frames)
+            for label, p in ring.pipelines.items():
+                left, right = (frames.frame(n) for n in p.names)
+                self._pending.append(
+                    PairJob(
+                        _Part(frames, label),
+                        frames.seq,
+                        frames.ts_ns,
+                        functools.partial(self._luma, left),
+                        functools.partial(self._luma, right),
+                        pipeline=p,
+                    )
+                )
+        return self._pending.popleft()
+
     def _luma(self, frame: Frame) -> NDArray[Any]:
         """The frame's luma (decoded now unless the capture thread did); a frame that does not
         decode is reported to the source, which counts it against its camera."""
@@ -162,7 +208,12 @@ class DepthWorker:
             self.source.report_undecodable(frame, err)
             raise
 
-    def _on_error(self, pair: FramePair | None, err: BaseException) -> None:
+    def _on_error(self, pair: FramePair | _Part | None, err: BaseException) -> None:
+        if (
+            isinstance(pair, _Part)
+            and self._sets.resolve(pair.set.seq, pair.set, pair.label, None, err) is None
+        ):
+            return  # the set's other pairs are still out: the set fails once, when they are back
         if isinstance(err, CorruptFrameError):
             return  # counted against its camera (_luma); the worker itself is fine
         if isinstance(err, RigError):
@@ -172,22 +223,50 @@ class DepthWorker:
         log.error("depth worker: unexpected error", exc_info=err)
         self._failed(f"{type(err).__name__}: {err}")
 
-    def _publish(self, pair: FramePair, frame: DepthFrame) -> None:
+    def _publish_part(self, part: _Part, frame: DepthFrame) -> None:
+        """A rig's pair: published with its set's other pairs once they are all back."""
+        assert self.ring is not None
+        entry = self._sets.resolve(part.set.seq, part.set, part.label, frame, None)
+        if entry is None:
+            return
+        if entry.error is not None:
+            self._on_error(None, entry.error)
+            return
+        first = self.ring.first
+        pairs = {label: entry.frames[label] for label in self.ring.labels}
+        lead = pairs[self.ring.labels[0]]
+        # The set's processing time: each stage summed over its pairs (DepthFrame's convention).
+        stages = dict.fromkeys(k for f in pairs.values() for k in f.timings_ms)
+        lead.timings_ms = {k: sum(f.timings_ms.get(k, 0.0) for f in pairs.values()) for k in stages}
+        frames = entry.set
+        ring = RingResult(self.ring, frames, pairs)
+        self._publish_frames(frames, lead, frames.frame(first.names[0]), frames.frame(first.names[1]), ring)
+
+    def _publish(self, pair: FramePair | _Part, frame: DepthFrame) -> None:
         """The executor's sink: ``frame`` into the result store (see the module doc)."""
+        if isinstance(pair, _Part):
+            self._publish_part(pair, frame)
+            return
+        self._publish_frames(pair, frame, pair.left, pair.right, None)
+
+    def _publish_frames(
+        self, pair: FrameSet, frame: DepthFrame, left: Frame, right: Frame, ring: RingResult | None
+    ) -> None:
         timings = frame.timings_ms
-        arrived = max(pair.left.host_ns, pair.right.host_ns)
+        arrived = max(f.host_ns for f in pair.frames)
         with self._lock:
             self._counters.add("frames_processed")
             index = self._counters["frames_processed"]
         result = PublishedResult(
             index=index,
             frame=frame,
-            left=pair.left,
-            right=pair.right,
+            left=left,
+            right=right,
             published_ns=0,
             age_ms=0.0,
             cache=self.store.new_cache(),
             render_rectified=functools.partial(render_rectified, self.pipeline),
+            ring=ring,
         )
         # Encode what clients polled on the previous frame *before* this one becomes visible: a
         # poll then always finds its bytes ready (no request waits on the encode, none takes a

@@ -31,7 +31,7 @@ def load_rig(path: str | Path) -> Rig:
         raise CalibrationFileError(content.path, "holds one camera; a rig needs two")
     try:
         if content.T_rig_cam is not None:
-            return Rig(dict(content.cameras), dict(content.T_rig_cam))
+            return Rig(dict(content.cameras), dict(content.T_rig_cam), content.pairs)
         if content.pose_error is not None:
             raise content.pose_error
         if content.T_right_left is None:

@@ -35,6 +35,7 @@ class CalibrationContent:
     aliases: dict[str, str] = field(default_factory=dict)
     T_rig_cam: dict[str, F64] | None = None
     T_right_left: F64 | None = None
+    pairs: list[tuple[str, str]] | None = None
     pose_error: CalibrationFileError | None = None
 
     def camera(self, name: str | None = None) -> CameraModel:

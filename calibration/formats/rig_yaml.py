@@ -1,6 +1,8 @@
 """Our ``rig.yaml`` (docs/design.md, "rig.yaml"), read and written.
 
-``{version: 1, cameras: {name: {model, width, height, params: {...}, [fov_deg], T_rig_cam: 4x4}}}``.
+``{version: 1, cameras: {name: {model, width, height, params: {...}, [fov_deg], T_rig_cam: 4x4}},
+[pairs: [[left, right], ...]]}``: ``pairs`` lists the stereo pairs where the geometry's choice
+(``rig.ring.adjacent_pairs``) is not wanted.
 Floats are written with ``repr`` precision so a save/load round trip is exact.
 """
 
@@ -18,7 +20,7 @@ from calibration.errors import CalibrationFileError
 from calibration.formats.content import CalibrationContent, build_model
 from calibration.formats.document import Document, Field
 from calibration.models import MODELS, CameraModel
-from calibration.rig import Rig
+from calibration.rig import Rig, pairs_problem
 
 __all__ = [
     "RIG_YAML_VERSION",
@@ -53,7 +55,25 @@ def read_rig_yaml(doc: Document) -> CalibrationContent:
         entry = cams[name]
         cameras[name] = _read_camera(entry)
         poses[name] = entry["T_rig_cam"].transform()
-    return CalibrationContent(doc.path, "rig.yaml", cameras, T_rig_cam=poses)
+    pairs = _read_pairs(root.get("pairs"), names)
+    return CalibrationContent(doc.path, "rig.yaml", cameras, T_rig_cam=poses, pairs=pairs)
+
+
+def _read_pairs(pairs_field: Field | None, cameras: list[str]) -> list[tuple[str, str]] | None:
+    """``pairs: [[left, right], ...]`` (None when absent), each name a camera of the file; the
+    error names the entry at fault."""
+    if pairs_field is None:
+        return None
+    entries = pairs_field.items()
+    pairs = []
+    for entry in entries:
+        left, right = (name.string() for name in entry.items(length=2))
+        pairs.append((left, right))
+    problem = pairs_problem(pairs, cameras)
+    if problem is not None:
+        at = pairs_field if problem[0] < 0 else entries[problem[0]]
+        raise at.error(problem[1])
+    return pairs
 
 
 def _read_camera(entry: Field) -> CameraModel:

@@ -37,7 +37,7 @@ if TYPE_CHECKING:
         parse_fault,
     )
     from rig.capture.file_camera import FileCamera, FileCameraStats
-    from rig.capture.frame import Frame, FramePair
+    from rig.capture.frame import Frame, FramePair, FrameSet
     from rig.capture.health import CameraHealth, CaptureHealth, PairingHealth
     from rig.capture.pairing import FramePairer
     from rig.capture.protocol import Camera, CameraInfo, TimeBase
@@ -63,6 +63,7 @@ __all__ = [
     "Frame",
     "FramePair",
     "FramePairer",
+    "FrameSet",
     "PairingConfig",
     "PairingHealth",
     "RateFault",
@@ -107,6 +108,7 @@ _LAZY = {
     "FileCameraStats": "rig.capture.file_camera",
     "Frame": "rig.capture.frame",
     "FramePair": "rig.capture.frame",
+    "FrameSet": "rig.capture.frame",
     "CameraHealth": "rig.capture.health",
     "CaptureHealth": "rig.capture.health",
     "PairingHealth": "rig.capture.health",

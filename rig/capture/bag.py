@@ -1,5 +1,6 @@
 """ROS bags (MCAP, ROS 2 ``.db3`` or bag directories, ROS 1 ``.bag``) as recordings: two image
-topics paired by header stamp, read through ``rosbags`` (no ROS installation).
+topics paired by header stamp (or N, one per camera of a rig, in synchronised sets), read through
+``rosbags`` (no ROS installation).
 
 :class:`BagRecording` has the reading surface of :class:`~rig.recording.Recording` (``root``,
 ``cameras``, ``pairs``, :meth:`read_frame`), so a bag goes wherever a recording directory goes:
@@ -7,9 +8,11 @@ topics paired by header stamp, read through ``rosbags`` (no ROS installation).
 supervisor and pairing code as a recording directory).
 
 Pairing: both topics' header stamps, sorted; a left and a right message pair when each is the
-other's nearest and they lie within the skew gate (default half the median frame period). When
-fewer than half the messages of the sparser topic find a partner, the topics are not
-synchronised and the bag is refused, with the figures. ``CompressedImage`` frames keep their
+other's nearest and they lie within the skew gate (default half the median frame period). With N
+topics a set is a message of the first topic and, of every other, its nearest message that has it
+as its own nearest, all within the gate of each other. When fewer than half the messages of the
+sparsest topic find a set, the topics are not synchronised and the bag is refused, with the
+figures. ``CompressedImage`` frames keep their
 bytes (JPEG or PNG); raw ``Image`` frames are decoded to gray or BGR (16-bit scaled to 8).
 """
 
@@ -27,14 +30,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from rig.errors import RecordingError
-from rig.recording import PairRecord, StoredFrame
+from rig.recording import FrameSetRecord, PairRecord, StoredFrame
 from rig.ros.images import decode_raw_image
 
 if TYPE_CHECKING:  # rosbags loads when a bag is opened, not for every command that reads recordings
     from rosbags.highlevel import AnyReader
     from rosbags.interfaces import Connection
 
-__all__ = ["BAG_SUFFIXES", "BagRecording", "is_bag", "pair_stamps"]
+__all__ = ["BAG_SUFFIXES", "BagRecording", "is_bag", "match_stamps", "pair_stamps"]
 
 BAG_SUFFIXES = (".mcap", ".db3", ".bag")
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -86,21 +89,56 @@ def pair_stamps(left: list[int], right: list[int], gate_ns: int) -> list[tuple[i
     return out
 
 
+def match_stamps(stamps: list[list[int]], gate_ns: int) -> list[tuple[int, ...]]:
+    """Indices, one per topic, of the sets of ``stamps`` (each topic's, sorted; the first is the
+    reference): each other topic's message is the reference's nearest and has it as its nearest,
+    and the set's stamps lie within ``gate_ns`` of each other. Two topics: :func:`pair_stamps`."""
+    first, others = stamps[0], stamps[1:]
+    out = []
+    for i, t in enumerate(first):
+        chosen = [i]
+        for other in others:
+            j = _nearest(other, t)
+            if _nearest(first, other[j]) != i:
+                break
+            chosen.append(j)
+        else:
+            set_stamps = [s[k] for s, k in zip(stamps, chosen, strict=True)]
+            if max(set_stamps) - min(set_stamps) <= gate_ns:
+                out.append(tuple(chosen))
+    return out
+
+
 def _median_period(stamps: list[int]) -> int:
     steps = [b - a for a, b in itertools.pairwise(stamps) if b > a]
     return int(statistics.median(steps)) if steps else _DEFAULT_PERIOD_NS
 
 
 class BagRecording:
-    """Two image topics of a bag as a recording of ``left``/``right`` pairs (module docstring).
-    ``max_skew_ns``: the pairing gate (default half the left topic's median period)."""
+    """Two image topics of a bag as a recording of ``left``/``right`` pairs, or ``topics`` (camera
+    → topic, N of them) as a recording of those cameras' sets (module docstring).
+    ``max_skew_ns``: the pairing gate (default half the first topic's median period)."""
 
     def __init__(
-        self, path: str | Path, left_topic: str, right_topic: str, *, max_skew_ns: int | None = None
+        self,
+        path: str | Path,
+        left_topic: str | None = None,
+        right_topic: str | None = None,
+        *,
+        topics: dict[str, str] | None = None,
+        max_skew_ns: int | None = None,
     ) -> None:
         self.root = Path(path)
-        self.cameras = ["left", "right"]
-        self.topics = {"left": left_topic, "right": right_topic}
+        if topics is None:
+            if left_topic is None or right_topic is None:
+                raise RecordingError(
+                    f"{self.root}: a bag needs its image topics (left and right, or per camera)"
+                )
+            topics = {"left": left_topic, "right": right_topic}
+        if len(topics) < 2:
+            raise RecordingError(f"{self.root}: a bag recording needs two image topics or more, got {topics}")
+        self.cameras = list(topics)
+        self.topics = dict(topics)
         self.calibration_path: Path | None = None
         self.truncated_tail = False
         self.meta: dict[str, Any] = {"bag": str(self.root), "topics": dict(self.topics)}
@@ -168,32 +206,27 @@ class BagRecording:
     def _pair(
         self, entries: dict[str, list[_Entry]], max_skew_ns: int | None
     ) -> tuple[list[PairRecord], dict[str, list[_Entry]]]:
-        left, right = entries["left"], entries["right"]
-        ls, rs = [e.stamp_ns for e in left], [e.stamp_ns for e in right]
-        gate = max_skew_ns if max_skew_ns is not None else _median_period(ls) // 2
-        matches = pair_stamps(ls, rs, gate)
-        fewest = min(len(ls), len(rs))
+        stamps = [[e.stamp_ns for e in entries[c]] for c in self.cameras]
+        gate = max_skew_ns if max_skew_ns is not None else _median_period(stamps[0]) // 2
+        matches = match_stamps(stamps, gate)
+        fewest = min(len(s) for s in stamps)
         if len(matches) * 2 < fewest:
-            offset_ms = statistics.median(abs(rs[_nearest(rs, t)] - t) for t in ls) / 1e6
+            first = stamps[0]
+            offsets = [statistics.median(abs(o[_nearest(o, t)] - t) for t in first) / 1e6 for o in stamps[1:]]
+            names = " and ".join(repr(self.topics[c]) for c in self.cameras)
             raise RecordingError(
-                f"{self.root}: topics {self.topics['left']!r} and {self.topics['right']!r} are not "
-                f"synchronised: {len(matches)} of {fewest} messages have a partner within "
-                f"±{gate / 1e6:.1f} ms of header stamp (median offset {offset_ms:.1f} ms)"
+                f"{self.root}: topics {names} are not synchronised: {len(matches)} of {fewest} messages "
+                f"have a partner within ±{gate / 1e6:.1f} ms of header stamp (median offset "
+                f"{max(offsets):.1f} ms)"
             )
         pairs = []
-        kept: dict[str, list[_Entry]] = {"left": [], "right": []}
-        for seq, (i, j) in enumerate(matches):
-            kept["left"].append(left[i])
-            kept["right"].append(right[j])
-            pairs.append(
-                PairRecord(
-                    seq,
-                    ls[i],
-                    rs[j],
-                    f"{self.topics['left']}@{ls[i]}",
-                    f"{self.topics['right']}@{rs[j]}",
-                )
-            )
+        kept: dict[str, list[_Entry]] = {c: [] for c in self.cameras}
+        for seq, chosen in enumerate(matches):
+            for c, k in zip(self.cameras, chosen, strict=True):
+                kept[c].append(entries[c][k])
+            set_stamps = {c: s[k] for c, s, k in zip(self.cameras, stamps, chosen, strict=True)}
+            files = {c: f"{self.topics[c]}@{t}" for c, t in set_stamps.items()}
+            pairs.append(FrameSetRecord.of(seq, set_stamps, files))
         return pairs, kept
 
     # ----- reading -----------------------------------------------------------------------------

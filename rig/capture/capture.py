@@ -1,9 +1,12 @@
-"""The stereo capture the service and ``rig record`` use: two supervised cameras → pairs.
+"""The capture the service and ``rig record`` use: supervised cameras → synchronised sets (pairs
+for two cameras).
 
-``StereoCapture(config).start()`` runs one supervisor (capture + watchdog thread) per camera;
-each valid frame goes through :class:`~rig.capture.pairing.FramePairer` under one lock, and
-complete pairs wait in a bounded buffer. ``next_pair()`` hands out the newest pair not yet
-taken (older ones are counted as skipped) or, with ``newest=False``, the oldest (recording).
+``RigCapture(config).start()`` runs one supervisor (capture + watchdog thread) per camera of the
+config (``left`` and ``right``, or a rig's N cameras); each valid frame goes through
+:class:`~rig.capture.pairing.FramePairer` under one lock, and complete sets wait in a bounded
+buffer. ``next_set()`` hands out the newest set not yet taken (older ones are counted as skipped)
+or, with ``newest=False``, the oldest (recording); ``next_pair()`` is the same for two cameras.
+:data:`StereoCapture` is its name where two cameras are meant (the service, ``rig record``).
 
 All buffers are bounded and drop their oldest entry when full; with
 ``pairing.backpressure`` the camera threads wait for room instead (file replays, where waiting
@@ -27,7 +30,7 @@ from dataclasses import replace
 from rig.capture.config import CaptureConfig, V4L2CameraConfig
 from rig.capture.factory import open_camera
 from rig.capture.faults import Fault
-from rig.capture.frame import Frame, FramePair
+from rig.capture.frame import Frame, FramePair, FrameSet
 from rig.capture.health import CaptureHealth, PairingHealth
 from rig.capture.pairing import FramePairer
 from rig.capture.protocol import Camera, FaultInjectable, TimeBase
@@ -36,7 +39,7 @@ from rig.capture.supervisor import CameraSupervisor
 from rig.counters import Tally, complete
 from rig.errors import ConfigError, FaultNotSupported
 
-__all__ = ["CAMERA_NAMES", "StereoCapture", "default_skew_gate_ns"]
+__all__ = ["CAMERA_NAMES", "RigCapture", "StereoCapture", "default_skew_gate_ns"]
 
 log = logging.getLogger("rig.capture")
 CAMERA_NAMES = ("left", "right")
@@ -52,8 +55,9 @@ def default_skew_gate_ns(fps_values: list[float | None]) -> int:
     return round(0.5e9 / fps)
 
 
-class StereoCapture:
-    """Two supervised cameras and their pairing. Thread-safe; ``stop()`` is idempotent."""
+class RigCapture:
+    """Supervised cameras (two, or a rig's N) and their synchronised sets. Thread-safe;
+    ``stop()`` is idempotent."""
 
     def __init__(
         self,
@@ -64,29 +68,30 @@ class StereoCapture:
     ) -> None:
         self.config = config
         self._clock = clock
+        self.names = config.names
         if cameras is None:
             timebase = TimeBase(clock)
-            cameras = {n: open_camera(config.camera(n), n, timebase=timebase) for n in CAMERA_NAMES}
-        if set(cameras) != set(CAMERA_NAMES):
-            raise ConfigError(f"a stereo capture needs cameras {CAMERA_NAMES}, got {sorted(cameras)}")
-        self._cameras = dict(cameras)
+            cameras = {n: open_camera(config.camera(n), n, timebase=timebase) for n in self.names}
+        if set(cameras) != set(self.names):
+            raise ConfigError(f"the capture needs cameras {self.names}, got {sorted(cameras)}")
+        self._cameras = {n: cameras[n] for n in self.names}
         p = config.pairing
         gate = (
             round(p.skew_gate_ms * 1e6)
             if p.skew_gate_ms is not None
             else default_skew_gate_ns([c.nominal_fps for c in self._cameras.values()])
         )
-        self._pairer = FramePairer(gate, p.buffer_size, p.skew_window, CAMERA_NAMES)
+        self._pairer = FramePairer(gate, p.buffer_size, p.skew_window, self.names)
         self._cond = threading.Condition()
-        self._pairs: deque[FramePair] = deque()
+        self._pairs: deque[FrameSet] = deque()
         self._counters = Tally("pairing")  # under self._cond; pairs_formed is the pairer's
         self._waiting = 0  # consumers waiting in next_pair (read unlocked by the decode choice)
         self._ended: set[str] = set()
         self._started = self._stopped = False
         sup = config.supervisor
         limits = RateLimits(sup.rate_window_s, sup.max_broken_fraction, sup.max_dropped_fraction)
-        self._rates = {n: RateWindow(limits) for n in CAMERA_NAMES}
-        self._problems: dict[str, str | None] = dict.fromkeys(CAMERA_NAMES)  # kind, under _problem_lock
+        self._rates = {n: RateWindow(limits) for n in self.names}
+        self._problems: dict[str, str | None] = dict.fromkeys(self.names)  # kind, under _problem_lock
         self._problem_lock = threading.Lock()
         self._monitor_stop = threading.Event()
         self._monitor: threading.Thread | None = None
@@ -103,7 +108,7 @@ class StereoCapture:
         }
 
     # ----- lifecycle ---------------------------------------------------------------------------
-    def start(self) -> StereoCapture:
+    def start(self) -> RigCapture:
         with self._cond:
             if self._started:
                 return self
@@ -127,7 +132,7 @@ class StereoCapture:
         for sup in self._supervisors.values():
             sup.stop()
 
-    def __enter__(self) -> StereoCapture:
+    def __enter__(self) -> RigCapture:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:
@@ -164,14 +169,21 @@ class StereoCapture:
             raise FaultNotSupported(f"camera {name} ({cam.kind}) does not support fault injection")
         cam.inject(fault)
 
-    @staticmethod
-    def _check_name(name: str) -> None:
-        if name not in CAMERA_NAMES:
-            raise ConfigError(f"unknown camera {name!r} (expected 'left' or 'right')")
+    def _check_name(self, name: str) -> None:
+        if name not in self.names:
+            raise ConfigError(f"unknown camera {name!r} (expected {' or '.join(map(repr, self.names))})")
 
     # ----- pairs -------------------------------------------------------------------------------
     def next_pair(self, timeout_s: float, *, newest: bool = True) -> FramePair | None:
-        """The newest pair not yet taken (or the oldest with ``newest=False``); waits up to
+        """:meth:`next_set` of a two-camera capture."""
+        if len(self.names) != 2:
+            raise ConfigError(f"a capture of {len(self.names)} cameras delivers sets, not pairs (next_set)")
+        found = self.next_set(timeout_s, newest=newest)
+        assert found is None or isinstance(found, FramePair)  # two cameras pair (rig.capture.pairing)
+        return found
+
+    def next_set(self, timeout_s: float, *, newest: bool = True) -> FrameSet | None:
+        """The newest set not yet taken (or the oldest with ``newest=False``); waits up to
         ``timeout_s``; None on timeout, once finished, or when stopped."""
         deadline = time.monotonic() + max(0.0, timeout_s)
         with self._cond:
@@ -217,10 +229,10 @@ class StereoCapture:
         """Backpressure (lock held, released while waiting): room for one pair, and room in the
         camera's buffer unless its peer has ended (then nothing more can pair with the oldest)."""
         p = self.config.pairing
-        peer = next(n for n in CAMERA_NAMES if n != camera)
+        peers = set(self.names) - {camera}
         while not self._stopped:
             pairs_full = len(self._pairs) >= p.pair_buffer
-            buffer_full = self._pairer.buffered(camera) >= p.buffer_size and peer not in self._ended
+            buffer_full = self._pairer.buffered(camera) >= p.buffer_size and not peers & self._ended
             if not (pairs_full or buffer_full):
                 return
             self._cond.wait(_WAIT_SLICE_S)
@@ -302,7 +314,7 @@ class StereoCapture:
     def _warn_bandwidth(self) -> None:
         requests = {
             n: c
-            for n in CAMERA_NAMES
+            for n in self.names
             if isinstance(c := self.config.camera(n), V4L2CameraConfig) and n in self._cameras
         }
         if len(requests) < 2:
@@ -318,3 +330,7 @@ class StereoCapture:
             return
         for w in warnings:
             log.warning("%s", w)
+
+
+#: The capture of two cameras (``left``, ``right``): the service's and ``rig record``'s name.
+StereoCapture = RigCapture

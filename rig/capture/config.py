@@ -15,6 +15,14 @@ A file-backed camera replays one camera of a recording instead::
 or of a ROS bag (MCAP, ``.db3``, bag directory), its two image topics paired by header stamp::
 
   left: {kind: file, recording: run.mcap, left_topic: /cam0/image_raw, right_topic: /cam1/image_raw}
+
+A rig of N cameras names its cameras under ``rig:`` instead of ``left`` and ``right`` (the names of
+its rig.yaml; synchronised sets of N frames, docs/cameras.md)::
+
+  rig:
+    cam1: {kind: v4l2, device: /dev/rig/cam1}
+    cam2: {kind: v4l2, device: /dev/rig/cam2}
+    cam3: {kind: file, recording: ring/, camera: cam3}
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ from pydantic import ConfigDict, Field, ValidationError, field_validator, model_
 
 from rig.capture.faults import Fault
 from rig.errors import ConfigError
+from rig.frame_sets import camera_name_problem
 from rig.settings_model import (
     SettingsModel,
     describe_field_errors,
@@ -101,6 +110,9 @@ class FileCameraConfig(SettingsModel):
     max_skew_ms: float | None = Field(
         None, gt=0.0, description="a bag's pairing gate on header stamps; default half a frame period"
     )
+    topics: dict[str, str] | None = Field(
+        None, description="a bag's image topic of each camera of a rig (camera name: topic)"
+    )
 
     @field_validator("pace")
     @classmethod
@@ -113,6 +125,10 @@ class FileCameraConfig(SettingsModel):
     def _both_topics(self) -> FileCameraConfig:
         if (self.left_topic is None) != (self.right_topic is None):
             raise ValueError("a bag needs both left_topic and right_topic (its two image topics)")
+        if self.topics is not None and self.left_topic is not None:
+            raise ValueError(
+                "name a bag's topics per camera (topics) or as left_topic and right_topic, not both"
+            )
         return self
 
     @model_validator(mode="after")
@@ -186,21 +202,48 @@ class SupervisorConfig(SettingsModel):
 
 
 class CaptureConfig(SettingsModel):
-    """Two cameras plus pairing and supervision options."""
+    """Two cameras (``left``, ``right``) or a rig of N named cameras (``rig``), plus pairing and
+    supervision options."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    left: CameraConfig
-    right: CameraConfig
+    left: CameraConfig | None = None
+    right: CameraConfig | None = None
+    rig: dict[str, CameraConfig] | None = Field(
+        None, description="a rig of N cameras by name (instead of left and right)"
+    )
     pairing: PairingConfig = PairingConfig()
     supervisor: SupervisorConfig = SupervisorConfig()
 
+    @model_validator(mode="after")
+    def _cameras(self) -> CaptureConfig:
+        if self.rig is not None:
+            if self.left is not None or self.right is not None:
+                raise ValueError("give either left and right, or rig (N cameras by name), not both")
+            if len(self.rig) < 2:
+                raise ValueError(f"rig: name two cameras or more, got {list(self.rig)}")
+            for name in self.rig:
+                problem = camera_name_problem(name)
+                if problem is not None:
+                    raise ValueError(f"rig: {problem}")
+        elif self.left is None or self.right is None:
+            missing = [n for n in ("left", "right") if getattr(self, n) is None]
+            raise ValueError(f"{' and '.join(missing)} missing (or name N cameras under rig)")
+        return self
+
+    @property
+    def names(self) -> list[str]:
+        """The cameras, in order: ``left``, ``right`` or the rig's."""
+        return list(self.rig) if self.rig is not None else ["left", "right"]
+
     def camera(self, name: str) -> V4L2CameraConfig | FileCameraConfig:
-        if name == "left":
-            return self.left
-        if name == "right":
-            return self.right
-        raise ConfigError(f"unknown camera {name!r} (expected 'left' or 'right')")
+        if self.rig is not None:
+            cam = self.rig.get(name)
+        else:
+            cam = self.left if name == "left" else self.right if name == "right" else None
+        if cam is None:
+            raise ConfigError(f"unknown camera {name!r} (expected {' or '.join(map(repr, self.names))})")
+        return cam
 
 
 #: The camera kinds: pydantic puts the kind of a camera into an error's location; a config file
@@ -216,17 +259,27 @@ def resolve_camera_paths(cameras: Any, base: Path) -> Any:
         return cameras
     out = dict(cameras)
     for name in ("left", "right"):
-        cam = out.get(name)
-        if isinstance(cam, Mapping) and cam.get("kind") == "file" and "recording" in cam:
-            out[name] = {**cam, "recording": path_in_config(cam["recording"], base)}
+        out[name] = _resolved(out.get(name), base)
+        if out[name] is None:
+            del out[name]
+    rig = out.get("rig")
+    if isinstance(rig, Mapping):
+        out["rig"] = {name: _resolved(cam, base) for name, cam in rig.items()}
     return out
+
+
+def _resolved(cam: Any, base: Path) -> Any:
+    """A file camera's entry with its ``recording`` relative to ``base``; anything else as it is."""
+    if isinstance(cam, Mapping) and cam.get("kind") == "file" and "recording" in cam:
+        return {**cam, "recording": path_in_config(cam["recording"], base)}
+    return cam
 
 
 def capture_config_from_mapping(doc: Mapping[str, Any], source: str = "<config>") -> CaptureConfig:
     """Validate a ``cameras:`` mapping (of the config file ``source``, whose directory relative
     recording paths are relative to); ConfigError names the source and the field."""
     if not isinstance(doc, Mapping):
-        raise ConfigError(f"{source}: field 'cameras' must be a mapping with 'left' and 'right'")
+        raise ConfigError(f"{source}: field 'cameras' must be a mapping with 'left' and 'right' (or 'rig')")
     if source != "<config>":
         doc = resolve_camera_paths(doc, Path(source).parent)
     try:

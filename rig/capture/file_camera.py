@@ -85,8 +85,9 @@ class FileCamera:
             left_topic=config.left_topic,
             right_topic=config.right_topic,
             max_skew_ms=config.max_skew_ms,
+            topics=config.topics,
         )
-        if self._cam not in rec.cameras or self._cam not in ("left", "right"):
+        if self._cam not in rec.cameras:
             raise ConfigError(f"{rec.root}: recording has no camera {self._cam!r} (has {rec.cameras})")
         if not rec.pairs:
             raise RecordingError(f"{rec.root}: recording holds no frames")
@@ -94,13 +95,13 @@ class FileCamera:
         pairs = rec.pairs
         self._seqs = [p.seq for p in pairs]
         self._ts = [p.ts_ns(self._cam) for p in pairs]
-        # One reference for both cameras of the recording keeps their relative skew when rebased.
-        self._ref_ns = min(pairs[0].left_ts_ns, pairs[0].right_ts_ns)
-        diffs = [b.left_ts_ns - a.left_ts_ns for a, b in itertools.pairwise(pairs)]
+        # One reference for every camera of the recording keeps their relative skew when rebased.
+        self._ref_ns = min(pairs[0].stamps)
+        diffs = [b.first_ts_ns - a.first_ts_ns for a, b in itertools.pairwise(pairs)]
         positive = [d for d in diffs if d > 0]
         self._rec_period_ns = int(statistics.median(positive)) if positive else _DEFAULT_PERIOD_NS
-        # One loop lasts the left column's span plus a period, the same for both cameras.
-        self._span_ns = pairs[-1].left_ts_ns - pairs[0].left_ts_ns + self._rec_period_ns
+        # One loop lasts the first camera's span plus a period, the same for every camera.
+        self._span_ns = pairs[-1].first_ts_ns - pairs[0].first_ts_ns + self._rec_period_ns
         self._seq_span = self._seqs[-1] - self._seqs[0] + 1
         pace = config.pace
         self._period_ns = round(1e9 / pace) if isinstance(pace, float) else self._rec_period_ns

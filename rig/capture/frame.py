@@ -24,7 +24,15 @@ from numpy.typing import NDArray
 from rig.errors import CorruptFrameError
 from rig.image_size import size_problem
 
-__all__ = ["FORMAT_EXTENSIONS", "Frame", "FrameFormat", "FramePair", "encoded_problem", "format_of_path"]
+__all__ = [
+    "FORMAT_EXTENSIONS",
+    "Frame",
+    "FrameFormat",
+    "FramePair",
+    "FrameSet",
+    "encoded_problem",
+    "format_of_path",
+]
 
 FrameFormat = Literal["jpeg", "png", "bgr"]
 """``jpeg`` / ``png``: ``raw`` holds the encoded bytes; ``bgr``: only a decoded image (YUYV cameras)."""
@@ -173,19 +181,52 @@ class Frame:
 
 
 @dataclass(frozen=True, eq=False)
-class FramePair:
-    """Two frames paired by nearest timestamps. ``seq``/``ts_ns`` are the left frame's."""
+class FrameSet:
+    """One frame per camera, synchronised by nearest timestamps (:mod:`rig.capture.pairing`), in
+    the capture's camera order. ``seq``/``ts_ns`` are the first camera's."""
 
-    left: Frame
-    right: Frame
+    frames: tuple[Frame, ...]
+
+    @property
+    def cameras(self) -> list[str]:
+        return [f.camera for f in self.frames]
+
+    def frame(self, camera: str) -> Frame:
+        for f in self.frames:
+            if f.camera == camera:
+                return f
+        raise KeyError(f"no frame of camera {camera!r} in the set ({', '.join(self.cameras)})")
 
     @property
     def seq(self) -> int:
-        return self.left.seq
+        return self.frames[0].seq
 
     @property
     def ts_ns(self) -> int:
-        return self.left.ts_ns
+        return self.frames[0].ts_ns
+
+    @property
+    def spread_ns(self) -> int:
+        """Latest minus earliest capture time of the set (ns)."""
+        stamps = [f.ts_ns for f in self.frames]
+        return max(stamps) - min(stamps)
+
+
+@dataclass(frozen=True, eq=False, init=False)
+class FramePair(FrameSet):
+    """Two frames paired by nearest timestamps: the set of a two-camera capture. ``seq``/``ts_ns``
+    are the left frame's."""
+
+    def __init__(self, left: Frame, right: Frame) -> None:
+        object.__setattr__(self, "frames", (left, right))
+
+    @property
+    def left(self) -> Frame:
+        return self.frames[0]
+
+    @property
+    def right(self) -> Frame:
+        return self.frames[1]
 
     @property
     def skew_ns(self) -> int:

@@ -1,15 +1,20 @@
-"""Stereo pairing by nearest capture timestamps, with a skew gate.
+"""Synchronised sets by nearest capture timestamps, with a skew gate: pairs of two cameras, and
+sets of N.
 
 Each camera's frames wait in a bounded buffer (oldest dropped when full). Pairing looks only at
-the two buffer heads, so the result depends on the two timestamp streams and not on which
-thread delivered first:
+the buffer heads, so the result depends on the timestamp streams and not on which thread
+delivered first:
 
-- heads more than ``gate`` apart: the older head can never be paired (every later frame of the
-  other camera is later still) and is dropped as *unpaired*;
-- within the gate: paired, unless the next buffered frame of the other camera is closer (only
-  possible with a gate above half a frame period);
+- heads spread over more than ``gate`` (latest minus earliest): the oldest head can never be in a
+  set (every later frame of the camera whose head is latest is later still) and is dropped as
+  *unpaired*;
+- within the gate: a set, unless some camera's next buffered frame would make the spread
+  smaller (only possible with a gate above half a frame period): then that camera's head is
+  dropped (cameras in order, the first such one);
 
-so a frame whose partner was lost is dropped and counted, and nothing pairs across a gap.
+so a frame whose partner was lost is dropped and counted, and nothing pairs across a gap. With
+two cameras these are exactly a pair's rules (heads more than ``gate`` apart; the other camera's
+next frame closer), and the sets are :class:`~rig.capture.frame.FramePair`.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rig.capture.frame import Frame, FramePair
+from rig.capture.frame import Frame, FramePair, FrameSet
 
 __all__ = ["FramePairer", "PairerCounts"]
 
@@ -36,7 +41,8 @@ class PairerCounts:
 
 
 class FramePairer:
-    """Pairs frames of two cameras (see module docstring). Not thread-safe: callers lock."""
+    """Sets of frames of ``names`` (two or more cameras; see module docstring). Not thread-safe:
+    callers lock."""
 
     def __init__(
         self,
@@ -47,11 +53,11 @@ class FramePairer:
     ) -> None:
         if gate_ns <= 0:
             raise ValueError("gate_ns must be > 0")
-        if len(names) != 2:
-            raise ValueError("pairing needs exactly two cameras")
+        if len(names) < 2 or len(set(names)) != len(names):
+            raise ValueError(f"pairing needs two or more different cameras, got {list(names)}")
         self.gate_ns = int(gate_ns)
         self.buffer_size = int(buffer_size)
-        self.left_name, self.right_name = names
+        self.names = list(names)
         self._buf: dict[str, deque[Frame]] = {n: deque() for n in names}
         self._unpaired = dict.fromkeys(names, 0)
         self._evicted = dict.fromkeys(names, 0)
@@ -62,8 +68,9 @@ class FramePairer:
     def buffered(self, camera: str) -> int:
         return len(self._buf[camera])
 
-    def push(self, frame: Frame) -> list[FramePair]:
-        """Add one frame; returns the pairs it completed (in time order)."""
+    def push(self, frame: Frame) -> list[FrameSet]:
+        """Add one frame; returns the sets it completed (in time order; :class:`FramePair` for
+        two cameras)."""
         buf = self._buf[frame.camera]
         if len(buf) >= self.buffer_size:
             buf.popleft()
@@ -77,9 +84,9 @@ class FramePairer:
 
     @property
     def exhausted(self) -> bool:
-        """No further pair is possible: a camera has ended and nothing of it is left to pair."""
-        both = {self.left_name, self.right_name} <= self._ended
-        return both or any(not self._buf[c] for c in self._ended)
+        """No further set is possible: a camera has ended and nothing of it is left to pair."""
+        every = set(self.names) <= self._ended
+        return every or any(not self._buf[c] for c in self._ended)
 
     def drop_buffered(self) -> None:
         """Discard everything waiting (counted as unpaired), e.g. when capture stops."""
@@ -91,28 +98,36 @@ class FramePairer:
         self._buf[name].popleft()
         self._unpaired[name] += 1
 
-    def _match(self) -> list[FramePair]:
-        left, right = self._buf[self.left_name], self._buf[self.right_name]
+    def _match(self) -> list[FrameSet]:
+        bufs = [self._buf[n] for n in self.names]
         gate = self.gate_ns
-        out: list[FramePair] = []
-        while left and right:
-            lf, rf = left[0], right[0]
-            d = lf.ts_ns - rf.ts_ns
-            if d < -gate:
-                self._drop(self.left_name)
-            elif d > gate:
-                self._drop(self.right_name)
-            elif len(left) > 1 and abs(left[1].ts_ns - rf.ts_ns) < abs(d):
-                self._drop(self.left_name)
-            elif len(right) > 1 and abs(right[1].ts_ns - lf.ts_ns) < abs(d):
-                self._drop(self.right_name)
-            else:
-                left.popleft()
-                right.popleft()
-                self._skews.append(abs(d))
-                self.pairs_formed += 1
-                out.append(FramePair(lf, rf))
+        out: list[FrameSet] = []
+        while all(bufs):
+            stamps = [b[0].ts_ns for b in bufs]
+            lo, hi = min(stamps), max(stamps)
+            if hi - lo > gate:
+                self._drop(self.names[stamps.index(lo)])
+                continue
+            closer = self._closer_next(bufs, stamps, hi - lo)
+            if closer is not None:
+                self._drop(self.names[closer])
+                continue
+            frames = tuple(b.popleft() for b in bufs)
+            self._skews.append(hi - lo)
+            self.pairs_formed += 1
+            out.append(FramePair(*frames) if len(frames) == 2 else FrameSet(frames))
         return out
+
+    @staticmethod
+    def _closer_next(bufs: list[deque[Frame]], stamps: list[int], spread: int) -> int | None:
+        """The first camera whose next buffered frame would make the heads' spread smaller."""
+        for k, buf in enumerate(bufs):
+            if len(buf) > 1:
+                others = stamps[:k] + stamps[k + 1 :]
+                t = buf[1].ts_ns
+                if max(*others, t) - min(*others, t) < spread:
+                    return k
+        return None
 
     def counts(self) -> PairerCounts:
         return PairerCounts(

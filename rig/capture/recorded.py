@@ -32,29 +32,34 @@ def open_recording(
     left_topic: str | None = None,
     right_topic: str | None = None,
     max_skew_ms: float | None = None,
+    topics: dict[str, str] | None = None,
 ) -> RecordedPairs:
-    """The recording at ``path`` (see the module docstring); RecordingError naming the path."""
+    """The recording at ``path`` (see the module docstring); a bag's image topics are
+    ``left_topic`` and ``right_topic``, or ``topics`` (camera → topic) for a rig of N cameras.
+    RecordingError naming the path."""
     p = Path(path)
+    named = topics is not None or left_topic is not None or right_topic is not None
     if not is_bag(p):
-        if left_topic is not None or right_topic is not None:
-            raise RecordingError(
-                f"{p}: left/right topics name the image topics of a ROS bag; this is not one"
-            )
+        if named:
+            raise RecordingError(f"{p}: image topics name the topics of a ROS bag; this is not one")
         return Recording(p)
-    if left_topic is None or right_topic is None:
+    if topics is None and (left_topic is None or right_topic is None):
         raise RecordingError(
             f"{p}: a ROS bag: name its two image topics (--left-topic and --right-topic, or the file "
-            "cameras' left_topic and right_topic)"
+            "cameras' left_topic and right_topic; a rig's: --topic CAMERA=TOPIC per camera)"
         )
+    if topics is not None and (left_topic is not None or right_topic is not None):
+        raise RecordingError(f"{p}: name a bag's topics per camera or as left and right, not both")
+    chosen = topics if topics is not None else {"left": str(left_topic), "right": str(right_topic)}
     gate = None if max_skew_ms is None else round(max_skew_ms * 1e6)
     try:
         st = p.stat()
     except OSError as err:
         raise RecordingError(f"{p}: not found ({err.strerror})") from None
-    key = (str(p.resolve()), st.st_mtime_ns, st.st_size, left_topic, right_topic, gate)
+    key = (str(p.resolve()), st.st_mtime_ns, st.st_size, tuple(chosen.items()), gate)
     with _BAGS_LOCK:
         bag = _BAGS.get(key)
         if bag is None:
-            bag = BagRecording(p, left_topic, right_topic, max_skew_ns=gate)
+            bag = BagRecording(p, topics=chosen, max_skew_ns=gate)
             _BAGS[key] = bag
     return bag

@@ -1,6 +1,7 @@
-"""Capture → recording directory or MCAP file (``rig record``): every pair, in order, byte-exact.
+"""Capture → recording directory or MCAP file (``rig record``): every pair (every set of a rig
+of N cameras), in order, byte-exact.
 
-Pairs are taken oldest-first from a :class:`~rig.capture.capture.StereoCapture` and written
+Sets are taken oldest-first from a :class:`~rig.capture.capture.RigCapture` and written
 with a :class:`~rig.recording.PairWriter`: :class:`~rig.recording.RecordingWriter` (frame files
 first, then the ``frames.csv`` row, so a killed recorder loses at most the pair in flight), or
 an MCAP writer (a killed recorder loses at most the chunk in progress). MJPEG/PNG frames are stored as
@@ -19,14 +20,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from rig.capture.capture import StereoCapture
+from rig.capture.capture import RigCapture
 from rig.capture.config import CaptureConfig, FileCameraConfig, PairingConfig, SupervisorConfig
-from rig.capture.frame import FramePair
+from rig.capture.frame import FrameSet
 from rig.capture.health import CaptureHealth
 from rig.errors import CameraUnavailable, RecordingError
 from rig.recording import PairWriter, Recording
 
-__all__ = ["RecordResult", "Recorder", "copy_calibration", "replay_capture_config"]
+__all__ = ["RecordResult", "Recorder", "copy_calibration", "replay_capture_config", "store_set"]
 
 # Replays wait on the writer under backpressure, which must not look like a stalled camera.
 _REPLAY_SUPERVISOR = SupervisorConfig(
@@ -37,14 +38,15 @@ _REPLAY_SUPERVISOR = SupervisorConfig(
 def replay_capture_config(recording: str | Path) -> tuple[CaptureConfig, Recording]:
     """Capture config that replays ``recording`` verbatim, as fast as the writer takes it.
 
-    The skew gate admits every recorded pair (its largest |skew|), and at least half a frame
-    period, so the pairs come out exactly as they were indexed.
+    The skew gate admits every recorded set (its largest spread of capture times), and at least
+    half a frame period, so the sets come out exactly as they were indexed. A recording of N
+    cameras replays as a rig of its N cameras.
     """
     rec = Recording(recording)
     if not rec.pairs:
         raise RecordingError(f"{rec.root / 'frames.csv'}: recording holds no frames")
-    skews = [abs(p.left_ts_ns - p.right_ts_ns) for p in rec.pairs]
-    steps = [b.left_ts_ns - a.left_ts_ns for a, b in itertools.pairwise(rec.pairs)]
+    skews = [max(p.stamps) - min(p.stamps) for p in rec.pairs]
+    steps = [b.first_ts_ns - a.first_ts_ns for a, b in itertools.pairwise(rec.pairs)]
     positive = [d for d in steps if d > 0]
     half_period = statistics.median(positive) / 2 if positive else 16_666_667
     gate_ns = max(half_period, max(skews) + 1)
@@ -52,11 +54,13 @@ def replay_capture_config(recording: str | Path) -> tuple[CaptureConfig, Recordi
         name: FileCameraConfig(
             recording=rec.root, camera=name, pace="fast", loop=False, timestamps="recorded", faults=()
         )
-        for name in ("left", "right")
+        for name in rec.cameras
     }
+    two = rec.cameras == ["left", "right"]
     cfg = CaptureConfig(
-        left=cams["left"],
-        right=cams["right"],
+        left=cams["left"] if two else None,
+        right=cams["right"] if two else None,
+        rig=None if two else cams,
         pairing=PairingConfig(skew_gate_ms=gate_ns / 1e6, backpressure=True),
         supervisor=_REPLAY_SUPERVISOR,
     )
@@ -77,7 +81,7 @@ class Recorder:
     :meth:`finish`), so a recorder that fails to start leaves nothing behind.
     """
 
-    def __init__(self, capture: StereoCapture, open_writer: Callable[[], PairWriter]) -> None:
+    def __init__(self, capture: RigCapture, open_writer: Callable[[], PairWriter]) -> None:
         self.capture = capture
         self._open_writer = open_writer
         self.writer: PairWriter | None = None
@@ -89,19 +93,15 @@ class Recorder:
             self.writer = self._open_writer()
         return self.writer
 
-    def write(self, pair: FramePair) -> None:
+    def write(self, pair: FrameSet) -> None:
         writer = self._writer()
         seq = pair.seq
         if self._last_seq is not None and seq <= self._last_seq:
             raise RecordingError(
-                f"{writer.root}: left camera seq went from {self._last_seq} back to {seq} "
+                f"{writer.root}: {pair.cameras[0]} camera seq went from {self._last_seq} back to {seq} "
                 "(a looping replay with recorded timestamps cannot be recorded; use timestamps: live)"
             )
-        left, right = pair.left, pair.right
-        if left.raw is not None and right.raw is not None and left.extension == right.extension:
-            writer.write_pair(seq, left.ts_ns, right.ts_ns, left.raw, right.raw, ext=left.extension or ".jpg")
-        else:
-            writer.write_images(seq, left.ts_ns, right.ts_ns, left.image, right.image)
+        store_set(writer, pair)
         self._last_seq = seq
         self.written += 1
 
@@ -145,7 +145,7 @@ class Recorder:
             if max_seconds is not None and time.monotonic() - start >= max_seconds:
                 stopped_by = "seconds"
                 break
-            pair = self.capture.next_pair(0.1, newest=False)
+            pair = self.capture.next_set(0.1, newest=False)
             if pair is None:
                 if self.capture.exhausted:
                     stopped_by = "end of recording"
@@ -162,6 +162,19 @@ class Recorder:
             raise CameraUnavailable(
                 "; ".join(c.reason or f"camera {c.name}: no frame yet" for c in down) + " (no pair recorded)"
             )
+
+
+def store_set(writer: PairWriter, frames: FrameSet) -> None:
+    """One set into ``writer``: the frames' bytes as the cameras delivered them when every one
+    has them in one format (MJPEG, PNG), else the decoded images (stored losslessly)."""
+    stamps = [f.ts_ns for f in frames.frames]
+    raws = [f.raw for f in frames.frames]
+    extensions = {f.extension for f in frames.frames}
+    if all(raw is not None for raw in raws) and len(extensions) == 1:
+        encoded = [raw for raw in raws if raw is not None]
+        writer.write_set(frames.seq, stamps, encoded, ext=frames.frames[0].extension or ".jpg")
+    else:
+        writer.write_set_images(frames.seq, stamps, [f.image for f in frames.frames])
 
 
 def copy_calibration(source: Recording, out: Path) -> bool:

@@ -34,7 +34,8 @@ from rig.evaluate.consistency import (
 from rig.field import pixel_solid_angles
 from rig.pipeline import DepthPipeline
 from rig.rectified import RectifiedPairConfig
-from rig.ring import PairNames, adjacent_pairs
+from rig.rig_pipeline import pair_config
+from rig.ring import PairNames, adjacent_pairs, stereo_pairs
 from rig.stereo import StereoParams
 
 __all__ = [
@@ -111,12 +112,6 @@ class ConsistencyStudy:
         }
 
 
-def _pair_config(vpc: RectifiedPairConfig, names: PairNames) -> RectifiedPairConfig:
-    return RectifiedPairConfig.model_validate(
-        {**vpc.model_dump(exclude_defaults=True), "left": names[0], "right": names[1]}
-    )
-
-
 def pair_pipelines(
     rig: Rig,
     pairs: Sequence[PairNames],
@@ -128,10 +123,9 @@ def pair_pipelines(
 ) -> dict[PairNames, DepthPipeline]:
     """A depth pipeline per pair: ``vpc``'s projection and field settings (default today's) with
     the pair's cameras, on ``rigs[pair]`` where given, else ``rig``."""
-    base = vpc or RectifiedPairConfig()
     own = rigs or {}
     return {
-        p: DepthPipeline(own.get(p, rig), _pair_config(base, p), stereo, cache_dir, tune_malloc=False)
+        p: DepthPipeline(own.get(p, rig), pair_config(vpc, p), stereo, cache_dir, tune_malloc=False)
         for p in pairs
     }
 
@@ -170,7 +164,7 @@ def consistency_study(
     compared points for analysis."""
     if not frames:
         raise EvaluationError("the consistency study needs at least one frame")
-    chosen = adjacent_pairs(rig, pairs)
+    chosen = adjacent_pairs(rig, pairs) if pairs is not None else stereo_pairs(rig)
     pipelines = pair_pipelines(rig, chosen, vpc=vpc, stereo=stereo, cache_dir=cache_dir, rigs=rigs)
     solid = {p: pixel_solid_angles(pipe.pair.camera) for p, pipe in pipelines.items()}
     ranges: dict[PairNames, list[PairRange]] = {p: [] for p in chosen}

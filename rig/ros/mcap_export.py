@@ -17,7 +17,7 @@ camera's JPEG bytes untouched, flushed chunk by chunk (see :mod:`rig.ros.mcap_wr
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,11 +30,21 @@ from rig.pinhole_depth import PinholeDepthConfig
 from rig.pipeline import DepthFrame, DepthPipeline
 from rig.recording import StoredFrame
 from rig.recording_depth import PairFailure, RecordedPair, process_pairs
+from rig.rig_depth import RecordedSet, process_sets
+from rig.rig_pipeline import RigFrame, RigPipeline
 from rig.ros.mcap_writer import Compression, McapRosWriter
 from rig.ros.messages import MessageBuilder, raw_image_message
 from rig.ros.names import RosNames
+from rig.ros.ring_messages import RingMessageBuilder
 
-__all__ = ["ExportResult", "McapDepthSink", "McapRecordingWriter", "export_mcap"]
+__all__ = [
+    "ExportResult",
+    "McapDepthSink",
+    "McapRecordingWriter",
+    "McapRingSink",
+    "export_mcap",
+    "export_ring_mcap",
+]
 
 
 @dataclass
@@ -68,6 +78,66 @@ class McapDepthSink:
         except RecordingError as err:
             raise OutputError(str(err)) from err
         self.pairs += 1
+
+
+class McapRingSink:
+    """An MCAP file as the sink of :func:`rig.rig_depth.process_sets` (a rig of N cameras): the
+    static transforms before the first set, then per set every camera's raw frame and everything
+    ``builder`` makes of it (:class:`~rig.ros.ring_messages.RingMessageBuilder`: each pair's
+    depth, the panorama, the fused cloud), stamped with the set's capture times."""
+
+    def __init__(self, writer: McapRosWriter, builder: RingMessageBuilder) -> None:
+        self.writer = writer
+        self.builder = builder
+        self.sets = 0
+
+    def __call__(self, frame_set: RecordedSet, frame: RigFrame) -> None:
+        record, builder = frame_set.record, self.builder
+        try:
+            if not self.sets:
+                self.writer.write_all(builder.static(record.first_ts_ns))
+            for camera in builder.cameras:
+                stored = frame_set.frames[camera]
+                assert stored is not None  # a set without one of its frames has no depth
+                self.writer.write_all(builder.raw_frame(camera, stored, record.ts_ns(camera)))
+            self.writer.write_all(
+                builder.set_outputs(
+                    frame.pairs,
+                    record.first_ts_ns,
+                    panorama=lambda: frame.panorama,
+                    fused_cloud=lambda: frame,
+                )
+            )
+        except RecordingError as err:
+            raise OutputError(str(err)) from err
+        self.sets += 1
+
+
+def export_ring_mcap(
+    recording: RecordedPairs,
+    ring: RigPipeline,
+    out: str | Path,
+    *,
+    names: RosNames | None = None,
+    cloud_stride: int = 1,
+    rectified_images: bool = True,
+    compression: Compression = "zstd",
+    on_set: Callable[[int, PairFailure | None], None] | None = None,
+) -> ExportResult:
+    """:func:`export_mcap` of a rig of N cameras: every set of ``recording`` through ``ring``
+    (:func:`rig.rig_depth.process_sets`) into ``out`` (:class:`McapRingSink`)."""
+    builder = RingMessageBuilder(ring, names or RosNames(), cloud_stride, rectified_images)
+    with McapRosWriter(out, compression=compression) as writer:
+        sink = McapRingSink(writer, builder)
+        run = process_sets(ring, recording, recording.pairs, sink, on_set=on_set)
+        if recording.pairs and not run.written:
+            first = run.failures[0]
+            raise RecordingError(
+                f"{recording.root}: no set of {len(recording.pairs)} could be processed "
+                f"(first: seq {first.seq}: {first.reason})"
+            )
+        messages = writer.messages
+    return ExportResult(Path(out), run.written, messages, run.failures)
 
 
 def export_mcap(
@@ -116,6 +186,7 @@ class McapRecordingWriter:
         path: str | Path,
         *,
         names: RosNames | None = None,
+        cameras: Sequence[str] = ("left", "right"),
         fsync: bool = False,
         compression: Compression = "none",
         chunk_size: int = 1024 * 1024,
@@ -123,6 +194,7 @@ class McapRecordingWriter:
     ) -> None:
         self.root = Path(path)
         self.names = names or RosNames()
+        self.cameras = list(cameras)
         self.count = 0
         self._seqs: set[int] = set()
         self._writer = McapRosWriter(
@@ -141,27 +213,35 @@ class McapRecordingWriter:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def write_set(self, seq: int, stamps: Sequence[int], frames: Sequence[bytes], ext: str = ".jpg") -> None:
+        """One encoded frame per camera (``ext`` .jpg: kept as bytes; .png: written as pixels)."""
+        fmt = "png" if ext.lower() == ".png" else "jpeg"
+        self._write(seq, stamps, [StoredFrame(fmt, raw=data) for data in frames])
+
+    def write_set_images(self, seq: int, stamps: Sequence[int], images: Sequence[NDArray[Any]]) -> None:
+        """One decoded frame per camera (YUYV cameras), as its pixels."""
+        self._write(seq, stamps, [StoredFrame("bgr", image=image) for image in images])
+
     def write_pair(
         self, seq: int, left_ts_ns: int, right_ts_ns: int, left: bytes, right: bytes, ext: str = ".jpg"
     ) -> None:
-        """Two encoded frames (``ext`` .jpg: kept as bytes; .png: written as pixels)."""
-        fmt = "png" if ext.lower() == ".png" else "jpeg"
-        self._write(seq, left_ts_ns, right_ts_ns, StoredFrame(fmt, raw=left), StoredFrame(fmt, raw=right))
+        """Two encoded frames: :meth:`write_set`."""
+        self.write_set(seq, (left_ts_ns, right_ts_ns), (left, right), ext)
 
     def write_images(
         self, seq: int, left_ts_ns: int, right_ts_ns: int, left: NDArray[Any], right: NDArray[Any]
     ) -> None:
-        """Two decoded frames (YUYV cameras), as their pixels."""
-        self._write(
-            seq, left_ts_ns, right_ts_ns, StoredFrame("bgr", image=left), StoredFrame("bgr", image=right)
-        )
+        """Two decoded frames: :meth:`write_set_images`."""
+        self.write_set_images(seq, (left_ts_ns, right_ts_ns), (left, right))
 
-    def _write(self, seq: int, lts: int, rts: int, left: StoredFrame, right: StoredFrame) -> None:
+    def _write(self, seq: int, stamps: Sequence[int], frames: Sequence[StoredFrame]) -> None:
         if seq in self._seqs or seq < 0:
             raise RecordingError(f"{self.root}: seq {seq} already written or negative")
+        if len(stamps) != len(self.cameras) or len(frames) != len(self.cameras):
+            raise RecordingError(f"{self.root}: a set holds {len(self.cameras)} frames, got {len(frames)}")
         messages = [
-            raw_image_message(self.names, "left", left, int(lts)),
-            raw_image_message(self.names, "right", right, int(rts)),
+            raw_image_message(self.names, camera, frame, int(ts))
+            for camera, frame, ts in zip(self.cameras, frames, stamps, strict=True)
         ]
         self._writer.write_all(messages, sequence=seq)
         self._seqs.add(seq)

@@ -16,6 +16,14 @@ layout), under one namespace::
     /rig/health                         service health (Foxglove only, JSON)
     /tf_static                          rig_link → rig_optical_frame → cameras → rectified
 
+A rig of N cameras (docs/ring.md) publishes each stereo pair's depth, range, confidence, rectified
+views and cloud under the pair's own namespace (:meth:`RosNames.for_pair`: ``/rig/cam1_cam2/...``,
+its rectified frames ``rig_cam1_cam2_cam1_rect_optical_frame``), the raw frames and camera infos
+per camera as above, and::
+
+    /rig/panorama/image                 the 360° range panorama (32FC1 m, NaN invalid)
+    /rig/points                         the fused cloud (the panorama's points) in the rig frame
+
 Frames (``frame_prefix`` "rig"): ``rig_link`` is the rig as a ROS body frame (x forward, y left,
 z up: attach it to your robot's ``base_link``); ``rig_optical_frame`` is the rig frame of our
 calibration (x right, y down, z forward, an optical frame in ROS's terms); the cameras and the
@@ -58,6 +66,9 @@ class RosNames(BaseModel):
     depth_encoding: DepthEncoding = Field(
         "32FC1", description="depth images: 32FC1 metres with NaN invalid (REP 118), or 16UC1 mm, 0 invalid"
     )
+    pair: str | None = Field(
+        None, description="set by for_pair: a stereo pair of a rig of N cameras, the rectified frames' infix"
+    )
 
     @field_validator("namespace")
     @classmethod
@@ -78,6 +89,13 @@ class RosNames(BaseModel):
             _check_topic(old)
             _check_topic(new)
         return v
+
+    def for_pair(self, label: str) -> RosNames:
+        """The names of one stereo pair of a rig of N cameras (``label`` ``A-B``): its topics under
+        ``namespace/A_B`` and its rectified frames named after it; cameras and the rig keep
+        theirs."""
+        token = label.replace("-", "_").replace(".", "_")
+        return self.model_copy(update={"namespace": _check_topic(f"{self.namespace}/{token}"), "pair": token})
 
     # ----- topics ------------------------------------------------------------------------------
     def topic(self, relative: str) -> str:
@@ -128,6 +146,15 @@ class RosNames(BaseModel):
         return self.topic("points")
 
     @property
+    def panorama_image(self) -> str:
+        """A rig of N cameras: its 360° range panorama."""
+        return self.topic("panorama/image")
+
+    @property
+    def panorama_frame(self) -> str:
+        return f"{self.frame_prefix}_panorama_frame"
+
+    @property
     def health(self) -> str:
         return self.topic("health")
 
@@ -150,5 +177,8 @@ class RosNames(BaseModel):
         return f"{self.frame_prefix}_{camera}_optical_frame"
 
     def rect_frame(self, camera: str) -> str:
-        """The rectified view (VPC) of ``camera``; the left one is the depth image's frame."""
+        """The rectified view (VPC) of ``camera``; the left one is the depth image's frame (of a
+        rig's pair: named after the pair, a camera is in two)."""
+        if self.pair is not None:
+            return f"{self.frame_prefix}_{self.pair}_{camera}_rect_optical_frame"
         return f"{self.frame_prefix}_{camera}_rect_optical_frame"

@@ -46,7 +46,7 @@ class Preset:
     def scaled(self, factor: float) -> Preset:
         """The same rig with every camera's image scaled by ``factor`` (quick renders, tests)."""
         cams = {n: scale_camera(c, factor) for n, c in self.rig.cameras.items()}
-        rig = Rig(cams, {n: T.copy() for n, T in self.rig.T_rig_cam.items()})
+        rig = Rig(cams, {n: T.copy() for n, T in self.rig.T_rig_cam.items()}, self.rig.pairs)
         return replace(self, rig=rig, lens=self.lens.scaled(factor))
 
 

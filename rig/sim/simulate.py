@@ -54,7 +54,14 @@ from rig.sim.scene import Scene, plane_scene, room_scene
 from rig.sim.textures import texture_name
 from rig.stereo import StereoParams
 
-__all__ = ["GROUND_TRUTH_VERSION", "SCENES", "ProgressCallback", "room_path", "simulate_recording"]
+__all__ = [
+    "GROUND_TRUTH_VERSION",
+    "SCENES",
+    "ProgressCallback",
+    "check_effects",
+    "room_path",
+    "simulate_recording",
+]
 
 SCENES = ("plane", "room")
 GROUND_TRUTH_VERSION = 2
@@ -184,6 +191,16 @@ def _ground_truth_doc(
     return doc
 
 
+def check_effects(noise: float, vignetting: float, supersample: int) -> None:
+    """ConfigError for a sensor noise, vignetting or supersampling a render cannot take."""
+    if not (math.isfinite(noise) and noise >= 0):
+        raise ConfigError(f"noise must be >= 0 grey levels, got {noise!r}")
+    if not (math.isfinite(vignetting) and 0 <= vignetting <= 1):
+        raise ConfigError(f"vignetting must be in [0, 1], got {vignetting!r}")
+    if isinstance(supersample, bool) or int(supersample) != supersample or not 1 <= supersample <= 16:
+        raise ConfigError(f"supersample must be an integer in [1, 16], got {supersample!r}")
+
+
 def _frame_seed(seed: int, seq: int, camera: int) -> int:
     return int(np.random.SeedSequence([seed, seq, camera]).generate_state(1)[0])
 
@@ -196,10 +213,6 @@ def _sensor(
     effects = lens_for(lens, p.lens) if isinstance(lens, str) else lens
     noise = 0.0 if noise_std is None else float(noise_std)
     vig = 0.0 if vignetting is None else float(vignetting)
-    if not (math.isfinite(noise) and noise >= 0):
-        raise ConfigError(f"noise must be >= 0 grey levels, got {noise_std!r}")
-    if not (math.isfinite(vig) and 0 <= vig <= 1):
-        raise ConfigError(f"vignetting must be in [0, 1], got {vignetting!r}")
     if noise_std is not None:
         effects = effects.noiseless()
     if vignetting is not None:
@@ -243,8 +256,7 @@ def simulate_recording(
         raise ConfigError(f"frames_per_distance must be >= 1, got {frames_per_distance!r}")
     shots = _shots(p, scene, distances, int(frames_per_distance), frames, texture, int(seed))
     effects, noise, vig = _sensor(p, lens, noise_std, vignetting)
-    if isinstance(supersample, bool) or int(supersample) != supersample or not 1 <= supersample <= 16:
-        raise ConfigError(f"supersample must be an integer in [1, 16], got {supersample!r}")
+    check_effects(noise, vig, supersample)
     band = StereoParams().blind_band_px if blind_band_px is None else int(blind_band_px)
     pair = design_rectified_pair(p.rig, vpc, blind_band_px=band)
     root = Path(out)

@@ -39,7 +39,7 @@ function refreshImage(img, seq) {
   img.src = base + (base.includes("?") ? "&" : "?") + "seq=" + seq;
 }
 
-for (const id of IMAGE_IDS) {
+for (const id of [...IMAGE_IDS, "panorama-img"]) {
   const img = $(id);
   img.addEventListener("load", () => { img.dataset.loading = "0"; });
   img.addEventListener("error", () => { img.dataset.loading = "0"; });
@@ -195,6 +195,9 @@ function showHealth(h) {
   if (seq !== null && seq !== lastSeq) {
     lastSeq = seq;
     for (const id of IMAGE_IDS) refreshImage($(id), seq);
+    // A rig of N cameras (health lists its pairs): its panorama too.
+    $("panorama-row").hidden = !h.pairs;
+    if (h.pairs) refreshImage($("panorama-img"), seq);
     onDepthFrame(seq);
     onCloudFrame(seq);
   }

@@ -20,10 +20,13 @@ from service.encoders import (
     CONFIDENCE_PNG_SCALE,
     DISPARITY_PNG_SCALE,
     colorize_depth,
+    depth_png,
     encode_jpeg,
+    npy_bytes,
     pcd_bytes,
     ply_bytes,
 )
+from service.routes.ring import first_pair, pair_frame
 from service.runtime import Runtime
 from service.settings import Settings
 from service.store import PublishedResult
@@ -126,8 +129,21 @@ async def get_range(
     runtime: RuntimeDep,
     settings: SettingsDep,
     format: Annotated[ArrayFormat, Query(description="png (16-bit) or npy (float32 m)")] = "png",
+    pair: Annotated[
+        str | None, Query(description="a rig of N cameras: the stereo pair A-B (default: the first)")
+    ] = None,
 ) -> Response:
-    return await _array_response("range", format, result, runtime, settings)
+    if pair is None or pair == first_pair(runtime):
+        return await _array_response("range", format, result, runtime, settings)
+    frame = pair_frame(runtime, result, pair)
+    spec = array_body("range", format, settings.server.depth_scale_m)
+    scale, level = settings.server.depth_scale_m, settings.server.png_compression
+
+    def produce() -> bytes:
+        return npy_bytes(frame.range) if format == "npy" else depth_png(frame.range, scale, level)
+
+    body = await cached_body(result, f"{spec.key}:{pair}", produce)
+    return Response(body, media_type=spec.media_type, headers=frame_headers(result, **spec.headers))
 
 
 @router.get(
@@ -229,7 +245,7 @@ async def get_depth_colorized(runtime: RuntimeDep, result: ResultDep) -> Respons
 @router.get(
     "/pointcloud",
     response_class=Response,
-    summary="Latest point cloud (binary PLY or PCD, rig frame, metres)",
+    summary="Latest point cloud (binary PLY or PCD, rig frame, metres; a rig of N cameras: fused)",
     responses=binary_response_doc(
         "ply: binary little-endian PLY, x y z float32 (rig frame, m) and red green blue uchar; "
         "pcd: binary PCD 0.7 (PCL), x y z float32 and PCL's packed rgb",
@@ -242,15 +258,29 @@ async def get_pointcloud(
     result: ResultDep,
     stride: Annotated[int, Query(ge=1, le=64, description="use every stride-th pixel of each axis")] = 1,
     format: Annotated[CloudFormat, Query(description="ply or pcd")] = "ply",
+    pair: Annotated[
+        str | None,
+        Query(description="a rig of N cameras: one stereo pair's cloud, A-B (default: the fused cloud)"),
+    ] = None,
 ) -> Response:
-    pipeline = runtime.pipeline
     encode = ply_bytes if format == "ply" else pcd_bytes
+    ring = result.ring
 
     def produce() -> bytes:
-        points, colors = pipeline.point_cloud(result.frame, stride, image=result.rect_image("left"))
-        return encode(points, colors)
+        if ring is not None and pair is None:  # the fused cloud: the panorama's points
+            return encode(*ring.pipeline.point_cloud(ring.rig_frame(), stride))
+        if pair is None or pair == first_pair(runtime):
+            points, colors = runtime.pipeline.point_cloud(
+                result.frame, stride, image=result.rect_image("left")
+            )
+            return encode(points, colors)
+        assert runtime.ring is not None  # pair_frame below refused any other name
+        return encode(*runtime.ring.pipeline(pair).point_cloud(frame, stride))
 
+    if pair is not None:
+        frame = pair_frame(runtime, result, pair)  # 404 naming the pairs for an unknown one
     key = f"pointcloud:{stride}" if format == "ply" else f"pointcloud:{format}:{stride}"
+    key += "" if pair is None else f":{pair}"
     body = await cached_body(result, key, produce)
     headers = frame_headers(
         result, **{"Content-Disposition": f'inline; filename="depth_{result.seq:06d}.{format}"'}

@@ -14,6 +14,7 @@ from service.schemas import (
     CameraHealthModel,
     HealthModel,
     HostModel,
+    PairHealthModel,
     PairingHealthModel,
     ProbeModel,
     RecordingInfo,
@@ -45,6 +46,9 @@ def health_model(report: HealthReport) -> HealthModel:
         rectification=None
         if report.rectification is None
         else RectificationHealthModel.model_validate(flatten(report.rectification)),
+        pairs=None
+        if report.pairs is None
+        else {k: PairHealthModel.model_validate(p, from_attributes=True) for k, p in report.pairs.items()},
     )
 
 

@@ -21,6 +21,7 @@ from bench import (
     process,
     rectification,
     ring_consistency,
+    ring_cost,
     startup,
     worker,
 )
@@ -244,3 +245,18 @@ def test_ring_consistency_bench_measures_the_real_ring(bench_env: Path, tmp_path
     for figures in couples.values():
         assert 0.0 < figures["median_abs"] < 1.0 and 0.0 < figures["both_share"] < 1.0
     assert all(0.0 < p["mean_coverage"] < 1.0 for p in doc["today"]["pairs"].values())
+
+
+def test_ring_cost_bench_times_the_pairs_and_the_panorama(bench_env: Path, tmp_path: Path) -> None:
+    path = tmp_path / "ring_cost.json"
+    doc = _written(path, ring_cost.main(["--quick", "--json", str(path)]))
+    assert (doc["cameras"], doc["pairs"]) == (4, 4)
+    for key in (
+        "floor_pairs_per_s",
+        "pairs_per_s_one_after_the_other",
+        "panorama_frames_per_s",
+        "ours_sets_per_s",
+    ):
+        assert doc[key] > 0, key
+    assert doc["ours_pairs_per_s"] == doc["ours_sets_per_s"] * 4
+    assert doc["budget_bytes"] == sum(doc["budget_parts"].values()) and doc["budget_parts"]["panorama"] > 0

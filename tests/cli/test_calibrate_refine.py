@@ -4,7 +4,6 @@ nominal calibration, the output file and the original kept, and bad input as one
 
 from __future__ import annotations
 
-import json
 import subprocess
 from pathlib import Path
 
@@ -70,13 +69,11 @@ def test_in_place_keeps_the_original(knocked: tuple[Path, Path, Rig], tmp_path: 
 
 
 def _recording(root: Path, left: np.ndarray, right: np.ndarray, cameras: list[str] | None = None) -> Path:
-    with RecordingWriter(root) as writer:
+    """Two sets of ``cameras`` (default: left and right), the first camera's frame ``left``."""
+    names = cameras or ["left", "right"]
+    with RecordingWriter(root, cameras=names) as writer:
         for seq in range(2):
-            writer.write_images(seq, seq * 33_000_000, seq * 33_000_000, left, right)
-    if cameras is not None:
-        meta = json.loads((root / "recording.json").read_text())
-        meta["cameras"] = cameras
-        (root / "recording.json").write_text(json.dumps(meta))
+            writer.write_set_images(seq, [seq * 33_000_000] * len(names), [left, right][: len(names)])
     return root
 
 

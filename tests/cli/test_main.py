@@ -15,9 +15,9 @@ from typer.testing import CliRunner
 from cli.main import DISTRIBUTION, build_app
 from tests.helpers.command import run_rig
 
-# Metavars name what a value is: FILE, DIR, WxH, COLSxROWS, DEG, N, ... (the "x" of a size aside,
-# upper case).
-METAVAR = re.compile(r"^[A-Z][A-Z_]*(x[A-Z]+)?$|^WxH$")
+# Metavars name what a value is: FILE, DIR, WxH, COLSxROWS, DEG, N, CAMERA=TOPIC ... (the "x" of a
+# size aside, upper case).
+METAVAR = re.compile(r"^[A-Z][A-Z_]*(x[A-Z]+|=[A-Z][A-Z_]*)?$|^WxH$")
 
 
 def _commands(command: Any, path: tuple[str, ...] = ()) -> Iterator[tuple[tuple[str, ...], Any]]:

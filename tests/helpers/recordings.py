@@ -25,6 +25,7 @@ __all__ = [
     "jpeg_copy",
     "replay_config",
     "write_recording",
+    "write_set_recording",
 ]
 
 PERIOD_NS = 33_333_333  # 30 fps
@@ -87,6 +88,27 @@ def write_recording(
             )
     if calibration is not None:
         (root / "calibration.yaml").write_text(calibration)
+    return root
+
+
+def write_set_recording(
+    root: Path,
+    cameras: tuple[str, ...],
+    n: int = 10,
+    *,
+    skews_ns: tuple[int, ...] | None = None,
+    ext: str = ".jpg",
+    width: int = 160,
+    height: int = 120,
+) -> Path:
+    """A recording of ``cameras`` (N of them), ``n`` sets on the exact grid of
+    :func:`write_recording`, camera k ``skews_ns[k]`` after the first."""
+    skews = skews_ns or (0,) * len(cameras)
+    with RecordingWriter(root, meta={"source": "test"}, cameras=cameras) as w:
+        for seq in range(n):
+            ts = T0_NS + seq * PERIOD_NS
+            frames = [encode(frame_image(c, seq, width, height), ext) for c in cameras]
+            w.write_set(seq, [ts + s for s in skews], frames, ext=ext)
     return root
 
 

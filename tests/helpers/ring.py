@@ -39,8 +39,17 @@ from calibration.formats import load_camera, save_rig
 from calibration.geometry import make_transform
 from calibration.models import CameraModel
 from calibration.rig import Rig
+from rig.recording import RecordingWriter
 
-__all__ = ["RING_CAMERAS", "RING_DIR", "RealRing", "load_ring", "ring_fov_deg", "write_ring"]
+__all__ = [
+    "RING_CAMERAS",
+    "RING_DIR",
+    "RealRing",
+    "load_ring",
+    "ring_fov_deg",
+    "write_ring",
+    "write_ring_recording",
+]
 
 U8 = NDArray[np.uint8]
 F64 = NDArray[np.float64]
@@ -135,3 +144,19 @@ def write_ring(ring: RealRing, out: Path) -> Path:
     path = out / "rig.yaml"
     save_rig(ring.rig, path)
     return path
+
+
+#: The frame period the ring's recording is given (the dataset has no timestamps; 30 fps).
+RING_PERIOD_NS = 33_333_333
+
+
+def write_ring_recording(ring: RealRing, out: Path) -> Path:
+    """The ring as an N-camera recording directory (docs/design.md): ``camN/00000K.png`` the
+    dataset's frames byte for byte, one set per frame on a 30 fps grid (the dataset's frames are
+    synchronised), and the ``rig.yaml`` of :func:`write_ring` as its ``calibration.yaml``."""
+    with RecordingWriter(out, meta={"source": str(ring.root)}, cameras=RING_CAMERAS) as writer:
+        for seq, f in enumerate(_FRAMES):
+            frames = [(ring.root / name / f).read_bytes() for name in RING_CAMERAS]
+            writer.write_set(seq, [seq * RING_PERIOD_NS] * len(frames), frames, ext=".png")
+    save_rig(ring.rig, out / "calibration.yaml")
+    return out

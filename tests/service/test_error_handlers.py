@@ -30,6 +30,8 @@ EXPECTED: dict[str, int] = {
     "NotFound": 404,
     "RecordingNotFound": 404,
     "UnknownCamera": 404,
+    "UnknownPair": 404,
+    "NoPanorama": 404,
     "RecordingNameError": 422,
     "RecordingConflict": 409,
     "RecordingStorageError": 500,

@@ -18,7 +18,7 @@ from rig.sim import room_scene
 from rig.sim.render import render_range
 from service.client import RigClient
 from service.settings import load_settings
-from tests.helpers.browser import CHROMIUM, CHROMIUM_ARGS, needs_chromium
+from tests.helpers.browser import dashboard_page, needs_chromium
 from tests.helpers.service import LiveServer, SmallRecording, StartApp, service_overrides
 from tests.helpers.waiting import wait_for
 
@@ -128,49 +128,40 @@ def test_pinhole_range_is_depth_along_the_ray(start_app: StartApp) -> None:
 @pytest.mark.timeout(180)
 @needs_chromium
 def test_dashboard_shows_the_wide_pair(wide_server: LiveServer, tmp_path: Path) -> None:
-    from playwright.sync_api import sync_playwright
-
     cam = wide_server.runtime.pipeline.pair.camera
     errors: list[str] = []
-    with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        try:
-            page = browser.new_page(viewport={"width": 1400, "height": 1100})
-            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-            page.goto(wide_server.base_url + "/")
-            page.wait_for_function("document.body.classList.contains('wide')", timeout=20_000)
-            page.wait_for_function("document.getElementById('depth-img').naturalWidth > 0", timeout=20_000)
-            assert page.eval_on_selector("#depth-img", "e => e.naturalWidth") == cam.width
-            assert "range along each ray" in (page.text_content("#depth-what") or "")
-            assert "lat-lon pair" in (page.text_content("#pair-info") or "")
-            # The tall images are 45 % of the window's height, or less where four of them (and the
-            # colour bar) would not fit side by side in the window's width (12em for the gaps, the
-            # colour bar and its labels); in their own aspect, all in one row.
-            tops = []
-            for img in ("#depth-img", "#confidence-img", "#vpc-left", "#vpc-right"):
-                page.wait_for_function(f"document.querySelector('{img}').naturalWidth > 0", timeout=20_000)
-                w, h, top = page.eval_on_selector(
-                    img, "e => [e.clientWidth, e.clientHeight, e.getBoundingClientRect().top]"
-                )
-                tops.append(top)
-                expected_h = min(0.45 * 1100, (1400 - 12 * 16) / 4 / (cam.width / cam.height))
-                assert abs(h - expected_h) <= 1 and abs(w / h - cam.width / cam.height) < 0.02, (img, w, h)
-            assert max(tops) - min(tops) < 1, (tops, cam.width, cam.height)
-            page.wait_for_function("document.getElementById('overlay-left').width > 0", timeout=20_000)
-            drawn = page.eval_on_selector(
-                "#overlay-left",
-                "c => { const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;"
-                " let n = 0; for (let i = 3; i < d.length; i += 4) if (d[i] > 0) n++; return n; }",
+    with dashboard_page(wide_server.base_url, errors) as page:
+        page.wait_for_function("document.body.classList.contains('wide')", timeout=20_000)
+        page.wait_for_function("document.getElementById('depth-img').naturalWidth > 0", timeout=20_000)
+        assert page.eval_on_selector("#depth-img", "e => e.naturalWidth") == cam.width
+        assert "range along each ray" in (page.text_content("#depth-what") or "")
+        assert "lat-lon pair" in (page.text_content("#pair-info") or "")
+        # The tall images are 45 % of the window's height, or less where four of them (and the
+        # colour bar) would not fit side by side in the window's width (12em for the gaps, the
+        # colour bar and its labels); in their own aspect, all in one row.
+        tops = []
+        for img in ("#depth-img", "#confidence-img", "#vpc-left", "#vpc-right"):
+            page.wait_for_function(f"document.querySelector('{img}').naturalWidth > 0", timeout=20_000)
+            w, h, top = page.eval_on_selector(
+                img, "e => [e.clientWidth, e.clientHeight, e.getBoundingClientRect().top]"
             )
-            assert drawn > 500, "the overlap is outlined on the fisheye"
-            # The status the service reports (a loaded machine may make it degraded for a while).
-            wait_for(
-                lambda: page.text_content("#status") == wide_server.runtime.health().status,
-                20,
-                "the dashboard's status to be the service's",
-            )
-            page.screenshot(path=str(tmp_path / "dashboard-wide.png"), full_page=True)
-            print(f"wide-pair dashboard screenshot: {tmp_path / 'dashboard-wide.png'}")
-        finally:
-            browser.close()
+            tops.append(top)
+            expected_h = min(0.45 * 1100, (1400 - 12 * 16) / 4 / (cam.width / cam.height))
+            assert abs(h - expected_h) <= 1 and abs(w / h - cam.width / cam.height) < 0.02, (img, w, h)
+        assert max(tops) - min(tops) < 1, (tops, cam.width, cam.height)
+        page.wait_for_function("document.getElementById('overlay-left').width > 0", timeout=20_000)
+        drawn = page.eval_on_selector(
+            "#overlay-left",
+            "c => { const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;"
+            " let n = 0; for (let i = 3; i < d.length; i += 4) if (d[i] > 0) n++; return n; }",
+        )
+        assert drawn > 500, "the overlap is outlined on the fisheye"
+        # The status the service reports (a loaded machine may make it degraded for a while).
+        wait_for(
+            lambda: page.text_content("#status") == wide_server.runtime.health().status,
+            20,
+            "the dashboard's status to be the service's",
+        )
+        page.screenshot(path=str(tmp_path / "dashboard-wide.png"), full_page=True)
+        print(f"wide-pair dashboard screenshot: {tmp_path / 'dashboard-wide.png'}")
     assert errors == []
