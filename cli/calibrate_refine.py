@@ -7,7 +7,8 @@ in degrees about the rectified pair's axes with its 1σ, what happened to the ba
 and the vertical disparity of the consistent matches before and after in the pinhole pair of the
 ``--vpc-*`` options; writes the corrected calibration as rig.yaml atomically. ``--out`` may be
 the calibration file itself: its original is then kept as ``<name>.orig<suffix>`` first (once).
-With ``--floor-height M`` the vergence is found from the floor instead (:mod:`cli.calibrate_floor`).
+With ``--floor-height M`` the vergence is found from the floor instead (:mod:`cli.calibrate_floor`);
+a recording of a ring (more than two cameras) refines every camera at once (:mod:`cli.calibrate_ring`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from rich.table import Table
 
 from calibration.relative_pose import RelativePoseOptions
 from cli.calibrate_floor import refine_from_floor
+from cli.calibrate_ring import RING_FRAMES, refine_ring_recording
 from cli.console import console, progress_bar
 from cli.errors import fail
 from cli.pair_options import (
@@ -31,6 +33,7 @@ from cli.pair_options import (
     load_calibration,
     make_pair_config,
 )
+from rig.errors import RigError
 from rig.recording import Recording
 from rig.rectification import RectificationRefinement, RefineOptions, refine_recording
 from rig.rectification.measure import VerticalDisparity
@@ -59,6 +62,15 @@ def _report(result: RectificationRefinement) -> Table:
     return table
 
 
+def _is_ring(recording: Path) -> bool:
+    """A recording directory of more than two cameras (a bag or a broken directory: not a ring;
+    the pair's path reports what is wrong with it)."""
+    try:
+        return len(Recording(recording).cameras) > 2
+    except (OSError, ValueError, RigError):
+        return False
+
+
 def register_refine(cal: typer.Typer) -> None:
     """Add ``refine`` to the ``rig calibrate`` group."""
 
@@ -70,8 +82,13 @@ def register_refine(cal: typer.Typer) -> None:
         out: Annotated[Path, typer.Option("--out", metavar="FILE", help="rig.yaml to write.")],
         calibration: CalibrationOption = None,
         frames: Annotated[
-            int, typer.Option("--frames", metavar="N", help="Pairs used, evenly spread over the recording.")
-        ] = 20,
+            int | None,
+            typer.Option(
+                "--frames",
+                metavar="N",
+                help="Pairs (sets of a ring) used, evenly spread over the recording [default: 20; a ring 3].",
+            ),
+        ] = None,
         baseline_direction: Annotated[
             str,
             typer.Option(
@@ -96,7 +113,16 @@ def register_refine(cal: typer.Typer) -> None:
             ),
         ] = None,
     ) -> None:
-        """Refine the pair's relative rotation from the scene of a recording and write rig.yaml."""
+        """Refine the pair's relative rotation (a ring: every camera's) from the scene of a
+        recording and write rig.yaml."""
+        if frames is not None and not 1 <= frames <= 100_000:
+            fail(f"--frames must be in [1, 100000], got {frames}")
+        if _is_ring(recording):
+            if floor_height is not None:
+                fail("--floor-height applies to a two-camera rig; this recording holds a ring")
+            refine_ring_recording(recording, calibration, out, frames or RING_FRAMES)
+            return
+        frames = frames or 20
         if floor_height is not None:
             scene_only = (baseline_direction, min_matches, vpc_size, vpc_hfov, yaw, pitch)
             if scene_only != ("auto", 100, "640x480", 90.0, 0.0, 0.0):
@@ -104,14 +130,10 @@ def register_refine(cal: typer.Typer) -> None:
                     "--baseline-direction, --min-matches, --vpc-*, --yaw and --pitch do not apply with "
                     "--floor-height (the floor is seen through today's pair)"
                 )
-            if not 1 <= frames <= 100_000:
-                fail(f"--frames must be in [1, 100000], got {frames}")
             refine_from_floor(recording, calibration, out, floor_height, frames)
             return
         if baseline_direction not in _DIRECTION:
             fail(f"--baseline-direction must be auto, estimate or keep, got {baseline_direction!r}")
-        if not 1 <= frames <= 100_000:
-            fail(f"--frames must be in [1, 100000], got {frames}")
         if min_matches < 10:
             fail(f"--min-matches must be at least 10, got {min_matches}")
         vpc = make_pair_config(vpc_size, vpc_hfov, yaw, pitch)

@@ -1,0 +1,102 @@
+"""`rig calibrate refine` on a recording of the real ring (../shared/data/ring_sweepnet_indoor):
+every camera's rotation refined at once (rig.ring_refine), measured before and after on the same
+frame sets and written only when nothing gets worse. ``pytest -s`` prints the figures
+(docs/ring.md, "Refining a ring")."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from calibration import load_rig
+from calibration.formats.api import save_rig
+from tests.conftest import shared_file
+from tests.helpers.command import assert_one_line_error, clean_env, run_rig
+from tests.helpers.ring import RING_CAMERAS, RING_DIR, load_ring, write_ring_recording
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_ring_recording(load_ring(shared_file(RING_DIR)), tmp_path_factory.mktemp("ring") / "rec")
+
+
+@pytest.fixture(scope="module")
+def home(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("ring-refine-home")
+
+
+def refine(home: Path, *args: str | Path) -> subprocess.CompletedProcess[str]:
+    return run_rig(("calibrate", "refine", *args), clean_env(home), timeout=900)
+
+
+def couples(stdout: str) -> dict[str, tuple[float, float]]:
+    rows = re.findall(r"(cam\d\|cam\d → cam\d\|cam\d)\s+│\s+([\d.]+) %\s+│\s+([\d.]+) %", stdout)
+    return {label: (float(a), float(b)) for label, a, b in rows}
+
+
+def test_three_sets_mixed_so_nothing_is_written(recording: Path, home: Path, tmp_path: Path) -> None:
+    out = tmp_path / "refined.yaml"
+    result = refine(home, recording, "--out", out)
+    print(result.stdout)
+    assert result.returncode == 0, result.stderr
+    figures = couples(result.stdout)
+    assert len(figures) == 4
+    better = [label for label, (before, after) in figures.items() if after < before]
+    worse = [label for label, (before, after) in figures.items() if after > before]
+    # Measured: two couples better (7.21 -> 6.24, 8.87 -> 7.15 %), two worse (6.19 -> 6.39, 4.72 -> 6.18 %).
+    assert len(better) == 2 and len(worse) == 2
+    assert "not applied, it makes things worse" in result.stdout and "not written" in result.stdout
+    assert not out.exists()
+
+
+def test_a_rendered_ring_with_two_cameras_turned_is_found_and_written(home: Path, tmp_path: Path) -> None:
+    """rig sim's ring4 (exact calibration) given a calibration with cam2 and cam3 turned by 0.3°
+    and 0.22°: the refinement finds the turns again and writes the corrected ring."""
+    from rig.floor_refine import turn_camera
+
+    rec = tmp_path / "ring4"
+    sim = run_rig(
+        ("sim", "--rig", "ring4", "--frames", "2", "--supersample", "2", "--out", rec), clean_env(home)
+    )
+    assert sim.returncode == 0, sim.stderr
+    truth = load_rig(rec / "calibration.yaml")
+    wrong = turn_camera(
+        turn_camera(truth, "cam2", np.radians([0.0, 0.3, 0.0])), "cam3", np.radians([0.2, 0, 0.1])
+    )
+    save_rig(wrong, tmp_path / "wrong.yaml")
+    out = tmp_path / "refined.yaml"
+    result = refine(home, rec, "--calibration", tmp_path / "wrong.yaml", "--out", out)
+    print(result.stdout)
+    assert result.returncode == 0, result.stderr
+    figures = couples(result.stdout)
+    # Measured: 28.67, 11.44, 10.09, 2.57 % -> 0.79-0.93 %.
+    assert len(figures) == 4 and all(after < 1.2 for _, after in figures.values())
+    assert max(before for before, _ in figures.values()) > 10.0
+    assert "applied: wrote" in result.stdout
+    fixed = load_rig(out)
+    for name in RING_CAMERAS:  # cam1 holds the rig frame, as in the truth
+        R_t, R_f = truth.T_rig_cam[name][:3, :3], fixed.T_rig_cam[name][:3, :3]
+        error = float(np.degrees(Rotation.from_matrix(R_f @ R_t.T).magnitude()))
+        assert error < 0.05, (name, error)
+        assert np.allclose(truth.T_rig_cam[name][:3, 3], fixed.T_rig_cam[name][:3, 3])  # baselines kept
+
+
+def test_a_ring_refuses_the_floor_and_a_calibration_of_other_cameras(
+    recording: Path, home: Path, tmp_path: Path
+) -> None:
+    result = refine(home, recording, "--out", tmp_path / "x.yaml", "--floor-height", "1.0")
+    assert_one_line_error(result, "--floor-height applies to a two-camera rig")
+    result = refine(home, recording, "--out", tmp_path / "x.yaml", "--frames", "1")
+    assert_one_line_error(result, "at least 2 frame sets", "overfit")
+    other = tmp_path / "other.yaml"
+    text = (recording / "calibration.yaml").read_text().replace("cam4", "cam9")
+    other.write_text(text)
+    result = refine(home, recording, "--out", tmp_path / "x.yaml", "--calibration", other)
+    assert_one_line_error(result, "the recording has no camera cam9")
