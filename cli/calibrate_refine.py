@@ -86,7 +86,7 @@ def register_refine(cal: typer.Typer) -> None:
             typer.Option(
                 "--frames",
                 metavar="N",
-                help="Pairs (sets of a ring) used, evenly spread over the recording [default: 20; a ring 3].",
+                help="Pairs (sets of a ring) used, evenly spread over the recording: 20 (a ring: 3).",
             ),
         ] = None,
         baseline_direction: Annotated[

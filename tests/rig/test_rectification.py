@@ -122,15 +122,10 @@ def test_refinement_recovers_the_true_rotation(
 def _write_recording(
     root: Path, pairs: list[tuple[np.ndarray, np.ndarray]], cameras: list[str] | None = None
 ) -> Path:
-    with RecordingWriter(root) as writer:
-        for seq, (left, right) in enumerate(pairs):
-            writer.write_images(seq, seq * 33_000_000, seq * 33_000_000, left, right)
-    if cameras is not None:
-        import json
-
-        meta = json.loads((root / "recording.json").read_text())
-        meta["cameras"] = cameras
-        (root / "recording.json").write_text(json.dumps(meta))
+    names = cameras or ["left", "right"]
+    with RecordingWriter(root, cameras=names) as writer:
+        for seq, images in enumerate(pairs):
+            writer.write_set_images(seq, [seq * 33_000_000] * len(names), list(images[: len(names)]))
     return root
 
 
