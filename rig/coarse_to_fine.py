@@ -155,7 +155,7 @@ def band_hypotheses(
     """:func:`hypotheses` of a coarse field made for the rows asked for only (each band's on its
     own thread): from the coarse rows they come from and two more either side, so that they are
     the whole image's, bit for bit (the bilinear field and the 3×3 extremes reach one coarse
-    row)."""
+    row, ``inward`` as many: up to 2)."""
 
     def rows(a: int, b: int) -> list[Hypothesis]:
         c0, c1 = max(0, a // scale - 2), min(coarse.shape[0], -(-b // scale) + 2)
