@@ -11,6 +11,7 @@ frame, and its ratio to the exact search's in the same round:
 * **coarse-to-fine search**: the same call with the defaults; its **coarse level** alone (the
   two views' SGBM at 1/2 resolution) and the **fine level** (the rest: the images' contrast
   normalisation, which the refinement after it reuses, and the band search of both views);
+* the same with ``coarse_confirm`` (its coarse level twice);
 * the alternatives, each one SGBM call (one view) in full: SGBM at full resolution over a
   narrow window (16 and 32 disparities: what a band around the coarse answer would cost if
   OpenCV matched it), the same window tile by tile (64×64 tiles with their margins and the
@@ -54,6 +55,7 @@ EXACT = "exact search (both views)"
 C2F = "coarse-to-fine search (both views)"
 COARSE = "  its coarse level (both views)"
 FINE = "  its fine level and normalisation (the rest)"
+CONFIRMED = "coarse-to-fine search, coarse_confirm (both views)"
 
 
 def _rectified(recording: Path, vpc: RectifiedPairConfig, stereo: StereoParams, lut: Path) -> list[Pair]:
@@ -102,6 +104,7 @@ def _rows(pairs: list[Pair], wide: list[Pair] | None, quick: bool) -> dict[str, 
     d = 32 if quick else 96
     exact = StereoMatcher(StereoParams(disparity_range=d, coarse_to_fine=False))
     c2f = StereoMatcher(StereoParams(disparity_range=d, coarse_to_fine=True))
+    confirmed = StereoMatcher(StereoParams(disparity_range=d, coarse_to_fine=True, coarse_confirm=True))
     search = c2f.coarse_to_fine_search
     assert search is not None
     pool = refine_pool()
@@ -114,6 +117,8 @@ def _rows(pairs: list[Pair], wide: list[Pair] | None, quick: bool) -> dict[str, 
         EXACT: (lambda p: exact.compute(*p), pairs),
         C2F: (lambda p: c2f.compute(*p, pool=pool), pairs),
         COARSE: (coarse, pairs),
+        # (its second coarse search on the same images: the CPU of one on the unnormalised pair)
+        CONFIRMED: (lambda p: confirmed.compute(*p, pool=pool, unnormalised=p), pairs),
         "SGBM full resolution, 16 disparities (one view)": (_sgbm(16), pairs),
         "SGBM full resolution, 32 disparities (one view)": (_sgbm(32), pairs),
         f"SGBM {TILE}×{TILE} tiles, 16 disparities (one view)": (_sgbm(16, tiles=True), pairs),

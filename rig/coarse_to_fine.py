@@ -63,7 +63,9 @@ class FineLevel:
     unmatched (``blind``, full-resolution px: the fine levels leave them too), the full
     resolution's block ``window``, disparity bounds ``[d_min, d_max]`` and fixed-point value of
     an invalid pixel; ``lr_check``: search the right view too; ``parabola``: subpixel offsets
-    (else whole pixels, for a refinement that follows)."""
+    (else whole pixels, for a refinement that follows); ``confirm``: the coarse level
+    confirmed (:func:`_agreed`) and its hypotheses kept :data:`CONFIRM_INWARD` coarse px from
+    its invalid pixels."""
 
     scale: int
     coarse_min: int
@@ -75,6 +77,7 @@ class FineLevel:
     invalid: int
     lr_check: bool
     parabola: bool
+    confirm: bool = False
 
 
 def downsample(image: U8, scale: int) -> U8:
@@ -86,6 +89,13 @@ def downsample(image: U8, scale: int) -> U8:
     padded = cv2.copyMakeBorder(image, 0, pad_h, 0, pad_w, cv2.BORDER_REPLICATE) if pad_h or pad_w else image
     size = ((w + pad_w) // scale, (h + pad_h) // scale)
     return np.asarray(cv2.resize(padded, size, interpolation=cv2.INTER_AREA), dtype=np.uint8)
+
+
+def _halved(image: U8, scale: int) -> U8:
+    """``image`` downsampled by 2 until 1/``scale`` (as the search's pyramid)."""
+    while scale > 1:
+        image, scale = downsample(image, 2), scale // 2
+    return image
 
 
 def _upsampled(coarse: F32, shape: tuple[int, int], scale: int, interpolation: int) -> F32:
@@ -102,9 +112,13 @@ def _centres(field: F32, scale: int) -> I16:
     return np.asarray(scaled(field, float(scale), dtype=cv2.CV_16S), dtype=np.int16)
 
 
-def hypotheses(coarse: F32, shape: tuple[int, int], scale: int) -> list[Hypothesis]:
+def hypotheses(
+    coarse: F32, shape: tuple[int, int], scale: int, inward: int | None = None
+) -> list[Hypothesis]:
     """The fine level's hypotheses (module doc) from a coarse disparity (h, w) float32 coarse
-    px, NaN invalid, for a full-resolution image of ``shape``."""
+    px, NaN invalid, for a full-resolution image of ``shape``. ``inward``: none where an invalid
+    coarse pixel lies within that many coarse px (0: the pixel's own; the image's border does
+    not count), so that the hypotheses do not extend the coarse result."""
     invalid = np.isnan(coarse)
     none = NONE / scale
     up = _upsampled(coarse, shape, scale, cv2.INTER_LINEAR)
@@ -124,19 +138,29 @@ def hypotheses(coarse: F32, shape: tuple[int, int], scale: int) -> list[Hypothes
         extreme[np.isinf(extreme)] = none  # no valid neighbour
         fields.append(_upsampled(extreme, shape, scale, cv2.INTER_NEAREST))
     centres = [_centres(f, scale) for f in fields]
+    if inward is not None:
+        box = np.ones((2 * inward + 1,) * 2, np.uint8)
+        near = np.asarray(
+            cv2.dilate(invalid.view(np.uint8), box, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        )
+        none_here = _upsampled(near.astype(np.float32), shape, scale, cv2.INTER_NEAREST) != 0
+        for c in centres:
+            c[none_here] = NONE
     return [Hypothesis(centres[0], 1), Hypothesis(centres[1], 0), Hypothesis(centres[2], 0)]
 
 
-def band_hypotheses(coarse: F32, width: int, height: int, scale: int) -> HypothesesOf:
+def band_hypotheses(
+    coarse: F32, width: int, height: int, scale: int, inward: int | None = None
+) -> HypothesesOf:
     """:func:`hypotheses` of a coarse field made for the rows asked for only (each band's on its
     own thread): from the coarse rows they come from and two more either side, so that they are
     the whole image's, bit for bit (the bilinear field and the 3×3 extremes reach one coarse
-    row)."""
+    row, ``inward`` as many: up to 2)."""
 
     def rows(a: int, b: int) -> list[Hypothesis]:
         c0, c1 = max(0, a // scale - 2), min(coarse.shape[0], -(-b // scale) + 2)
         top = c0 * scale
-        part = hypotheses(coarse[c0:c1], (min(height, c1 * scale) - top, width), scale)
+        part = hypotheses(coarse[c0:c1], (min(height, c1 * scale) - top, width), scale, inward)
         return [Hypothesis(h.centre[a - top : b - top], h.half_width) for h in part]
 
     return rows
@@ -173,12 +197,14 @@ class CoarseToFine:
         *,
         pool: Executor | None = None,
         temporal_prior: bool = False,
+        unnormalised: tuple[U8, U8] | None = None,
     ) -> UnfilteredDisparity:
         """Fixed-point disparities of gray images (H, W) uint8 as
         :meth:`rig.stereo.StereoMatcher.compute` gives them (with ``lr_check`` the mirrored
         pair's too), and both images' contrast normalisation. ``pool``: threads for the
         normalisation and the fine levels' bands; ``temporal_prior``: the live service's
-        (frames in order, one stream)."""
+        (frames in order, one stream); ``unnormalised``: with ``confirm``, the pair before the
+        matcher input's normalisation (its size)."""
         lv = self.level
         normalised = Normalisation(left, right, pool)
         # Halved until the coarse level: a coarse scale of 4 has a band search at 1/2 too.
@@ -187,7 +213,12 @@ class CoarseToFine:
             pyramid.append((downsample(pyramid[-1][0], 2), downsample(pyramid[-1][1], 2)))
         coarse_left, coarse_right = pyramid.pop()
         coarse_seen = _coarse_seen(seen, lv.scale)
-        if temporal_prior:
+        if lv.confirm:  # (no temporal prior: its history is of one search)
+            found = self.coarse_search(coarse_left, coarse_right, coarse_seen, pool)
+            if unnormalised is not None:
+                other = [_halved(image, lv.scale) for image in unnormalised]
+                found = _agreed(found, self.coarse_search(other[0], other[1], coarse_seen, pool))
+        elif temporal_prior:
             found = self._with_prior(coarse_left, coarse_right, coarse_seen, pool)
         else:  # (a pair outside the stream leaves the stream's history alone)
             found = self.coarse_search(coarse_left, coarse_right, coarse_seen, pool)
@@ -287,13 +318,14 @@ class CoarseToFine:
         lv = self.level
         ref, other = images
         shape = (ref.shape[0], ref.shape[1])
-        views = [(ref, other, band_hypotheses(fields[0], shape[1], shape[0], 2))]
+        inward = CONFIRM_INWARD if lv.confirm else None
+        views = [(ref, other, band_hypotheses(fields[0], shape[1], shape[0], 2, inward))]
         if len(fields) > 1:
             mirrored = (
                 np.asarray(cv2.flip(other, 1), dtype=np.uint8),
                 np.asarray(cv2.flip(ref, 1), dtype=np.uint8),
             )
-            views.append((*mirrored, band_hypotheses(fields[1], shape[1], shape[0], 2)))
+            views.append((*mirrored, band_hypotheses(fields[1], shape[1], shape[0], 2, inward)))
         outputs = [np.empty(shape, dtype=np.int16) for _ in views]
         d_range = (lv.d_min // step, -(-lv.d_max // step))
         invalid = (d_range[0] - 1) * 16
@@ -322,6 +354,29 @@ class CoarseToFine:
         for future in futures:
             future.result()
         return outputs
+
+
+#: Coarse disparities two searches may differ by and still agree (coarse px).
+CONFIRM_TOLERANCE = 1.0
+#: Coarse pixels the hypotheses of a confirmed coarse result keep away from its invalid pixels.
+CONFIRM_INWARD = 2
+
+
+def _agreed(first: CoarseSearch, second: CoarseSearch) -> CoarseSearch:
+    """The disparities of ``first`` where ``second`` agrees within :data:`CONFIRM_TOLERANCE`
+    (NaN elsewhere), per view."""
+
+    def both(a: F32, b: F32) -> F32:
+        out = a.copy()
+        with np.errstate(invalid="ignore"):
+            out[~(np.abs(a - b) <= CONFIRM_TOLERANCE)] = np.nan
+        return out
+
+    mirrored = None
+    if first.mirrored is not None and second.mirrored is not None:
+        mirrored = both(first.mirrored, second.mirrored)
+    unsearched = min(first.right_unsearched_from, second.right_unsearched_from)
+    return CoarseSearch(both(first.left, second.left), mirrored, unsearched)
 
 
 def _pixels(fixed: I16, valid_from: int, beyond: int | None = None) -> F32:

@@ -380,7 +380,21 @@ class DepthPipeline:
                 matcher_input(g, p.match_blur_sigma, p.match_normalise_window, p.match_normalise_eps)
                 for g in (rect.left_gray, rect.right_gray)
             )
-            unfiltered = matcher.compute(left, right, seen, pool=refine_pool(), temporal_prior=temporal_prior)
+            unnormalised = None
+            if p.coarse_confirm and left is not rect.left_gray:
+                # The matcher's blur, not its normalisation.
+                blurred = [
+                    matcher_input(g, p.match_blur_sigma, 0, 0.0) for g in (rect.left_gray, rect.right_gray)
+                ]
+                unnormalised = (blurred[0], blurred[1])
+            unfiltered = matcher.compute(
+                left,
+                right,
+                seen,
+                pool=refine_pool(),
+                temporal_prior=temporal_prior,
+                unnormalised=unnormalised,
+            )
             if left is not rect.left_gray:
                 # The coarse-to-fine search's normalisation is of its input; the refinement's
                 # is of the rectified images as they are (it makes its own).

@@ -134,6 +134,9 @@ class StereoParams(SettingsModel):
     coarse_to_fine: bool = Field(False, description="whole range at a coarse level, full resolution in bands")
     coarse_scale: Literal[0, 2, 4] = Field(0, description="coarse level 1/2 or 1/4 (0: 1/2 up to 128 disp.)")
     temporal_prior: bool = Field(True, description="live: unchanged rows keep their last coarse search")
+    coarse_confirm: bool = Field(
+        False, description="coarse level also on the views not normalised: keep what both find, inward"
+    )
 
     @field_validator("sgbm_mode", mode="before")
     @classmethod
@@ -282,7 +285,7 @@ def _coarse_to_fine(p: StereoParams) -> CoarseToFine | None:
     d_min, d_max = p.min_disparity, p.min_disparity + p.disparity_range - 1
     level = FineLevel(
         p.coarse_factor, lo, beyond, p.blind_band_px, p.correlation_window_size, d_min, d_max,
-        (d_min - 1) * 16, p.lr_check, not p.subpixel,
+        (d_min - 1) * 16, p.lr_check, not p.subpixel, p.coarse_confirm,
     )  # fmt: skip
     coarse = p.coarse_level()
     return CoarseToFine((StereoMatcher(coarse), StereoMatcher(coarse)), level)  # a matcher per view
@@ -340,17 +343,21 @@ class StereoMatcher:
         *,
         pool: Executor | None = None,
         temporal_prior: bool = False,
+        unnormalised: tuple[U8, U8] | None = None,
     ) -> UnfilteredDisparity:
         """The matcher on gray images (H, W) uint8 (and on the mirrored pair with
         ``lr_check``), speckles not yet removed: the coarse-to-fine search
         (:mod:`rig.coarse_to_fine`; ``pool`` its threads, ``temporal_prior`` for a live stream of
-        frames in order, when ``stereo.temporal_prior`` allows) or the OpenCV matcher over the
-        whole range. With ``seen``, each run matches only the columns its reference lens sees
+        frames in order, when ``stereo.temporal_prior`` allows; ``unnormalised``: the pair
+        before :mod:`rig.match_input`'s normalisation, for ``coarse_confirm``) or the OpenCV
+        matcher over the whole range. With ``seen``, each run matches only the columns its reference lens sees
         (and those their matches and windows need); the others are invalid."""
         self._check(left, right)
         if self.coarse_to_fine_search is not None:
             prior = temporal_prior and self.params.temporal_prior
-            return self.coarse_to_fine_search.compute(left, right, seen, pool=pool, temporal_prior=prior)
+            return self.coarse_to_fine_search.compute(
+                left, right, seen, pool=pool, temporal_prior=prior, unnormalised=unnormalised
+            )
         mirrored, unsearched = None, left.shape[1]
         if self.params.lr_check:
             mirrored, unsearched = self.mirrored_view(left, right, seen)

@@ -5,7 +5,8 @@ the defaults were chosen) and on the default lat-lon pair: the
 README's walkthrough room where a repetitive printed wall ~6.8 m away came out at 0.23 m on a few
 % of the valid pixels, a wall of bars, a low-texture wall and a wall 0.3 m ahead (a real near
 obstacle must not be pushed away by the cure). The defaults (the exact search) and the defaults
-with the coarse-to-fine search (``coarse_to_fine: true``). ``pytest -s`` prints the figures; the table over
+with the coarse-to-fine search (``coarse_to_fine: true``; on the lat-lon pair also with its
+confirmed coarse level, ``coarse_confirm: true``). ``pytest -s`` prints the figures; the table over
 every scene and setting is ``python -m bench.phantoms`` (docs/stereo.md).
 
 Renders: the prototype's honest lens (:data:`LENS`, blur growing to the rim, rim darkening,
@@ -36,6 +37,8 @@ LENS = "honest"
 # saw the images as they are), and today's defaults with the coarse-to-fine search.
 BEFORE = StereoParams(disparity_range=128, lr_check=False, match_normalise_window=0, coarse_to_fine=False)
 C2F = StereoParams(coarse_to_fine=True)
+#: The coarse-to-fine search with its coarse level confirmed (``coarse_confirm``).
+CONFIRMED = StereoParams(coarse_to_fine=True, coarse_confirm=True)
 #: The coarse-to-fine search (an option) on the default lat-lon pair through the honest lens,
 #: with the matcher's normalised input, as measured: over the 0.1 % phantom bar on the bars and the
 #: low-texture wall (the exact search: under it), a known regression (docs/stereo.md).
@@ -93,7 +96,7 @@ def latlon_measured(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict[
     assert pipe.pair.projection == "latlon" and pipe.pair.camera.width == first.pair.camera.width
     out: dict[str, dict[str, PhantomStats]] = {}
     print("\nphantom % / valid % / lost %, the default lat-lon pair (valid: of every pixel with a surface)")
-    for label, stereo in (("defaults", params), ("coarse-to-fine", C2F)):
+    for label, stereo in (("defaults", params), ("coarse-to-fine", C2F), ("confirmed", CONFIRMED)):
         pipe.apply(stereo=stereo)
         out[label] = {}
         for name, shot in shots.items():
@@ -107,7 +110,7 @@ def latlon_measured(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict[
     return out
 
 
-@pytest.mark.parametrize("search", ["defaults", "coarse-to-fine"])
+@pytest.mark.parametrize("search", ["defaults", "coarse-to-fine", "confirmed"])
 @pytest.mark.parametrize("scene", SCENES)
 def test_defaults_keep_phantoms_under_a_thousandth_on_the_latlon_pair(
     latlon_measured: dict[str, dict[str, PhantomStats]], scene: str, search: str

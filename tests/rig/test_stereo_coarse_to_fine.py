@@ -73,6 +73,22 @@ def test_hypotheses_propose_both_sides_of_a_depth_edge() -> None:
     assert (near[1].centre[:4, :4] == 14).all()
 
 
+def test_inward_hypotheses_keep_away_from_invalid_coarse_pixels() -> None:
+    """``coarse_confirm``'s hypotheses: none within ``inward`` coarse px of an invalid coarse
+    pixel (its own included), the others as without it; the image's border does not count."""
+    coarse = np.full((10, 12), 10.0, dtype=np.float32)
+    coarse[5, 6] = np.nan
+    plain = hypotheses(coarse, (20, 24), 2)
+    for inward in (0, 2):
+        kept = hypotheses(coarse, (20, 24), 2, inward)
+        rows, cols = np.mgrid[0:20, 0:24] // 2
+        near = (np.abs(rows - 5) <= inward) & (np.abs(cols - 6) <= inward)
+        for mine, theirs in zip(kept, plain, strict=True):
+            assert (mine.centre[near] == NONE).all()
+            np.testing.assert_array_equal(mine.centre[~near], theirs.centre[~near])
+        assert (kept[0].centre[0, :] == 20).all() and (kept[0].centre[:, -1] == 20).all()
+
+
 def _brute_force(
     ref: U8, other: U8, centre: NDArray[np.int16], half: int, window: int, d_range: tuple[int, int]
 ) -> NDArray[np.int16]:
@@ -140,9 +156,11 @@ def test_band_layout_does_not_change_the_result() -> None:
     whole = search_rows(ref, other, of_rows(hyps), (0, 150), **kwargs)  # type: ignore[arg-type]
     # Each band's hypotheses made from its own coarse rows are the whole image's.
     by_band = band_hypotheses(coarse, 120, 150, 2)
+    inward = (band_hypotheses(coarse, 120, 150, 2, 2), of_rows(hypotheses(coarse, left.shape, 2, 2)))
     for a, b in ((0, 150), (0, 7), (3, 60), (61, 63), (100, 150)):
-        for mine, theirs in zip(by_band(a, b), of_rows(hyps)(a, b), strict=True):
-            np.testing.assert_array_equal(mine.centre, theirs.centre)
+        for bands, whole_image in ((by_band, of_rows(hyps)), inward):
+            for mine, theirs in zip(bands(a, b), whole_image(a, b), strict=True):
+                np.testing.assert_array_equal(mine.centre, theirs.centre)
     for step in (1, 7, 50):
         parts = [
             search_rows(ref, other, by_band, (r, min(150, r + step)), **kwargs) for r in range(0, 150, step)
