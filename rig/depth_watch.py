@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rig.in_effect import PairInEffect
+from rig.match_input import matcher_views
 from rig.stereo import StereoMatcher, StereoParams
 
 __all__ = ["Coverage", "DepthWatch", "SettingsTrial", "overlap_mask", "try_settings"]
@@ -175,8 +176,11 @@ def try_settings(
     seen = in_effect.geometry.seen
     results = []
     for p in (in_effect.stereo, params):
+        # Each set of parameters on the input the pipeline would give its matcher.
+        views = matcher_views(p, left, right)
         matcher = StereoMatcher(p)
-        results.append(matcher.disparity_of(matcher.compute(left, right, seen)))
+        raw = matcher.compute(views.left, views.right, seen, unnormalised=views.unnormalised)
+        results.append(matcher.disparity_of(raw))
     current, new = results
     mask = overlap_mask(in_effect)
     mask[:, : min(params.blind_band_px, mask.shape[1])] = False

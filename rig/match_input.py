@@ -21,11 +21,14 @@ still use the rectified images as they are, so the precision of the disparity is
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Protocol
+
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["NORMALISED_GAIN", "matcher_input"]
+__all__ = ["NORMALISED_GAIN", "MatcherViews", "matcher_input", "matcher_views"]
 
 U8 = NDArray[np.uint8]
 #: Grey levels per local standard deviation in the normalised image (±3σ within 8 bits).
@@ -47,3 +50,46 @@ def matcher_input(gray: U8, blur_sigma: float, window: int, eps: float) -> U8:
         f = np.asarray((f - mean) * scale + np.float32(128.0), dtype=np.float32)
     out: U8 = np.clip(f + 0.5, 0, 255).astype(np.uint8)
     return out
+
+
+class MatchInputSettings(Protocol):
+    """The stereo parameters that make the matcher's input (rig.stereo.StereoParams)."""
+
+    @property
+    def match_blur_sigma(self) -> float: ...
+    @property
+    def match_normalise_window(self) -> int: ...
+    @property
+    def match_normalise_eps(self) -> float: ...
+    @property
+    def coarse_confirm(self) -> bool: ...
+
+
+@dataclass(frozen=True)
+class MatcherViews:
+    """Both rectified views as the matcher of some parameters takes them; ``unnormalised``: the
+    views with the blur only, for the coarse-to-fine search's confirmed coarse level (else None);
+    ``changed``: the views are not the rectified images themselves."""
+
+    left: U8
+    right: U8
+    unnormalised: tuple[U8, U8] | None
+    changed: bool
+
+
+def matcher_views(p: MatchInputSettings, left: U8, right: U8) -> MatcherViews:
+    """The matcher's input of ``p`` from the gray rectified views: the one place it is made, for
+    the pipeline and for a trial of other parameters alike."""
+    a, b = (
+        matcher_input(g, p.match_blur_sigma, p.match_normalise_window, p.match_normalise_eps)
+        for g in (left, right)
+    )
+    changed = a is not left
+    unnormalised = None
+    if p.coarse_confirm and changed:
+        # The matcher's blur, not its normalisation.
+        unnormalised = (
+            matcher_input(left, p.match_blur_sigma, 0, 0.0),
+            matcher_input(right, p.match_blur_sigma, 0, 0.0),
+        )
+    return MatcherViews(a, b, unnormalised, changed)

@@ -44,7 +44,7 @@ from rig.heap import tune_allocator
 from rig.in_effect import PairGeometry, PairInEffect
 from rig.lut import Lut, percent_valid
 from rig.lut_cache import CachedLut, LutCache
-from rig.match_input import matcher_input
+from rig.match_input import matcher_views
 from rig.postprocess import PostprocessStage, refine_pool
 from rig.reach import reaching
 from rig.rectified import RectifiedPair, RectifiedPairConfig, pinhole_intrinsics
@@ -374,28 +374,16 @@ class DepthPipeline:
             matcher = self._in_effect.matcher
             seen = (rect.geometry or self._in_effect.geometry).seen
             t0 = time.perf_counter()
-            p = matcher.params
-            # Both searches see the same input: the views made alike (rig.match_input).
-            left, right = (
-                matcher_input(g, p.match_blur_sigma, p.match_normalise_window, p.match_normalise_eps)
-                for g in (rect.left_gray, rect.right_gray)
-            )
-            unnormalised = None
-            if p.coarse_confirm and left is not rect.left_gray:
-                # The matcher's blur, not its normalisation.
-                blurred = [
-                    matcher_input(g, p.match_blur_sigma, 0, 0.0) for g in (rect.left_gray, rect.right_gray)
-                ]
-                unnormalised = (blurred[0], blurred[1])
+            views = matcher_views(matcher.params, rect.left_gray, rect.right_gray)
             unfiltered = matcher.compute(
-                left,
-                right,
+                views.left,
+                views.right,
                 seen,
                 pool=refine_pool(),
                 temporal_prior=temporal_prior,
-                unnormalised=unnormalised,
+                unnormalised=views.unnormalised,
             )
-            if left is not rect.left_gray:
+            if views.changed:
                 # The coarse-to-fine search's normalisation is of its input; the refinement's
                 # is of the rectified images as they are (it makes its own).
                 unfiltered.normalised = None

@@ -28,6 +28,7 @@ __all__ = [
     "check_camera",
     "frame_body",
     "frame_headers",
+    "not_found_doc",
 ]
 
 BINARY = {"schema": {"type": "string", "format": "binary"}}
@@ -41,11 +42,17 @@ _HEADER_DOCS = {
 }
 
 
+def not_found_doc(description: str) -> dict[int | str, Any]:
+    """OpenAPI ``responses`` entry of a 404 with its JSON ``detail``."""
+    return {404: {"description": description, "content": {"application/json": {"schema": _ERROR_REF}}}}
+
+
 def binary_response_doc(
-    description: str, *media_types: str, scale_header: str | None = None
+    description: str, *media_types: str, scale_header: str | None = None, not_found: str | None = None
 ) -> dict[int | str, Any]:
     """OpenAPI ``responses`` for an endpoint serving the latest frame as bytes; ``scale_header``:
-    the name of its metres-per-unit header (``X-Depth-Scale``, ``X-Range-Scale``)."""
+    the name of its metres-per-unit header (``X-Depth-Scale``, ``X-Range-Scale``); ``not_found``:
+    when it may answer 404, what that means."""
     headers = dict(_HEADER_DOCS)
     if scale_header is not None:
         headers[scale_header] = {
@@ -55,6 +62,7 @@ def binary_response_doc(
     return {
         200: {"description": description, "content": {m: BINARY for m in media_types}, "headers": headers},
         503: {"description": "no depth frame yet", "content": {"application/json": {"schema": _ERROR_REF}}},
+        **(not_found_doc(not_found) if not_found is not None else {}),
     }
 
 

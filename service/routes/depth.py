@@ -122,6 +122,7 @@ async def get_depth(
         "image/png",
         NPY,
         scale_header="X-Range-Scale",
+        not_found="?pair= names no pair of the rig (the detail lists them)",
     ),
 )
 async def get_range(
@@ -251,6 +252,7 @@ async def get_depth_colorized(runtime: RuntimeDep, result: ResultDep) -> Respons
         "pcd: binary PCD 0.7 (PCL), x y z float32 and PCL's packed rgb",
         PLY,
         PCD,
+        not_found="?pair= names no pair of the rig (the detail lists them)",
     ),
 )
 async def get_pointcloud(

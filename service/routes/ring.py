@@ -13,7 +13,15 @@ from fastapi import APIRouter, Query, Response
 
 from rig.pipeline import DepthFrame
 from rig.ring import pair_label
-from service.deps import ResultDep, RuntimeDep, SettingsDep, binary_response_doc, cached_body, frame_headers
+from service.deps import (
+    ResultDep,
+    RuntimeDep,
+    SettingsDep,
+    binary_response_doc,
+    cached_body,
+    frame_headers,
+    not_found_doc,
+)
 from service.encoders import colorize_depth, depth_png, encode_jpeg, npy_bytes
 from service.errors import NoPanorama, UnknownPair
 from service.runtime import Runtime
@@ -62,10 +70,7 @@ def _ring(result: PublishedResult) -> RingResult:
             NPY,
             scale_header="X-Range-Scale",
         ),
-        404: {
-            "description": "a two-camera rig (no panorama)",
-            "content": {"application/json": {"schema": {"type": "object"}}},
-        },
+        **not_found_doc("a two-camera rig (no panorama)"),
     },
 )
 async def get_panorama(
@@ -92,6 +97,7 @@ async def get_panorama(
     responses=binary_response_doc(
         "/depth/colorized's colour scale (GET /depth/colorbar) on the panorama's range; black = no range",
         "image/jpeg",
+        not_found="a two-camera rig (no panorama)",
     ),
 )
 async def get_panorama_colorized(result: ResultDep, settings: SettingsDep) -> Response:
@@ -106,7 +112,11 @@ async def get_panorama_colorized(result: ResultDep, settings: SettingsDep) -> Re
     return Response(body, media_type="image/jpeg", headers=frame_headers(result))
 
 
-@router.get("/panorama/info", summary="The panorama's projection, frame and pairs (panorama.json)")
+@router.get(
+    "/panorama/info",
+    summary="The panorama's projection, frame and pairs (panorama.json)",
+    responses=not_found_doc("a two-camera rig (no panorama)"),
+)
 async def get_panorama_info(runtime: RuntimeDep) -> dict[str, object]:
     if runtime.ring is None:
         raise NoPanorama("a two-camera rig has one pair and no panorama")
