@@ -107,9 +107,13 @@ def test_dashboard_shows_the_panorama_of_a_ring(lut_cache: Path, tmp_path: Path)
         live.wait_ready(120.0)
         info = live.client.get("/panorama/info").json()
         with dashboard_page(live.base_url, console_errors) as page:
-            page.wait_for_function("document.getElementById('panorama-img').naturalWidth > 0", timeout=30_000)
+            # Read in one go once loaded: a newer set's image may be loading (its size 0 until then).
+            loaded = (
+                "(() => { const e = document.getElementById('panorama-img');"
+                " return e.complete && e.naturalWidth > 0 ? [e.naturalWidth, e.naturalHeight] : null; })()"
+            )
+            size = page.wait_for_function(loaded, timeout=30_000).json_value()
             assert page.is_visible("#panorama-row")
-            size = page.eval_on_selector("#panorama-img", "e => [e.naturalWidth, e.naturalHeight]")
             assert size == [info["width"], info["height"]]
             first = page.get_attribute("#panorama-img", "src")
             assert first is not None and first.startswith("/panorama/colorized?seq=")
