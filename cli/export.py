@@ -11,6 +11,8 @@ exported, 2 for bad input (then no file is left behind).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Literal
 
@@ -143,18 +145,7 @@ def register(app: typer.Typer) -> None:
         if isinstance(pipeline, RigPipeline):
             _export_ring(rec, pipeline, out, names, cloud_stride, rectified_images, compression)
             return
-        with progress_bar(RateColumn("pairs"), TimeRemainingColumn()) as progress:
-            task = progress.add_task("export", total=len(rec.pairs))
-
-            def on_pair(seq: int, failure: PairFailure | None) -> None:
-                if failure is not None:
-                    progress.console.print(
-                        f"[yellow]skipped seq {seq}:[/yellow] {one_line(failure.reason)}",
-                        highlight=False,
-                        soft_wrap=True,
-                    )
-                progress.advance(task)
-
+        with _export_progress("pairs", len(rec.pairs)) as on_pair:
             result = export_mcap(
                 rec,
                 pipeline,
@@ -174,6 +165,25 @@ def register(app: typer.Typer) -> None:
         )
 
 
+@contextmanager
+def _export_progress(unit: str, total: int) -> Iterator[Callable[[int, PairFailure | None], None]]:
+    """A progress bar over ``total`` pairs or sets and the callback that advances it, printing a
+    skipped one's reason above it."""
+    with progress_bar(RateColumn(unit), TimeRemainingColumn()) as progress:
+        task = progress.add_task("export", total=total)
+
+        def on_item(seq: int, failure: PairFailure | None) -> None:
+            if failure is not None:
+                progress.console.print(
+                    f"[yellow]skipped seq {seq}:[/yellow] {one_line(failure.reason)}",
+                    highlight=False,
+                    soft_wrap=True,
+                )
+            progress.advance(task)
+
+        yield on_item
+
+
 def _export_ring(
     rec: RecordedPairs,
     ring: RigPipeline,
@@ -184,18 +194,7 @@ def _export_ring(
     compression: Literal["zstd", "lz4", "none"],
 ) -> None:
     """``rig export mcap`` of a rig of N cameras (rig.ros.mcap_export.export_ring_mcap)."""
-    with progress_bar(RateColumn("sets"), TimeRemainingColumn()) as progress:
-        task = progress.add_task("export", total=len(rec.pairs))
-
-        def on_set(seq: int, failure: PairFailure | None) -> None:
-            if failure is not None:
-                progress.console.print(
-                    f"[yellow]skipped seq {seq}:[/yellow] {one_line(failure.reason)}",
-                    highlight=False,
-                    soft_wrap=True,
-                )
-            progress.advance(task)
-
+    with _export_progress("sets", len(rec.pairs)) as on_set:
         result = export_ring_mcap(
             rec,
             ring,
