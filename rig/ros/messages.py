@@ -175,11 +175,13 @@ class MessageBuilder:
     def depth_image(self, frame: DepthFrame, stamp_ns: int) -> ImageMessage:
         """REP 118 depth in the left rectified frame: 32FC1 m, NaN invalid, or 16UC1 mm, 0 invalid."""
         frame_id = self.names.rect_frame(self.cameras[0])
+        return ImageMessage(self.names.depth_image, frame_id, stamp_ns, self._depth_pixels(frame.depth))
+
+    def _depth_pixels(self, depth: NDArray[np.float32]) -> RawPixels:
+        """Depth in metres (NaN invalid) in the depth topics' encoding: 32FC1 m or 16UC1 mm."""
         if self.names.depth_encoding == "16UC1":
-            pixels = raw_pixels(depth_to_png_mm(frame.depth), depth_mm=True)
-        else:
-            pixels = raw_pixels(frame.depth)
-        return ImageMessage(self.names.depth_image, frame_id, stamp_ns, pixels)
+            return raw_pixels(depth_to_png_mm(depth), depth_mm=True)
+        return raw_pixels(depth)
 
     def depth_outputs(
         self,
@@ -228,11 +230,7 @@ class MessageBuilder:
         if want(topic := self.names.pinhole_depth_info):
             out.append(CameraInfoMessage(topic, stamp_ns, self._pinhole_info))
         if want(topic := self.names.pinhole_depth_image):
-            z = self._pinhole.depth(frame.range)
-            if self.names.depth_encoding == "16UC1":
-                pixels = raw_pixels(depth_to_png_mm(z), depth_mm=True)
-            else:
-                pixels = raw_pixels(z)
+            pixels = self._depth_pixels(self._pinhole.depth(frame.range))
             out.append(ImageMessage(topic, self._pinhole_info.frame_id, stamp_ns, pixels))
         return out
 
