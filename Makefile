@@ -25,9 +25,12 @@ venv: $(DEV_STAMP)
 demo: $(RUN_STAMP)
 	$(BIN)/rig serve --demo
 
-## test: run the whole test suite (slow tests included), two workers (pytest-xdist), a module each at a time
+## test: run the whole test suite (slow tests included), three workers (pytest-xdist), a module each at a time
+# Three workers on two cores: much of the suite waits on sockets, child processes and cameras, and
+# the third worker fills those waits. One BLAS thread per process: the workers and the services
+# they start already fill the cores, and OpenBLAS's idle threads spinning beside them cost time.
 test: $(DEV_STAMP)
-	$(BIN)/python -m pytest -n 2 --dist loadscope
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m pytest -n 3 --dist loadscope
 
 ## lint: ruff (rules, complexity <= 15, format), mypy --strict, import layering (cli -> service -> rig -> calibration)
 lint: $(DEV_STAMP)

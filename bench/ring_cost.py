@@ -24,7 +24,8 @@ nothing): sets/s and pairs/s.
 Ratios are of one run, taken one right after another on a shared machine (the load average is
 printed). The memory budget of the ring (:func:`service.memory.ring_estimate`) is printed
 beside the measured peak of the fusion's arrays (tracemalloc) and the process's peak RSS.
-Run: ``.venv/bin/python -m bench.ring_cost`` (``--quick``: a half-size ring, seconds).
+Run: ``.venv/bin/python -m bench.ring_cost`` (``--quick``: a ring at 0.4 of the size, two sets,
+a 2 px/deg panorama: seconds).
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from bench.common import add_common_arguments, bench_cache_dir, console, finish,
 from bench.worker import floor_match, floor_matcher
 from calibration import load_rig
 from rig.memory_budget import MIB
+from rig.panorama import DEFAULT_PANORAMA_PX_PER_DEG
 from rig.recording import Recording
 from rig.rectified import RectifiedPairConfig
 from rig.rig_depth import process_sets, read_set_images
@@ -71,11 +73,13 @@ def _recording(quick: bool, real: bool) -> Path:
         if not (out / "frames.csv").is_file():
             write_ring_recording(load_ring(shared / RING_DIR), out)
         return out
-    name = "ring4-half" if quick else "ring4"
+    name = "ring4-small" if quick else "ring4"
     out = bench_cache_dir() / name
     if not (out / "frames.csv").is_file():
         preset = get_ring_preset("ring4")
-        simulate_ring_recording(preset.scaled(0.5) if quick else preset, out, frames=3, supersample=1)
+        simulate_ring_recording(
+            preset.scaled(0.4) if quick else preset, out, frames=2 if quick else 3, supersample=1
+        )
     return out
 
 
@@ -162,8 +166,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     path = _recording(args.quick, args.real)
     rec = Recording(path)
     rig = load_rig(path / "calibration.yaml")
-    config = RectifiedPairConfig(px_per_deg=3.0) if args.quick else RectifiedPairConfig()
-    ring = RigPipeline(rig, config, tune_malloc=True)
+    config = RectifiedPairConfig(px_per_deg=2.5) if args.quick else RectifiedPairConfig()
+    panorama_px_per_deg = 2.0 if args.quick else DEFAULT_PANORAMA_PX_PER_DEG
+    ring = RigPipeline(rig, config, tune_malloc=True, panorama_px_per_deg=panorama_px_per_deg)
     pair = ring.first.pair.camera
     pano = ring.panorama.camera
     console.print(

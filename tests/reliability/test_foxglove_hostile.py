@@ -51,16 +51,20 @@ def test_a_viewer_that_stops_reading_is_dropped(start_server: StartServer) -> No
         while not ended_by_peer(stalled.sock):  # never reads again
             assert time.monotonic() - t0 < 30, "the stalled viewer is still connected"
             await reading.read_for(0.2)
+        dropped_after = time.monotonic() - t0
         before = reading.messages
-        await reading.read_for(2.0)
-        return topics, time.monotonic() - t0, reading.messages - before
+        # Until the next message, not for a fixed time: a loaded machine may take seconds per frame.
+        until = time.monotonic() + 30
+        while reading.messages == before and time.monotonic() < until:
+            await reading.read_for(0.5)
+        return topics, dropped_after, reading.messages - before
 
     try:
         topics, seconds, later = asyncio.run(run())
     finally:
         reading.close()
         stalled.close()
-    print(f"stalled viewer ({topics} topics) dropped after {seconds:.1f} s; the other: {later} messages/2 s")
+    print(f"stalled viewer ({topics} topics) dropped after {seconds:.1f} s; then {later} to the other")
     assert topics >= 10
     assert fox.stats().dropped == 1
     assert later > 0  # the reading viewer kept getting messages meanwhile
