@@ -18,7 +18,7 @@ seconds of ``rig serve --demo``'s one render of its room (``service.demo.render_
 default lat-lon pair; not with ``--quick``). A render has no OpenCV floor to
 compare with; the ratio against the old implementation is the figure.
 
-Run: ``.venv/bin/python -m bench.render_speed`` (``--quick``: quarter-size cameras, 2 frames, a
+Run: ``.venv/bin/python -m bench.render_speed`` (``--quick``: quarter-size cameras, 1 frame, a
 1.5 px/deg lat-lon pair).
 """
 
@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     )
     parser.add_argument("--frames", type=int, default=None, help="pairs per recording (default 3)")
     args = parser.parse_args(argv)
-    frames = args.frames or (2 if args.quick else 3)
+    frames = args.frames or (1 if args.quick else 3)
     scale = 0.25 if args.quick else 1.0
     repeat = args.repeat or (1 if args.quick else 2)
     info = machine_info()
