@@ -13,9 +13,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-from matplotlib.patches import Rectangle
 from numpy.typing import NDArray
 
 __all__ = ["ResidualPanel", "save_residual_plot"]
@@ -38,6 +35,11 @@ def save_residual_plot(path: str | Path, panels: Sequence[ResidualPanel]) -> Pat
     """Write a PNG with one column per panel; returns the path. Raises OSError if it cannot
     be written."""
     out = Path(path)
+    # matplotlib only here: every `rig calibrate` command imports this module, few draw.
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
+
     fig = Figure(figsize=(6.0 * len(panels), 8.0), dpi=100, layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(2, len(panels), squeeze=False, height_ratios=[3, 1])
