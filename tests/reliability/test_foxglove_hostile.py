@@ -51,20 +51,16 @@ def test_a_viewer_that_stops_reading_is_dropped(start_server: StartServer) -> No
         while not ended_by_peer(stalled.sock):  # never reads again
             assert time.monotonic() - t0 < 30, "the stalled viewer is still connected"
             await reading.read_for(0.2)
-        dropped_after = time.monotonic() - t0
-        before = reading.messages
-        # Until the next message, not for a fixed time: a loaded machine may take seconds per frame.
-        until = time.monotonic() + 30
-        while reading.messages == before and time.monotonic() < until:
-            await reading.read_for(0.5)
-        return topics, dropped_after, reading.messages - before
+        # Counted while the other stalled, not after: a starved test process (three workers on two
+        # cores) can read too slowly itself, and the SDK then closes it as it should.
+        return topics, time.monotonic() - t0, reading.messages  # it subscribed after the other stalled
 
     try:
         topics, seconds, later = asyncio.run(run())
     finally:
         reading.close()
         stalled.close()
-    print(f"stalled viewer ({topics} topics) dropped after {seconds:.1f} s; then {later} to the other")
+    print(f"stalled viewer ({topics} topics) dropped after {seconds:.1f} s; meanwhile {later} to the other")
     assert topics >= 10
     assert fox.stats().dropped == 1
     assert later > 0  # the reading viewer kept getting messages meanwhile
