@@ -50,7 +50,7 @@ from cli.source_options import (
 )
 from rig.errors import ConfigError
 from rig.rig_pipeline import RigPipeline
-from rig.ros.mcap_export import export_mcap, export_ring_mcap
+from rig.ros.mcap_export import ExportResult, export_mcap, export_ring_mcap
 from rig.ros.names import DepthEncoding, RosNames
 
 if TYPE_CHECKING:
@@ -156,13 +156,19 @@ def register(app: typer.Typer) -> None:
                 compression=compression,
                 on_pair=on_pair,
             )
-        note = f", [yellow]{len(result.skipped)} skipped[/yellow]" if result.skipped else ""
-        console.print(
-            f"exported {result.pairs} of {len(rec.pairs)} pairs{note} -> {result.path} "
-            f"({result.messages} messages; {describe_pipeline(pipeline, cal_path)})",
-            highlight=False,
-            soft_wrap=True,
-        )
+        _say_exported(result, len(rec.pairs), "pairs", describe_pipeline(pipeline, cal_path))
+
+
+def _say_exported(result: ExportResult, total: int, unit: str, what: str) -> None:
+    """The export's one summary line: how many of ``total`` pairs or sets, skipped ones, the file,
+    its messages and ``what`` they hold."""
+    note = f", [yellow]{len(result.skipped)} skipped[/yellow]" if result.skipped else ""
+    console.print(
+        f"exported {result.pairs} of {total} {unit}{note} -> {result.path} "
+        f"({result.messages} messages; {what})",
+        highlight=False,
+        soft_wrap=True,
+    )
 
 
 @contextmanager
@@ -205,10 +211,5 @@ def _export_ring(
             compression=compression,
             on_set=on_set,
         )
-    note = f", [yellow]{len(result.skipped)} skipped[/yellow]" if result.skipped else ""
-    console.print(
-        f"exported {result.pairs} of {len(rec.pairs)} sets{note} -> {result.path} "
-        f"({result.messages} messages; pairs {', '.join(ring.labels)}, the panorama and the fused cloud)",
-        highlight=False,
-        soft_wrap=True,
-    )
+    what = f"pairs {', '.join(ring.labels)}, the panorama and the fused cloud"
+    _say_exported(result, len(rec.pairs), "sets", what)

@@ -113,6 +113,19 @@ class McapRingSink:
         self.sets += 1
 
 
+def _require_one_written(
+    recording: RecordedPairs, written: int, failures: Sequence[PairFailure], unit: str
+) -> None:
+    """RecordingError naming the first failure when none of the recording's pairs or sets was
+    written (an empty recording is not an error)."""
+    if recording.pairs and not written:
+        first = failures[0]
+        raise RecordingError(
+            f"{recording.root}: no {unit} of {len(recording.pairs)} could be processed "
+            f"(first: seq {first.seq}: {first.reason})"
+        )
+
+
 def export_ring_mcap(
     recording: RecordedPairs,
     ring: RigPipeline,
@@ -130,12 +143,7 @@ def export_ring_mcap(
     with McapRosWriter(out, compression=compression) as writer:
         sink = McapRingSink(writer, builder)
         run = process_sets(ring, recording, recording.pairs, sink, on_set=on_set)
-        if recording.pairs and not run.written:
-            first = run.failures[0]
-            raise RecordingError(
-                f"{recording.root}: no set of {len(recording.pairs)} could be processed "
-                f"(first: seq {first.seq}: {first.reason})"
-            )
+        _require_one_written(recording, run.written, run.failures, "set")
         messages = writer.messages
     return ExportResult(Path(out), run.written, messages, run.failures)
 
@@ -163,12 +171,7 @@ def export_mcap(
     with McapRosWriter(out, compression=compression) as writer:
         sink = McapDepthSink(writer, builder)
         run = process_pairs(pipeline, recording, recording.pairs, sink, readahead=readahead, on_pair=on_pair)
-        if recording.pairs and not run.written:
-            first = run.failures[0]
-            raise RecordingError(
-                f"{recording.root}: no pair of {len(recording.pairs)} could be processed "
-                f"(first: seq {first.seq}: {first.reason})"
-            )
+        _require_one_written(recording, run.written, run.failures, "pair")
         messages = writer.messages
     return ExportResult(Path(out), run.written, messages, run.failures)
 
