@@ -24,8 +24,8 @@ nothing): sets/s and pairs/s.
 Ratios are of one run, taken one right after another on a shared machine (the load average is
 printed). The memory budget of the ring (:func:`service.memory.ring_estimate`) is printed
 beside the measured peak of the fusion's arrays (tracemalloc) and the process's peak RSS.
-Run: ``.venv/bin/python -m bench.ring_cost`` (``--quick``: a ring at 0.4 of the size, two sets,
-a 2 px/deg panorama: seconds).
+Run: ``.venv/bin/python -m bench.ring_cost`` (``--quick``: the tests' small ring,
+:func:`tests.helpers.rings.write_small_ring`, two sets: seconds).
 """
 
 from __future__ import annotations
@@ -57,6 +57,7 @@ from rig.sim.ring_recording import simulate_ring_recording
 from service.memory import ring_estimate
 from service.settings import Settings
 from tests.helpers.ring import RING_DIR, load_ring, write_ring_recording
+from tests.helpers.rings import SMALL_RING_CONFIG, SMALL_RING_PANORAMA_PX_PER_DEG, write_small_ring
 
 __all__ = ["main"]
 
@@ -73,13 +74,12 @@ def _recording(quick: bool, real: bool) -> Path:
         if not (out / "frames.csv").is_file():
             write_ring_recording(load_ring(shared / RING_DIR), out)
         return out
-    name = "ring4-small" if quick else "ring4"
-    out = bench_cache_dir() / name
+    out = bench_cache_dir() / ("ring4-small" if quick else "ring4")
     if not (out / "frames.csv").is_file():
-        preset = get_ring_preset("ring4")
-        simulate_ring_recording(
-            preset.scaled(0.4) if quick else preset, out, frames=2 if quick else 3, supersample=1
-        )
+        if quick:  # the tests' small ring
+            write_small_ring(out, frames=2)
+        else:
+            simulate_ring_recording(get_ring_preset("ring4"), out, frames=3, supersample=1)
     return out
 
 
@@ -166,8 +166,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     path = _recording(args.quick, args.real)
     rec = Recording(path)
     rig = load_rig(path / "calibration.yaml")
-    config = RectifiedPairConfig(px_per_deg=2.5) if args.quick else RectifiedPairConfig()
-    panorama_px_per_deg = 2.0 if args.quick else DEFAULT_PANORAMA_PX_PER_DEG
+    config = SMALL_RING_CONFIG if args.quick else RectifiedPairConfig()
+    panorama_px_per_deg = SMALL_RING_PANORAMA_PX_PER_DEG if args.quick else DEFAULT_PANORAMA_PX_PER_DEG
     ring = RigPipeline(rig, config, tune_malloc=True, panorama_px_per_deg=panorama_px_per_deg)
     pair = ring.first.pair.camera
     pano = ring.panorama.camera

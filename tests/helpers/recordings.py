@@ -47,8 +47,8 @@ FAST_SUPERVISOR = SupervisorConfig(
 def frame_image(cam: str, seq: int, width: int = 160, height: int = 120) -> NDArray[np.uint8]:
     """A textured image that differs per camera and frame (so byte comparisons mean something)."""
     rng = np.random.default_rng(seq * 2 + (cam == "right"))
-    img = rng.integers(0, 256, (height // 8, width // 8, 3), dtype=np.uint8)
-    img = cv2.resize(img, (width, height), interpolation=cv2.INTER_NEAREST)
+    blocks = rng.integers(0, 256, (height // 8, width // 8, 3), dtype=np.uint8)
+    img = np.asarray(cv2.resize(blocks, (width, height), interpolation=cv2.INTER_NEAREST), dtype=np.uint8)
     cv2.putText(img, f"{cam[0]}{seq}", (4, height // 2), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2)
     return img
 

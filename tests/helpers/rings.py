@@ -14,10 +14,18 @@ from service.settings import Settings, load_settings
 from tests.helpers.recordings import FAST_SUPERVISOR
 from tests.helpers.service import TOKEN
 
-__all__ = ["SMALL_RING_CONFIG", "ring_service_settings", "small_ring_preset", "write_small_ring"]
+__all__ = [
+    "SMALL_RING_CONFIG",
+    "SMALL_RING_PANORAMA_PX_PER_DEG",
+    "ring_service_settings",
+    "small_ring_preset",
+    "write_small_ring",
+]
 
 #: The rectified pair of the small ring's tests: coarse, so each pair is a few hundred pixels.
 SMALL_RING_CONFIG = RectifiedPairConfig(px_per_deg=2.5)
+#: Its panorama's resolution (the renderer's exact panorama and the pipeline's).
+SMALL_RING_PANORAMA_PX_PER_DEG = 2.0
 _SCALE = 0.4
 
 
@@ -28,7 +36,12 @@ def small_ring_preset() -> Preset:
 def write_small_ring(out: Path, frames: int = 2) -> Path:
     """The small ring's recording at ``out`` (``frames`` sets, no supersampling)."""
     return simulate_ring_recording(
-        small_ring_preset(), out, frames=frames, supersample=1, vpc=SMALL_RING_CONFIG, panorama_px_per_deg=2.0
+        small_ring_preset(),
+        out,
+        frames=frames,
+        supersample=1,
+        vpc=SMALL_RING_CONFIG,
+        panorama_px_per_deg=SMALL_RING_PANORAMA_PX_PER_DEG,
     )
 
 

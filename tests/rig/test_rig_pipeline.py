@@ -19,7 +19,12 @@ from rig.rig_depth import check_recording_cameras, process_sets, read_set_images
 from rig.rig_pipeline import RigFrame, RigPipeline
 from rig.sim import get_preset
 from tests.helpers.recordings import write_recording
-from tests.helpers.rings import SMALL_RING_CONFIG, small_ring_preset, write_small_ring
+from tests.helpers.rings import (
+    SMALL_RING_CONFIG,
+    SMALL_RING_PANORAMA_PX_PER_DEG,
+    small_ring_preset,
+    write_small_ring,
+)
 
 RING_PAIRS = ["cam1-cam2", "cam2-cam3", "cam3-cam4", "cam4-cam1"]
 
@@ -32,7 +37,10 @@ def ring(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def pipeline(lut_cache: Path) -> RigPipeline:
     return RigPipeline(
-        small_ring_preset().rig, SMALL_RING_CONFIG, cache_dir=lut_cache, panorama_px_per_deg=2.0
+        small_ring_preset().rig,
+        SMALL_RING_CONFIG,
+        cache_dir=lut_cache,
+        panorama_px_per_deg=SMALL_RING_PANORAMA_PX_PER_DEG,
     )
 
 

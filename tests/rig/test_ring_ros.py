@@ -17,7 +17,12 @@ from rig.rig_depth import process_sets
 from rig.rig_pipeline import RigFrame, RigPipeline
 from rig.ros.mcap_export import export_ring_mcap
 from rig.ros.names import RosNames
-from tests.helpers.rings import SMALL_RING_CONFIG, small_ring_preset, write_small_ring
+from tests.helpers.rings import (
+    SMALL_RING_CONFIG,
+    SMALL_RING_PANORAMA_PX_PER_DEG,
+    small_ring_preset,
+    write_small_ring,
+)
 
 N = RosNames()
 PAIRS = ["cam1-cam2", "cam2-cam3", "cam3-cam4", "cam4-cam1"]
@@ -29,7 +34,10 @@ def exported(tmp_path_factory: pytest.TempPathFactory, lut_cache: Path) -> tuple
     base = tmp_path_factory.mktemp("ring-ros")
     rec = write_small_ring(base / "rec", frames=2)
     ring = RigPipeline(
-        small_ring_preset().rig, SMALL_RING_CONFIG, cache_dir=lut_cache, panorama_px_per_deg=2.0
+        small_ring_preset().rig,
+        SMALL_RING_CONFIG,
+        cache_dir=lut_cache,
+        panorama_px_per_deg=SMALL_RING_PANORAMA_PX_PER_DEG,
     )
     result = export_ring_mcap(Recording(rec), ring, base / "ring.mcap")
     assert result.pairs == 2 and not result.skipped
