@@ -12,7 +12,7 @@ import pytest
 if TYPE_CHECKING:
     from playwright.sync_api import Page
 
-__all__ = ["CHROMIUM", "CHROMIUM_ARGS", "dashboard_page", "needs_chromium"]
+__all__ = ["CHROMIUM", "CHROMIUM_ARGS", "dashboard_page", "needs_chromium", "wait_for_image_width"]
 
 CHROMIUM = os.environ.get("RIG_CHROMIUM", "/usr/bin/chromium")
 CHROMIUM_ARGS = [
@@ -45,3 +45,12 @@ def dashboard_page(base_url: str, console_errors: list[str]) -> Iterator[Page]:
             yield page
         finally:
             browser.close()
+
+
+def wait_for_image_width(page: Page, element_id: str, width: int, timeout_ms: float = 20_000) -> None:
+    """Until the ``<img>`` ``element_id`` shows an image ``width`` pixels wide (a timeout error
+    otherwise). Waited for, not read once: an image whose src the page just refreshed has no size
+    until the new frame decodes, and a loaded machine can be caught between the two."""
+    page.wait_for_function(
+        f"document.getElementById('{element_id}').naturalWidth === {width}", timeout=timeout_ms
+    )

@@ -12,7 +12,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.helpers.browser import dashboard_page, needs_chromium
+from tests.helpers.browser import dashboard_page, needs_chromium, wait_for_image_width
 from tests.helpers.rings import ring_service_settings, write_small_ring
 from tests.helpers.service import TOKEN, LiveServer, StartServer
 
@@ -33,9 +33,8 @@ def test_dashboard_live_in_chromium(start_server: StartServer, tmp_path: Path) -
         )
         for img in ("confidence-img", "vpc-left", "vpc-right", "raw-left", "raw-right"):
             page.wait_for_function(f"document.getElementById('{img}').naturalWidth > 0", timeout=20_000)
-        assert page.eval_on_selector("#depth-img", "e => e.naturalWidth") == 320
-        assert page.eval_on_selector("#confidence-img", "e => e.naturalWidth") == 320
-        assert page.eval_on_selector("#raw-left", "e => e.naturalWidth") == 640
+        for img, width in (("depth-img", 320), ("confidence-img", 320), ("raw-left", 640)):
+            wait_for_image_width(page, img, width)
         assert not page.is_visible("#panorama-row")  # two cameras: no panorama
 
         # The VPC footprint is drawn on the fisheye overlay (canvas at the fisheye's size).

@@ -18,7 +18,7 @@ from rig.sim import room_scene
 from rig.sim.render import render_range
 from service.client import RigClient
 from service.settings import load_settings
-from tests.helpers.browser import dashboard_page, needs_chromium
+from tests.helpers.browser import dashboard_page, needs_chromium, wait_for_image_width
 from tests.helpers.service import LiveServer, SmallRecording, StartApp, service_overrides
 from tests.helpers.waiting import wait_for
 
@@ -132,8 +132,7 @@ def test_dashboard_shows_the_wide_pair(wide_server: LiveServer, tmp_path: Path) 
     errors: list[str] = []
     with dashboard_page(wide_server.base_url, errors) as page:
         page.wait_for_function("document.body.classList.contains('wide')", timeout=20_000)
-        page.wait_for_function("document.getElementById('depth-img').naturalWidth > 0", timeout=20_000)
-        assert page.eval_on_selector("#depth-img", "e => e.naturalWidth") == cam.width
+        wait_for_image_width(page, "depth-img", cam.width)
         assert "range along each ray" in (page.text_content("#depth-what") or "")
         assert "lat-lon pair" in (page.text_content("#pair-info") or "")
         # The tall images are 45 % of the window's height, or less where four of them (and the
