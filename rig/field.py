@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from calibration.models import CameraModel
+from calibration.models import CameraModel, LatLonModel
 from calibration.rig import Rig
 from rig.errors import ConfigError
 
@@ -103,7 +103,14 @@ def pixel_solid_angles(camera: CameraModel) -> F64:
     every pixel, e.g. a rectified view) spans: ``|∂r/∂u × ∂r/∂v|`` of its unit ray ``r``, the
     derivatives as differences across the pixel (half a pixel either side). Closed forms:
     ``cos(azimuth)/(fx·fy)`` for a lat-lon view, ``(1 + x_n² + y_n²)^(−3/2)/(fx·fy)`` for a
-    pinhole."""
+    pinhole. A lat-lon view's differences have one of their own, ``4·sin(1/2fx)·sin(1/2fy)·|cos(azimuth)|``
+    (each is a chord, and the two are orthogonal), which is used for it: the same values without
+    unprojecting four rays per pixel. Pixels past the poles (azimuth beyond ±90°) have no ray: 0."""
+    if isinstance(camera, LatLonModel):
+        chords = 4.0 * math.sin(0.5 / camera.fx) * math.sin(0.5 / camera.fy)
+        az = camera.azimuths()
+        per_column = np.where(np.abs(az) <= math.pi / 2.0, chords * np.cos(az), 0.0)
+        return np.repeat(per_column[None, :], camera.height, axis=0)
     h, w = camera.height, camera.width
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
 

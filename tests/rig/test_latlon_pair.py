@@ -219,3 +219,20 @@ def test_pixel_solid_angles_match_the_closed_forms_and_add_up(camera) -> None:  
         total = 4 * math.atan(ta * tb / math.sqrt(1 + ta**2 + tb**2))
     assert np.allclose(got, expected, rtol=2e-4)
     assert got.sum() == pytest.approx(total, rel=1e-4)
+
+
+def test_pixel_solid_angles_of_a_latlon_view_are_its_rays_differences() -> None:
+    """The lat-lon closed form used for speed is the generic finite differences of the rays."""
+    camera = LatLonModel(180, 150, fx=60.0, fy=50.0, cx=89.5, cy=70.0)  # to ±85.9°
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width].astype(np.float64)
+
+    def rays(du: float, dv: float) -> np.ndarray:
+        pix = np.stack([(u + du).ravel(), (v + dv).ravel()], axis=1)
+        return camera.unproject(pix, in_image=False)[0].reshape(camera.height, camera.width, 3)
+
+    along_u, along_v = rays(0.5, 0) - rays(-0.5, 0), rays(0, 0.5) - rays(0, -0.5)
+    expected = np.linalg.norm(np.cross(along_u, along_v), axis=2)
+    assert np.allclose(pixel_solid_angles(camera), expected, rtol=1e-9, atol=0)
+    beyond = LatLonModel(200, 150, fx=60.0, fy=50.0, cx=99.5, cy=70.0)  # to ±95.5°: past the poles
+    outside = np.abs(beyond.azimuths()) > np.pi / 2
+    assert outside.sum() == 12 and not pixel_solid_angles(beyond)[:, outside].any()
