@@ -79,7 +79,11 @@ def _recording(quick: bool, real: bool) -> Path:
         if quick:  # the tests' small ring
             write_small_ring(out, frames=2)
         else:
-            simulate_ring_recording(get_ring_preset("ring4"), out, frames=3, supersample=1)
+            preset = get_ring_preset("ring4")  # the ideal lens and simple sensor model, as measured
+            simulate_ring_recording(
+                preset, out, frames=3, supersample=1, lens="ideal",
+                noise_std=preset.noise_std, vignetting=preset.vignetting,
+            )  # fmt: skip
     return out
 
 

@@ -229,7 +229,7 @@ def register(app: typer.Typer) -> None:
 
         if ring is not None:
             pano = _float("--panorama-px-per-deg", panorama_px_per_deg or "4", 0.25, 20.0)
-            options = (n_frames, seed_value, noise_std, vig, ss, color, vpc, params.blind_band_px, pano)
+            options = (n_frames, seed_value, noise_std, vig, ss, color, vpc, params.blind_band_px, pano, lens)
             _ring(get_ring_preset(ring).scaled(factor), out, *options)
             return
         chosen = get_preset(preset)
@@ -316,6 +316,7 @@ def _ring(
     vpc: RectifiedPairConfig,
     blind_band_px: int,
     panorama_px_per_deg: float,
+    lens: str,
 ) -> None:
     """``rig sim --rig``: the ring's recording (rig.sim.ring_recording)."""
     from rig.sim.ring_recording import simulate_ring_recording
@@ -323,7 +324,7 @@ def _ring(
     start = time.monotonic()
     count = frames or DEFAULT_ROOM_FRAMES
     with progress_bar(TimeRemainingColumn(), transient=False, on_stdout=True) as bar:
-        task = bar.add_task(f"rendering room ({chosen.name})", total=count)
+        task = bar.add_task(f"rendering room ({chosen.name}, {lens} lens)", total=count)
         simulate_ring_recording(
             chosen,
             out,
@@ -337,10 +338,12 @@ def _ring(
             blind_band_px=blind_band_px,
             panorama_px_per_deg=panorama_px_per_deg,
             progress=lambda done, total: bar.update(task, completed=done, total=total),
+            lens=lens,
         )
     pairs = json.loads((out / "recording.json").read_text())["pairs"]
     console.print(
-        f"[green]wrote[/green] {count} sets of {len(chosen.rig.names)} cameras ({chosen.name}, room path) "
+        f"[green]wrote[/green] {count} sets of {len(chosen.rig.names)} cameras ({chosen.name}, {lens} lens, "
+        "room path) "
         f"to {out} in {time.monotonic() - start:.1f} s",
         highlight=False,
     )

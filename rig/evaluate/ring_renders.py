@@ -16,6 +16,7 @@ from rig.errors import EvaluationError
 from rig.evaluate.renders import lut_box, render_in_box, union_box
 from rig.pipeline import DepthPipeline
 from rig.ring import PairNames
+from rig.sim.lens_effects import LensEffects
 from rig.sim.render import render_range
 from rig.sim.scene import Scene
 
@@ -46,10 +47,12 @@ def render_rig_shot(
     noise_std: float = 0.0,
     vignetting: float = 0.0,
     seed: int = 0,
+    lens: LensEffects | None = None,
 ) -> RigShot:
     """``scene`` seen by every camera of ``pipelines``' pairs (of ``rig``, posed at
-    ``T_world_rig``), each camera seeded ``seed`` + its index in ``rig``, and each pair's
-    ground truth (see the module doc)."""
+    ``T_world_rig``), each camera seeded ``seed`` + its index in ``rig`` and through ``lens``
+    (None: the ideal lens) as the rig's camera of that index, and each pair's ground truth (see
+    the module doc)."""
     if not pipelines:
         raise EvaluationError("render: no stereo pairs to render for")
     boxes: dict[str, list[tuple[int, int, int, int]]] = {}
@@ -66,6 +69,8 @@ def render_rig_shot(
             noise_std=noise_std,
             vignetting=vignetting,
             seed=seed + rig.names.index(name),
+            lens=lens,
+            camera_index=rig.names.index(name),
         )
         for name in rig.names
         if name in boxes

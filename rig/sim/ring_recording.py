@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +36,7 @@ from rig.recording import RecordingWriter
 from rig.rectified import RectifiedPair, RectifiedPairConfig, design_rectified_pair
 from rig.rig_pipeline import pair_config
 from rig.ring import pair_label, stereo_pairs
+from rig.sim.lens_effects import LensEffects
 from rig.sim.presets import Preset
 from rig.sim.render import render, render_range
 from rig.sim.scene import room_scene
@@ -43,6 +45,7 @@ from rig.sim.simulate import (
     GROUND_TRUTH_VERSION,
     _frame_seed,
     _npy,
+    _sensor,
     _write_atomic,
     _write_error,
     check_effects,
@@ -99,15 +102,18 @@ def simulate_ring_recording(
     blind_band_px: int | None = None,
     panorama_px_per_deg: float = DEFAULT_PANORAMA_PX_PER_DEG,
     progress: Callable[[int, int], None] | None = None,
+    lens: str | LensEffects = "honest",
 ) -> Path:
     """Render ``frames`` sets (default 5) of the demo room seen by ``preset``'s ring into ``out``
-    (see the module doc); ``out`` must not exist or be an empty directory. Returns ``out``."""
+    (see the module doc); ``out`` must not exist or be an empty directory. Returns ``out``.
+    ``lens``, ``noise_std`` and ``vignetting`` as :func:`rig.sim.simulate.simulate_recording`
+    takes them: each camera through the lens effects of its index in the ring (the honest lens's
+    exposures repeat every two cameras)."""
     rig = preset.rig
     n = DEFAULT_ROOM_FRAMES if frames is None else int(frames)
     if n < 1:
         raise ConfigError(f"frames must be >= 1, got {frames}")
-    noise = preset.noise_std if noise_std is None else float(noise_std)
-    vig = preset.vignetting if vignetting is None else float(vignetting)
+    effects, noise, vig = _sensor(preset, lens, noise_std, vignetting)
     check_effects(noise, vig, supersample)
     band = StereoParams().blind_band_px if blind_band_px is None else int(blind_band_px)
     base = vpc or RectifiedPairConfig()
@@ -139,6 +145,8 @@ def simulate_ring_recording(
         "fps": preset.fps,
         "frames": n,
         "seed": int(seed),
+        "lens": effects.name,
+        "lens_effects": asdict(effects),
         "noise_std": noise,
         "vignetting": vig,
         "supersample": int(supersample),
@@ -158,6 +166,8 @@ def simulate_ring_recording(
                     vignetting=vig,
                     seed=_frame_seed(int(seed), seq, i),
                     color=color,
+                    lens=effects,
+                    camera_index=i,
                 ).image
                 for i, name in enumerate(rig.names)
             ]

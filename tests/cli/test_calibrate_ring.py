@@ -18,6 +18,7 @@ from calibration.formats.api import save_rig
 from tests.conftest import shared_file
 from tests.helpers.command import assert_one_line_error, clean_env, run_rig
 from tests.helpers.ring import RING_CAMERAS, RING_DIR, load_ring, write_ring_recording
+from tests.helpers.rings import IDEAL_LENS_ARGS
 
 pytestmark = pytest.mark.slow
 
@@ -63,7 +64,8 @@ def test_a_rendered_ring_with_two_cameras_turned_is_found_and_written(home: Path
 
     rec = tmp_path / "ring4"
     sim = run_rig(
-        ("sim", "--rig", "ring4", "--frames", "2", "--supersample", "1", "--out", rec), clean_env(home)
+        ("sim", "--rig", "ring4", *IDEAL_LENS_ARGS, "--frames", "2", "--supersample", "1", "--out", rec),
+        clean_env(home),
     )
     assert sim.returncode == 0, sim.stderr
     truth = load_rig(rec / "calibration.yaml")

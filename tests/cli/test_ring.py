@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+from dataclasses import asdict
 from pathlib import Path
 
 import cv2
@@ -19,9 +20,11 @@ from rig.depth import depth_from_png_mm
 from rig.field import pixel_solid_angles
 from rig.panorama import PanoramaSpec, lenses_seeing
 from rig.recording import Recording
+from rig.sim.presets import get_ring_preset
 from tests.conftest import shared_file
 from tests.helpers.command import assert_one_line_error, clean_env, run_rig
 from tests.helpers.ring import RING_CAMERAS, RING_DIR, load_ring, write_ring_recording
+from tests.helpers.rings import IDEAL_LENS_ARGS
 
 pytestmark = pytest.mark.slow
 
@@ -43,7 +46,9 @@ def rig_cmd(home: Path, *args: str | Path, timeout: float = 900) -> subprocess.C
 @pytest.fixture(scope="module")
 def ring4(home: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("ring4") / "rec"
-    rig_cmd(home, "sim", "--rig", "ring4", "--frames", "1", "--supersample", "2", "--out", out)
+    rig_cmd(
+        home, "sim", "--rig", "ring4", *IDEAL_LENS_ARGS, "--frames", "1", "--supersample", "2", "--out", out
+    )
     return out
 
 
@@ -71,6 +76,29 @@ def test_sim_writes_a_recording_of_four_cameras_with_truth(ring4: Path) -> None:
     pano = json.loads((ring4 / "ground_truth" / "panorama.json").read_text())
     assert (pano["width"], pano["height"], pano["pairs"]) == (1440, 720, PAIRS)
     assert np.load(ring4 / "ground_truth" / "panorama" / "000000.npy").shape == (720, 1440)
+
+
+def test_sim_renders_a_ring_through_the_honest_lens_unless_told(
+    ring4: Path, home: Path, tmp_path: Path
+) -> None:
+    """``--lens`` applies to a ring as to a pair: the honest lens by default, each camera with the
+    exposure of its index; the module's ring4 is the ideal lens with the simple sensor model."""
+    out = tmp_path / "honest"
+    result = rig_cmd(home, "sim", "--rig", "ring4", "--scale", "0.25", "--frames", "1", "--supersample", "1",
+                     "--out", out)  # fmt: skip
+    assert "honest lens" in result.stdout
+    meta = json.loads((out / "recording.json").read_text())
+    honest = get_ring_preset("ring4").scaled(0.25).lens
+    assert (meta["lens"], meta["lens_effects"]) == ("honest", json.loads(json.dumps(asdict(honest))))
+    assert (meta["noise_std"], meta["vignetting"]) == (0.0, 0.0)  # the lens's own noise and rim
+    ideal = json.loads((ring4 / "recording.json").read_text())
+    assert (ideal["lens"], ideal["noise_std"], ideal["vignetting"]) == ("ideal", 1.5, 0.35)
+    # The honest lens's exposures alternate (cameras 1 and 3 darker than 2 and 4 here).
+    mean = [float(cv2.imread(str(out / c / "000000.png"), cv2.IMREAD_GRAYSCALE).mean()) for c in RING_CAMERAS]
+    gains = [honest.exposure(k).gain for k in range(4)]
+    assert (mean[0] < mean[1]) == (gains[0] < gains[1]) and (mean[2] < mean[3]) == (gains[2] < gains[3])
+    bad = run_rig(("sim", "--rig", "ring4", "--lens", "fisheye", "--out", tmp_path / "x"), clean_env(home))
+    assert_one_line_error(bad, "unknown --lens 'fisheye'")
 
 
 def test_process_writes_every_pair_and_a_panorama_within_3_percent(ring4: Path, processed: Path) -> None:

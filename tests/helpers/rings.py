@@ -15,6 +15,7 @@ from tests.helpers.recordings import FAST_SUPERVISOR
 from tests.helpers.service import TOKEN
 
 __all__ = [
+    "IDEAL_LENS_ARGS",
     "SMALL_RING_CONFIG",
     "SMALL_RING_PANORAMA_PX_PER_DEG",
     "ring_service_settings",
@@ -22,6 +23,9 @@ __all__ = [
     "write_small_ring",
 ]
 
+#: ``rig sim --rig ring4``'s options for the ideal lens with the preset's simple sensor model (its
+#: noise and vignetting): the renders the ring tests' figures were measured on (docs/ring.md).
+IDEAL_LENS_ARGS = ("--lens", "ideal", "--noise", "1.5", "--vignetting", "0.35")
 #: The rectified pair of the small ring's tests: coarse, so each pair is a few hundred pixels.
 SMALL_RING_CONFIG = RectifiedPairConfig(px_per_deg=2.5)
 #: Its panorama's resolution (the renderer's exact panorama and the pipeline's).
@@ -34,14 +38,20 @@ def small_ring_preset() -> Preset:
 
 
 def write_small_ring(out: Path, frames: int = 2) -> Path:
-    """The small ring's recording at ``out`` (``frames`` sets, no supersampling)."""
+    """The small ring's recording at ``out`` (``frames`` sets, no supersampling): the ideal lens
+    with the preset's simple sensor model (noise, vignetting), as the ring tests' figures were
+    measured."""
+    preset = small_ring_preset()
     return simulate_ring_recording(
-        small_ring_preset(),
+        preset,
         out,
         frames=frames,
         supersample=1,
         vpc=SMALL_RING_CONFIG,
         panorama_px_per_deg=SMALL_RING_PANORAMA_PX_PER_DEG,
+        lens="ideal",
+        noise_std=preset.noise_std,
+        vignetting=preset.vignetting,
     )
 
 
