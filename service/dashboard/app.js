@@ -12,7 +12,9 @@ import { initReadout, loadColorbar, onDepthFrame } from "/dashboard/readout.js";
 
 const HEALTH_PERIOD_MS = 400;
 const IMAGE_IDS = ["depth-img", "confidence-img", "vpc-left", "vpc-right", "raw-left", "raw-right"];
-const CAMERAS = ["left", "right"];
+// The shown pair's two sides (their views, fisheye frames and overlays); the camera table lists
+// every camera /health does.
+const SIDES = ["left", "right"];
 let lastSeq = null;
 let calibration = null;
 let columns = null; // [{id, label, names, digits}] from /counters
@@ -90,16 +92,35 @@ function buildColumns(cols) {
     th.title = (col.names.length > 1 ? col.names.join(" + ") + "\n" : "") + col.help.join("\n");
     head.appendChild(th);
   }
-  for (const name of CAMERAS) {
-    const row = $(`cam-${name}-row`);
-    for (const col of cols) {
+  columns = cols;
+  for (const row of $("health-body").rows) addColumnCells(row, row.dataset.camera);
+}
+
+function addColumnCells(row, name) {
+  for (const col of columns || []) {
+    const td = document.createElement("td");
+    td.id = `cam-${name}-${col.id}`;
+    td.textContent = "–";
+    row.appendChild(td);
+  }
+}
+
+// A row for every camera /health lists that has none yet (in its order), with the columns known.
+function ensureCameraRows(names) {
+  for (const name of names) {
+    if ($(`cam-${name}-row`)) continue;
+    const row = document.createElement("tr");
+    row.id = `cam-${name}-row`;
+    row.dataset.camera = name;
+    for (const [suffix, text] of [["name", name], ["state", "–"], ["reason", ""]]) {
       const td = document.createElement("td");
-      td.id = `cam-${name}-${col.id}`;
-      td.textContent = "–";
+      td.id = `cam-${name}-${suffix}`;
+      td.textContent = text;
       row.appendChild(td);
     }
+    addColumnCells(row, name);
+    $("health-body").appendChild(row);
   }
-  columns = cols;
 }
 
 async function loadCounters() {
@@ -140,7 +161,7 @@ function showPair(v, baselineM) {
       `fx ${v.fx.toFixed(1)} px, ${baseline}`;
     $("depth-what").textContent = "depth z (left pinhole view)";
   }
-  for (const side of CAMERAS) {
+  for (const side of SIDES) {
     $(`vpc-${side}-caption`).textContent = `${side} ${kind} view`;
     $(`footprint-${side}-caption`).textContent =
       latlon ? `${side} fisheye, the overlap outlined` : `${side} fisheye, the pinhole view outlined`;
@@ -153,7 +174,7 @@ async function loadCalibration() {
     if (!r.ok) throw new Error("HTTP " + r.status);
     calibration = await r.json();
     showPair(calibration.vpc, calibration.baseline_m);
-    CAMERAS.forEach(drawFootprint);
+    SIDES.forEach(drawFootprint);
   } catch (err) {
     setTimeout(loadCalibration, 2000);
   }
@@ -178,9 +199,8 @@ function showHealth(h) {
     li.textContent = text;
     return li;
   }));
-  for (const name of CAMERAS) {
-    const cam = h.cameras[name];
-    if (!cam) continue;
+  ensureCameraRows(Object.keys(h.cameras));
+  for (const [name, cam] of Object.entries(h.cameras)) {
     const state = $(`cam-${name}-state`);
     state.textContent = cam.state;
     state.className = cam.state;
@@ -188,7 +208,8 @@ function showHealth(h) {
       ? (cam.degraded_reason || "")
       : (cam.reason || cam.last_error || "");
     for (const col of columns || []) $(`cam-${name}-${col.id}`).textContent = columnText(cam, col);
-    $(`banner-${name}`).hidden = cam.connected;
+    const banner = $(`banner-${name}`); // on the fisheye frames shown: left and right
+    if (banner) banner.hidden = cam.connected;
   }
   showRecording(h.recording);
   const seq = h.worker.last_seq;

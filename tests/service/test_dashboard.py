@@ -121,6 +121,16 @@ def test_dashboard_shows_the_panorama_of_a_ring(lut_cache: Path, tmp_path: Path)
                 timeout=30_000,
             )
             assert "360°" in (page.text_content("#panorama-row figcaption") or "")
+            # The camera table has a row per camera of the ring, with its state and figures.
+            page.wait_for_function(
+                "document.getElementById('cam-cam4-fps') !== null"
+                " && Number(document.getElementById('cam-cam4-fps').textContent) > 0",
+                timeout=20_000,
+            )
+            rows = page.eval_on_selector_all(
+                "#health-body tr", "rows => rows.map(r => [r.cells[0].textContent, r.cells[1].textContent])"
+            )
+            assert rows == [[f"cam{k}", "available"] for k in range(1, 5)]
             page.screenshot(path=str(tmp_path / "dashboard-ring.png"), full_page=True)
     finally:
         live.stop()
