@@ -85,7 +85,12 @@ def steady_pixel(live: LiveServer, truth: np.ndarray) -> tuple[int, int]:
 def hover(page: Any, element: str, u: int, v: int) -> None:
     """The pointer on pixel (u, v) of the image ``element``."""
     box = page.locator(f"#{element}").bounding_box()
-    width, height = page.eval_on_selector(f"#{element}", "e => [e.naturalWidth, e.naturalHeight]")
+    # Read in one go once decoded: a refreshed src has no size until its frame decodes.
+    size = (
+        f"(() => {{ const e = document.getElementById({element!r});"
+        " return e.naturalWidth > 0 ? [e.naturalWidth, e.naturalHeight] : null; })()"
+    )
+    width, height = page.wait_for_function(size, timeout=20_000).json_value()
     # Chromium reports whole CSS pixels for the pointer: pick the whole position whose pixel, by
     # the page's floor((x - left) / width * naturalWidth), is (u, v).
     page.mouse.move(
