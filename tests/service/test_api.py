@@ -292,7 +292,7 @@ def test_dashboard_page_and_assets(shared_app: InProcessServer) -> None:
         'id="depth-img"',
         'id="vpc-left"',
         'id="raw-right"',
-        'id="cam-left-state"',
+        'id="health-body"',
         "/dashboard/app.js",
     ):
         assert element in r.text
