@@ -29,8 +29,10 @@ demo: $(RUN_STAMP)
 # Three workers on two cores: much of the suite waits on sockets, child processes and cameras, and
 # the third worker fills those waits. One BLAS thread per process: the workers and the services
 # they start already fill the cores, and OpenBLAS's idle threads spinning beside them cost time.
+# Bytecode is written even where the environment says not to (PYTHONDONTWRITEBYTECODE): the suite
+# starts hundreds of Python processes, each of which would compile the package again.
 test: $(DEV_STAMP)
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m pytest -n 3 --dist loadscope
+	PYTHONDONTWRITEBYTECODE= OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m pytest -n 3 --dist loadscope
 
 ## lint: ruff (rules, complexity <= 15, format), mypy --strict, import layering (cli -> service -> rig -> calibration)
 lint: $(DEV_STAMP)

@@ -112,20 +112,23 @@ class Watch:
         wait_for(predicate, timeout_s, what, POLL_S)
         return time.monotonic()
 
-    def steady(self) -> Counters:
-        """Wait for status ok with both cameras delivering and no counter moving for 0.5 s."""
+    def steady(self) -> tuple[Counters, dict[str, int]]:
+        """Wait for status ok with both cameras delivering and neither the counters nor the file
+        cameras' late skips (:meth:`late`) moving for 0.5 s; returns both. Read together: a skip
+        is in ``late`` at once but in ``frames_lost`` only when the next frame arrives, so a pair
+        read while one is in flight would count it on one side only."""
         self.until(
             lambda: (h := self.health()).status == "ok" and all(c.connected for c in h.cameras.values()),
             20,
             "a healthy service",
         )
-        previous = self.counters()
+        previous = (self.late(), self.counters(), self.late())
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline:
             time.sleep(0.5)
-            now = self.counters()
-            if now == previous:
-                return now
+            now = (self.late(), self.counters(), self.late())
+            if now == previous and now[0] == now[2]:
+                return now[1], now[2]
             previous = now
         raise AssertionError(f"counters never settled: {previous}")
 
@@ -272,9 +275,8 @@ def check_counts(case: FaultCase, got: Counters, late: dict[str, int]) -> None:
 @pytest.mark.parametrize("name", list(CASES))
 def test_fault_is_reported_recovered_and_counted_exactly(watch: Watch, server: LiveServer, name: str) -> None:
     case = CASES[name]
-    before = watch.steady()
+    before, late_before = watch.steady()
     metrics_before = watch.metric_counters()
-    late_before = watch.late()
     health_before = watch.health()
     errors_before = health_before.worker.errors
     seq_before, _ = watch.depth_meta()
@@ -309,8 +311,8 @@ def test_fault_is_reported_recovered_and_counted_exactly(watch: Watch, server: L
     resumed_at = watch.until(fresh_depth, 15, f"depth to resume after {name}")
 
     # Back to normal; then every counter has settled and is compared exactly.
-    after = watch.steady()
-    late = {n: v - late_before[n] for n, v in watch.late().items()}
+    after, late_after = watch.steady()
+    late = {n: v - late_before[n] for n, v in late_after.items()}
     counted = delta(after, before)
     check_counts(case, counted, late)
     # /metrics says the same as /health, counter for counter.
@@ -335,14 +337,13 @@ def test_a_starved_camera_thread_catches_up_without_a_clock_error(watch: Watch, 
     """The left camera's thread cannot run for 0.8 s (its lock is held: what a CPU-starved
     thread looks like). It then skips the frames due too long ago instead of delivering stale
     ones, which the supervisor would reject as a clock jump and reconnect over."""
-    before = watch.steady()
-    late_before = watch.late()
+    before, late_before = watch.steady()
     cam = server.runtime.capture.camera("left")
     assert isinstance(cam, FileCamera)
     with cam._cond:
         time.sleep(0.8)
-    after = watch.steady()
-    late = {n: v - late_before[n] for n, v in watch.late().items()}
+    after, late_after = watch.steady()
+    late = {n: v - late_before[n] for n, v in late_after.items()}
     assert late["left"] >= 4  # due during the first 0.55 s of the 0.8 s
     no_fault = FaultCase("left", {}, lambda before, now: True, (0.0, 0.0))
     check_counts(no_fault, delta(after, before), late)  # no clock error, no reconnect
