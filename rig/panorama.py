@@ -38,7 +38,7 @@ from calibration.models import EquirectModel
 from calibration.rig import Rig
 from rig.errors import ConfigError
 from rig.rectified import RectifiedPair
-from rig.resample import sample_surface
+from rig.resample import corners_at, padded_surface, sample_padded
 from rig.ring import rig_up
 
 __all__ = [
@@ -194,17 +194,20 @@ def _pull(
     T = pair.T_rig_rect[pair.left]
     centre, R = T[:3, 3], T[:3, :3]
     rng = p.range.astype(np.float64)
+    shape = (rng.shape[0], rng.shape[1])
     offset = spec.origin - centre
     index, far = _far_field(spec, pair)
     keep = _near_valid(np.isfinite(rng), far)
     index, rays, far = index[keep], spec.rays_rig[index[keep]], far[keep]
     r = np.full(index.shape[0], np.inf)
+    surface = padded_surface(rng)  # once: every step reads the same map
     for step in range(iterations):
         q, ok = far, np.ones(far.shape[0], bool)  # the first step: the rays seen from infinity
         if step:
             seen_from_pair = np.where(np.isfinite(r)[:, None], offset + r[:, None] * rays, rays)
             q, ok = pair.camera.project(seen_from_pair @ R, in_image=False)
-        r_pair = np.where(ok, sample_surface(rng, q), np.nan)
+        corners = corners_at(shape, q)
+        r_pair = np.where(ok, sample_padded(surface, corners), np.nan)
         pix_rays, _ = pair.camera.unproject(q, in_image=False)
         point = (pix_rays @ R.T) * r_pair[:, None] - offset  # from the origin
         r_before, r = r, np.einsum("nk,nk->n", point, rays)
@@ -215,9 +218,10 @@ def _pull(
     # Converged: the pair's point lies on the panorama ray (within a thousandth of its range).
     miss = np.linalg.norm(point - r[:, None] * rays, axis=1)
     r = np.where(np.isfinite(r) & (miss <= 1e-3 * np.abs(r)) & (r > 0), r, np.nan)
-    disparity = sample_surface(p.disparity.astype(np.float64), q)
+    # The disparity and the confidence at the last step's pixels: its corners.
+    disparity = sample_padded(padded_surface(p.disparity.astype(np.float64)), corners)
     if p.confidence is not None:
-        conf = np.clip(sample_surface(p.confidence.astype(np.float64), q), 1e-12, 1.0)
+        conf = np.clip(sample_padded(padded_surface(p.confidence.astype(np.float64)), corners), 1e-12, 1.0)
         sigma_px = np.maximum(-p.confidence_sigma_px * np.log(conf), 0.05)
     else:
         sigma_px = np.full(r.shape, default_sigma_px)

@@ -4,8 +4,9 @@ value between two surfaces at an edge, holes not filled from afar."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from rig.resample import sample_surface
+from rig.resample import corners_at, padded_surface, sample_padded, sample_surface
 
 
 def test_a_smooth_surface_is_read_bilinearly() -> None:
@@ -27,3 +28,20 @@ def test_an_edge_is_never_blended_and_holes_are_not_filled() -> None:
     holes[2, 2] = 3.0
     near = sample_surface(holes, np.array([[2.4, 2.4], [3.9, 3.9], [-5.0, 1.0], [np.nan, 1.0]]))
     assert near[0] == 3.0 and np.isnan(near[1:]).all()  # a neighbour counts, a pixel two away does not
+
+
+def test_a_padded_map_and_shared_corners_read_what_sample_surface_does() -> None:
+    """The panorama pads each map once and reads the disparity and the confidence at the range's
+    last pixels: the same values, bit for bit, as a call per read; corners of another size are
+    refused."""
+    rng = np.random.default_rng(1)
+    maps = [rng.uniform(1.0, 5.0, (12, 17)) for _ in range(2)]
+    maps[0][rng.random((12, 17)) < 0.2] = np.nan
+    q = np.stack([rng.uniform(-2, 18, 400), rng.uniform(-2, 13, 400)], axis=1)
+    q[::37] = np.nan
+    corners = corners_at((12, 17), q)
+    for image in maps:
+        shared = sample_padded(padded_surface(image), corners)
+        assert np.array_equal(shared, sample_surface(image, q), equal_nan=True)
+    with pytest.raises(ValueError, match="another size"):
+        sample_padded(padded_surface(np.ones((5, 5))), corners)
