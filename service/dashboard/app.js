@@ -96,13 +96,15 @@ function buildColumns(cols) {
   for (const row of $("health-body").rows) addColumnCells(row, row.dataset.camera);
 }
 
+function addCell(row, id, text) {
+  const td = document.createElement("td");
+  td.id = id;
+  td.textContent = text;
+  row.appendChild(td);
+}
+
 function addColumnCells(row, name) {
-  for (const col of columns || []) {
-    const td = document.createElement("td");
-    td.id = `cam-${name}-${col.id}`;
-    td.textContent = "–";
-    row.appendChild(td);
-  }
+  for (const col of columns || []) addCell(row, `cam-${name}-${col.id}`, "–");
 }
 
 // A row for every camera /health lists that has none yet (in its order), with the columns known.
@@ -113,10 +115,7 @@ function ensureCameraRows(names) {
     row.id = `cam-${name}-row`;
     row.dataset.camera = name;
     for (const [suffix, text] of [["name", name], ["state", "–"], ["reason", ""]]) {
-      const td = document.createElement("td");
-      td.id = `cam-${name}-${suffix}`;
-      td.textContent = text;
-      row.appendChild(td);
+      addCell(row, `cam-${name}-${suffix}`, text);
     }
     addColumnCells(row, name);
     $("health-body").appendChild(row);

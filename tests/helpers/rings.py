@@ -25,7 +25,11 @@ __all__ = [
 
 #: ``rig sim --rig ring4``'s options for the ideal lens with the preset's simple sensor model (its
 #: noise and vignetting): the renders the ring tests' figures were measured on (docs/ring.md).
-IDEAL_LENS_ARGS = ("--lens", "ideal", "--noise", "1.5", "--vignetting", "0.35")
+IDEAL_LENS_ARGS = (
+    "--lens", "ideal",
+    "--noise", f"{get_ring_preset('ring4').noise_std:g}",
+    "--vignetting", f"{get_ring_preset('ring4').vignetting:g}",
+)  # fmt: skip
 #: The rectified pair of the small ring's tests: coarse, so each pair is a few hundred pixels.
 SMALL_RING_CONFIG = RectifiedPairConfig(px_per_deg=2.5)
 #: Its panorama's resolution (the renderer's exact panorama and the pipeline's).
