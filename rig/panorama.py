@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import ConfigDict, Field
 
 from calibration.models import EquirectModel
 from calibration.rig import Rig
@@ -40,12 +41,14 @@ from rig.errors import ConfigError
 from rig.rectified import RectifiedPair
 from rig.resample import corners_at, padded_surface, sample_padded
 from rig.ring import rig_up
+from rig.settings_model import SettingsModel
 
 __all__ = [
     "DEFAULT_PANORAMA_PX_PER_DEG",
     "DISAGREE",
     "FUSED",
     "PairOutput",
+    "PanoramaConfig",
     "PanoramaFrame",
     "PanoramaSpec",
     "fuse_panorama",
@@ -58,10 +61,27 @@ F64 = NDArray[np.float64]
 #: Panorama resolution when none is asked for: coarser than the pairs' lat-lon views (5.6 px/deg),
 #: so that their samples cover it without holes.
 DEFAULT_PANORAMA_PX_PER_DEG = 4.0
+#: The resolutions a panorama may have: a coarser one has too few pixels to show a room, a finer
+#: one more than the pairs' lat-lon views can fill.
+PANORAMA_PX_PER_DEG_RANGE = (0.25, 20.0)
 #: Flag: the range is the inverse-variance mean of two or more pairs that agree.
 FUSED = 1
 #: Flag: a pair that sees this direction disagrees with the best one beyond their predicted error.
 DISAGREE = 2
+
+
+class PanoramaConfig(SettingsModel):
+    """The panorama of a rig of more than two cameras (the service's ``panorama:`` section)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    px_per_deg: float = Field(
+        DEFAULT_PANORAMA_PX_PER_DEG,
+        ge=PANORAMA_PX_PER_DEG_RANGE[0],
+        le=PANORAMA_PX_PER_DEG_RANGE[1],
+        description="pixels per degree of azimuth and elevation (4: 1440x720; the fusion's cost goes "
+        "with its square)",
+    )
 
 
 @dataclass(frozen=True)
@@ -80,8 +100,9 @@ class PanoramaSpec:
     @classmethod
     def for_rig(cls, rig: Rig, px_per_deg: float = DEFAULT_PANORAMA_PX_PER_DEG) -> PanoramaSpec:
         """The panorama of ``rig`` (see the module doc for its frame and origin)."""
-        if not (math.isfinite(px_per_deg) and 0.25 <= px_per_deg <= 20.0):
-            raise ConfigError(f"panorama: px_per_deg must be in [0.25, 20], got {px_per_deg!r}")
+        low, high = PANORAMA_PX_PER_DEG_RANGE
+        if not (math.isfinite(px_per_deg) and low <= px_per_deg <= high):
+            raise ConfigError(f"panorama: px_per_deg must be in [{low:g}, {high:g}], got {px_per_deg!r}")
         axes = np.array([rig.axis(n) for n in rig.names])
         down = -rig_up(rig)
         forward = axes.mean(axis=0)

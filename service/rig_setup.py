@@ -40,8 +40,16 @@ def resolve_calibration(settings: Settings) -> Path:
     )
 
 
-def check_two_cameras(cams: CaptureConfig, rig: Rig, calibration: Path) -> None:
-    """A two-camera calibration needs ``left`` and ``right``, captured as such."""
+def check_two_cameras(settings: Settings, rig: Rig, calibration: Path) -> None:
+    """A two-camera calibration needs ``left`` and ``right``, captured as such, and has no
+    panorama to configure."""
+    cams = settings.cameras
+    assert cams is not None
+    if "panorama" in settings.model_fields_set:
+        raise SettingsError(
+            f"settings: field 'panorama': the calibration {calibration} is a two-camera rig: a panorama is "
+            "fused only on a rig of more than two cameras"
+        )
     for name in CAMERA_NAMES:
         if name not in rig.cameras:
             raise SettingsError(f"{calibration}: the rig has no camera {name!r} (has {', '.join(rig.names)})")
@@ -72,11 +80,14 @@ def ring_pipeline(settings: Settings, rig: Rig, calibration: Path) -> RigPipelin
         raise SettingsError(
             f"{calibration}: no two of the rig's cameras see a common direction: no stereo pair"
         )
-    panorama = PanoramaSpec.for_rig(rig).camera
+    px_per_deg = settings.panorama.px_per_deg
+    panorama = PanoramaSpec.for_rig(rig, px_per_deg).camera
     check_memory(
         ring_estimate(settings, rig, pairs, stereo, (panorama.width, panorama.height)), pairs[0], stereo
     )
-    return RigPipeline(rig, settings.rectified, stereo, cache_dir=settings.cache_dir)
+    return RigPipeline(
+        rig, settings.rectified, stereo, cache_dir=settings.cache_dir, panorama_px_per_deg=px_per_deg
+    )
 
 
 def check_sizes(settings_cams: CaptureConfig, capture: RigCapture, rig: Rig) -> None:

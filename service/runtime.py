@@ -157,7 +157,7 @@ class Runtime:
         stereo = settings.stereo
         ring = ring_pipeline(settings, rig, calibration) if len(rig.names) > 2 else None
         if ring is None:
-            check_two_cameras(settings.cameras, rig, calibration)
+            check_two_cameras(settings, rig, calibration)
             # Before any table is built: a size that cannot fit is refused with the reason.
             planned = design_rectified_pair(rig, settings.rectified, blind_band_px=stereo.blind_band_px)
             check_memory(service_estimate(settings, rig, planned, stereo), planned, stereo)

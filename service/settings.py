@@ -19,6 +19,7 @@ ros: {namespace: /rig}           # rig.ros.RosNames: topic names and frame ids (
 rectification: {check_interval_s: 10, auto_refine: false}   # rig.rectification.RectificationConfig
 depth_watch: {recent_s: 10, reference_s: 60}   # collapsing valid depth is reported (rig.depth_watch)
 pinhole_depth: {width: 640, height: 480, hfov_deg: 90}  # /depth/pinhole: z on a pinhole (rig.pinhole_depth)
+panorama: {px_per_deg: 4}        # a rig of more than two cameras: its fused panorama (rig.panorama)
 cache_dir: null                  # LUT cache (default: $RIG_CACHE_DIR or the user cache dir)
 ```
 
@@ -52,6 +53,7 @@ from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, Settings
 from rig.capture.config import CAMERA_KINDS, CaptureConfig, resolve_camera_paths
 from rig.colormap import DEFAULT_RANGE_M
 from rig.errors import ConfigError
+from rig.panorama import PanoramaConfig
 from rig.pinhole_depth import PinholeDepthConfig
 from rig.rectification.monitor import RectificationConfig
 from rig.rectified import RectifiedPairConfig
@@ -342,6 +344,10 @@ class Settings(BaseSettings):
     )
     depth_watch: DepthWatchSettings = Field(
         default_factory=DepthWatchSettings, description="valid depth that collapses is reported"
+    )
+    panorama: PanoramaConfig = Field(
+        default_factory=PanoramaConfig,
+        description="the panorama fused from every pair of a rig of more than two cameras",
     )
 
     @model_validator(mode="after")

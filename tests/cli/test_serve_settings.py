@@ -96,6 +96,21 @@ def test_a_vpc_that_cannot_fit_in_memory_is_refused_at_start(tmp_path: Path, jpe
     assert "matcher" in line and "MiB this machine has left" in line
 
 
+@pytest.mark.parametrize(
+    ("value", "needle"),
+    [
+        ("2", "field 'panorama': the calibration"),  # a two-camera rig has no panorama
+        ("30", "panorama.px_per_deg"),
+    ],
+)
+def test_a_panorama_the_rig_cannot_have_is_refused_at_start(
+    tmp_path: Path, jpeg_recording: Path, value: str, needle: str
+) -> None:
+    env = clean_env(tmp_path, RIG_PANORAMA__PX_PER_DEG=value)
+    result = run_rig(["serve", "--recording", str(jpeg_recording), "--port", "0"], env)
+    assert_one_line_error(result, needle)
+
+
 def test_the_demo_makes_an_api_token_unless_one_is_configured(
     tmp_path: Path, demo_is: Path, small_recording: SmallRecording, monkeypatch: pytest.MonkeyPatch
 ) -> None:

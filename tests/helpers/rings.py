@@ -61,8 +61,8 @@ def write_small_ring(out: Path, frames: int = 2) -> Path:
 
 def ring_service_settings(recording: Path, tmp: Path, lut_cache: Path, **server: Any) -> Settings:
     """A service on the four cameras of the small ring's ``recording`` (file cameras ``cam1`` to
-    ``cam4``, looping, live timestamps), with a token, recordings under ``tmp/recordings`` and
-    LUTs in ``lut_cache``; ``server`` adds ``server:`` fields."""
+    ``cam4``, looping, live timestamps) and its panorama's resolution, with a token, recordings
+    under ``tmp/recordings`` and LUTs in ``lut_cache``; ``server`` adds ``server:`` fields."""
     camera = {"kind": "file", "recording": str(recording), "pace": 5.0, "loop": True, "timestamps": "live"}
     return load_settings(
         None,
@@ -73,6 +73,7 @@ def ring_service_settings(recording: Path, tmp: Path, lut_cache: Path, **server:
                 "supervisor": FAST_SUPERVISOR.model_dump(),
             },
             "rectified": SMALL_RING_CONFIG.model_dump(),
+            "panorama": {"px_per_deg": SMALL_RING_PANORAMA_PX_PER_DEG},
             "cache_dir": str(lut_cache),
         },
     )

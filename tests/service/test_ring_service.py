@@ -54,6 +54,8 @@ def test_every_pair_and_the_panorama_of_the_latest_set(served: InProcessServer) 
     assert unknown.json()["detail"] == f"no pair 'cam1-cam3'; the rig's pairs: {', '.join(PAIRS)}"
     info = c.get("/panorama/info").json()
     assert info["pairs"] == PAIRS and info["projection"] == "equirect"
+    # The configured resolution (panorama.px_per_deg), not the default's 1440x720.
+    assert (info["width"], info["height"]) == (720, 360) and info["px_per_deg"] == pytest.approx(2.0)
     png = c.get("/panorama")
     assert png.status_code == 200 and png.headers["X-Range-Scale"] == "0.001"
     mm = cv2.imdecode(np.frombuffer(png.content, np.uint8), cv2.IMREAD_UNCHANGED)
