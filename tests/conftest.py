@@ -12,6 +12,7 @@ from typing import Any, TypeVar
 
 import pytest
 
+from tests.helpers.boards import share_renders_under
 from tests.helpers.inputs import missing_input, missing_inputs_line, require_tool, skip_reason
 from tests.helpers.recordings import jpeg_copy
 from tests.helpers.service import (
@@ -22,7 +23,9 @@ from tests.helpers.service import (
     StartServer,
     render_small_recording,
     service_settings,
+    small_recording_at,
 )
+from tests.helpers.shared import made_once, run_root
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("RIG_SHARED_DATA", REPO.parent / "shared" / "data"))
@@ -91,6 +94,15 @@ def pytest_terminal_summary(terminalreporter: Any) -> None:
         terminalreporter.write_line(line, yellow=True, bold=True)
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _board_renders_shared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """The calibration tests' board renders (:func:`tests.helpers.boards.rendered_views`) made
+    once for the run, whichever worker asks first."""
+    share_renders_under(run_root(tmp_path_factory))
+    yield
+    share_renders_under(None)
+
+
 @pytest.fixture(scope="session")
 def lut_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """One LUT cache directory for the whole session: a table is built once, then loaded."""
@@ -106,15 +118,18 @@ def bench_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def small_recording(tmp_path_factory: pytest.TempPathFactory) -> SmallRecording:
-    """The demo room at half the prototype's size: 3 noisy pairs, 320x240 VPC, ground truth."""
-    return render_small_recording(tmp_path_factory.mktemp("demo-small"))
+    """The demo room at half the prototype's size: 3 noisy pairs, 320x240 VPC, ground truth
+    (rendered once for the whole run)."""
+    return small_recording_at(made_once(run_root(tmp_path_factory), "demo-small", render_small_recording))
 
 
 @pytest.fixture(scope="session")
 def jpeg_recording(small_recording: SmallRecording, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The small recording's 3 pairs re-encoded as JPEG, with the rig's calibration.yaml: what an
     MJPEG camera records (corrupt and truncated frames mean what they mean on a UVC camera)."""
-    return jpeg_copy(small_recording.loop, tmp_path_factory.mktemp("jpeg-small") / "rec")
+    return made_once(
+        run_root(tmp_path_factory), "jpeg-small", lambda out: jpeg_copy(small_recording.loop, out)
+    )
 
 
 @pytest.fixture(scope="session")

@@ -58,15 +58,18 @@ def test_three_sets_mixed_so_nothing_is_written(recording: Path, home: Path, tmp
 
 
 def test_a_rendered_ring_with_two_cameras_turned_is_found_and_written(home: Path, tmp_path: Path) -> None:
-    """rig sim's ring4 (exact calibration) given a calibration with cam2 and cam3 turned by 0.3°
-    and 0.22°: the refinement finds the turns again and writes the corrected ring."""
+    """rig sim's ring4 at half size (exact calibration) given a calibration with cam2 and cam3
+    turned by 0.3° and 0.22°: the command finds the turns again and writes the corrected ring.
+    The refinement's accuracy at full size is tests/rig/test_ring_render.py's (in process); here
+    the command's whole path on a ring: render, read, refine, measure, write."""
     from rig.floor_refine import turn_camera
 
     rec = tmp_path / "ring4"
     sim = run_rig(
-        ("sim", "--rig", "ring4", *IDEAL_LENS_ARGS, "--frames", "2", "--supersample", "1", "--out", rec),
+        ("sim", "--rig", "ring4", *IDEAL_LENS_ARGS, "--scale", "0.5", "--frames", "2", "--supersample", "1",
+         "--out", rec),
         clean_env(home),
-    )
+    )  # fmt: skip
     assert sim.returncode == 0, sim.stderr
     truth = load_rig(rec / "calibration.yaml")
     wrong = turn_camera(
@@ -78,9 +81,10 @@ def test_a_rendered_ring_with_two_cameras_turned_is_found_and_written(home: Path
     print(result.stdout)
     assert result.returncode == 0, result.stderr
     figures = couples(result.stdout)
-    # Measured: 26.05, 8.69, 7.48, 2.90 % -> 0.90-1.30 %. Rendered without supersampling (half the
-    # time): the aliasing, not the refinement, sets what is left (0.79-0.93 % with --supersample 2).
-    assert len(figures) == 4 and all(after < 1.5 for _, after in figures.values())
+    # Measured: 12.96, 5.44, 5.32, 4.94 % -> 2.61-3.70 %. What is left is the half-size cameras'
+    # resolution and the aliasing of a render without supersampling, not the turns: at full size
+    # the same command gives 26.05, 8.69, 7.48, 2.90 % -> 0.90-1.30 %.
+    assert len(figures) == 4 and all(after < min(4.5, before) for before, after in figures.values())
     assert max(before for before, _ in figures.values()) > 10.0
     assert "applied: wrote" in result.stdout
     fixed = load_rig(out)

@@ -52,6 +52,7 @@ __all__ = [
     "same_frame",
     "service_overrides",
     "service_settings",
+    "small_recording_at",
     "write_serve_config",
 ]
 
@@ -81,9 +82,14 @@ class SmallRecording:
 
 def render_small_recording(out: Path) -> SmallRecording:
     """The demo room rendered at :data:`SMALL_SPEC` into ``out``."""
-    loop = render_demo(SMALL_SPEC, out)
+    render_demo(SMALL_SPEC, out)
+    return small_recording_at(out)
+
+
+def small_recording_at(out: Path) -> SmallRecording:
+    """The small recording :func:`render_small_recording` rendered into ``out``."""
     gt = np.load(out / "render" / "ground_truth" / "depth" / "000000.npy")
-    return SmallRecording(loop, out / "render", gt)
+    return SmallRecording(out / "loop", out / "render", gt)
 
 
 def service_overrides(
