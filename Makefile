@@ -32,7 +32,7 @@ demo: $(RUN_STAMP)
 # Bytecode is written even where the environment says not to (PYTHONDONTWRITEBYTECODE): the suite
 # starts hundreds of Python processes, each of which would compile the package again.
 test: $(DEV_STAMP)
-	PYTHONDONTWRITEBYTECODE= OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m pytest -n 3 --dist loadscope
+	PYTHONDONTWRITEBYTECODE= OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m pytest -n 3 --dist loadscope --no-loadscope-reorder
 
 ## lint: ruff (rules, complexity <= 15, format), mypy --strict, import layering (cli -> service -> rig -> calibration)
 lint: $(DEV_STAMP)
