@@ -12,7 +12,6 @@ from typing import Any, TypeVar
 
 import pytest
 
-from tests.helpers.boards import share_renders_under
 from tests.helpers.inputs import missing_input, missing_inputs_line, require_tool, skip_reason
 from tests.helpers.recordings import jpeg_copy
 from tests.helpers.service import (
@@ -25,7 +24,7 @@ from tests.helpers.service import (
     service_settings,
     small_recording_at,
 )
-from tests.helpers.shared import made_once, run_root
+from tests.helpers.shared import made_once, run_root, share_under
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("RIG_SHARED_DATA", REPO.parent / "shared" / "data"))
@@ -101,12 +100,12 @@ def pytest_terminal_summary(terminalreporter: Any) -> None:
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _board_renders_shared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
-    """The calibration tests' board renders (:func:`tests.helpers.boards.rendered_views`) made
-    once for the run, whichever worker asks first."""
-    share_renders_under(run_root(tmp_path_factory))
+def _renders_shared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Renders several modules ask for (the calibration tests' boards, the stereo shots) made
+    once for the run, whichever worker asks first (:func:`tests.helpers.shared.once_per_run`)."""
+    share_under(run_root(tmp_path_factory))
     yield
-    share_renders_under(None)
+    share_under(None)
 
 
 @pytest.fixture(scope="session")

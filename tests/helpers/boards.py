@@ -10,10 +10,8 @@ from __future__ import annotations
 
 import functools
 import math
-import pickle
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,7 +22,7 @@ from calibration.targets import detect_chessboard
 from rig.evaluate.renders import board_pose as evaluate_board_pose
 from rig.evaluate.renders import render_board as evaluate_render_board
 from rig.sim import chessboard_corners
-from tests.helpers.shared import made_once
+from tests.helpers.shared import once_per_run
 
 F64 = NDArray[np.float64]
 U8 = NDArray[np.uint8]
@@ -211,33 +209,11 @@ class RenderedViews:
     angles: list[F64]
 
 
-#: Where :func:`rendered_views` keeps its renders for every worker of the run (None: each process
-#: renders its own); set by the tests' conftest (:func:`share_renders_under`).
-_shared_root: Path | None = None
-
-
-def share_renders_under(root: Path | None) -> None:
-    """Keep :func:`rendered_views`' renders under ``root`` (:mod:`tests.helpers.shared`)."""
-    global _shared_root
-    _shared_root = root
-
-
 @functools.cache
+@once_per_run
 def rendered_views(name: str, size: int = 480) -> RenderedViews:
     """:class:`RenderedViews` of ``true_lenses(size)[name]``: :func:`circle_views` for the wide
     lenses, :func:`pinhole_full_views` for the pinhole; rendered once per test run."""
-    if _shared_root is None:
-        return _render_views(name, size)
-    path = made_once(
-        _shared_root,
-        f"board-views-{name}-{size}.pickle",
-        lambda out: out.write_bytes(pickle.dumps(_render_views(name, size))),
-    )
-    views: RenderedViews = pickle.loads(path.read_bytes())
-    return views
-
-
-def _render_views(name: str, size: int) -> RenderedViews:
     lens = true_lenses(size)[name]
     poses = pinhole_full_views() if name == "pinhole" else circle_views()
     images = [render_board(lens, T, supersample=FINE_SUPERSAMPLE) for T in poses]

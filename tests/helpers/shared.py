@@ -3,19 +3,28 @@
 Under pytest-xdist each worker has its own base temporary directory, under one directory of the
 run (:func:`run_root`); :func:`made_once` makes a file or directory there under a lock (the first
 worker to ask makes it, the others wait for it and read it). Without xdist the run's directory
-is the session's own."""
+is the session's own. :func:`once_per_run` does the same for a function's results (renders
+that several test modules ask for with the same arguments), once the tests' conftest has said
+where (:func:`share_under`)."""
 
 from __future__ import annotations
 
 import fcntl
+import functools
+import hashlib
 import os
+import pickle
 import shutil
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeVar
 
 import pytest
 
-__all__ = ["made_once", "run_root"]
+__all__ = ["made_once", "once_per_run", "run_root", "share_under"]
+
+R = TypeVar("R")
+_root: Path | None = None
 
 
 def run_root(factory: pytest.TempPathFactory) -> Path:
@@ -38,3 +47,26 @@ def made_once(root: Path, name: str, make: Callable[[Path], object]) -> Path:
             make(out)
             done.touch()
     return out
+
+
+def share_under(root: Path | None) -> None:
+    """Keep :func:`once_per_run` results under ``root`` (None: each process computes its own)."""
+    global _root
+    _root = root
+
+
+def once_per_run(fn: Callable[..., R]) -> Callable[..., R]:
+    """``fn`` whose result for the same arguments (by their ``repr``) is computed by one worker
+    of the run and read back (pickled) by the others."""
+
+    @functools.wraps(fn)
+    def shared(*args: Any, **kwargs: Any) -> R:
+        if _root is None:
+            return fn(*args, **kwargs)
+        key = repr((fn.__module__, fn.__qualname__, args, sorted(kwargs.items())))
+        name = f"{fn.__name__}-{hashlib.sha256(key.encode()).hexdigest()[:20]}.pickle"
+        path = made_once(_root, name, lambda out: out.write_bytes(pickle.dumps(fn(*args, **kwargs))))
+        result: R = pickle.loads(path.read_bytes())
+        return result
+
+    return shared

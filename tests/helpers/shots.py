@@ -1,5 +1,5 @@
 """Rendered stereo shots with their ground truth, shared by the stereo, pipeline, service and
-bench tests (cached per process).
+bench tests (cached per process, and rendered once per test run: tests.helpers.shared).
 
 Only the part of each fisheye image that the VPC's lookup table reads is rendered
 (``rig.evaluate.renders.render_in_box``: the same lens with its principal point moved sees the
@@ -26,6 +26,7 @@ from rig.evaluate.renders import lut_box, render_in_box
 from rig.lut import build_rectified_lut
 from rig.rectified import RectifiedPair, RectifiedPairConfig, design_rectified_pair
 from rig.sim import Scene, divergent_rig, get_preset, plane_scene, render, room_scene
+from tests.helpers.shared import once_per_run
 
 __all__ = [
     "PINHOLE",
@@ -105,6 +106,7 @@ def _reference_depth(scene: Scene, camera: PinholeModel, T_world_rect: NDArray[n
 
 
 @functools.lru_cache(maxsize=32)
+@once_per_run
 def plane_shot(
     k_baselines: float,
     *,
@@ -132,6 +134,7 @@ def plane_shot(
 
 
 @functools.lru_cache(maxsize=8)
+@once_per_run
 def room_shot(
     seed: int = 0,
     *,
