@@ -20,6 +20,7 @@ from websockets.typing import Subprotocol
 
 SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
 OP_MESSAGE_DATA = 0x01
+UNKNOWN_CHANNEL = "Unknown channel ID: "  # foxglove-sdk's status for a subscription to a channel it lacks
 
 
 @dataclass(frozen=True)
@@ -69,6 +70,16 @@ class FoxgloveClient:
                     c.get("schemaEncoding", ""),
                 )
                 self.channels[ch.topic] = ch
+        elif doc["op"] == "status" and doc["message"].startswith(UNKNOWN_CHANNEL):
+            self._subscribe_again(int(doc["message"].removeprefix(UNKNOWN_CHANNEL)))
+
+    def _subscribe_again(self, channel_id: int) -> None:
+        """foxglove-sdk sends a channel's advertisement before it adds the channel to the
+        viewer's (connected_client.rs, ``advertise_channels``): a subscription sent at once can
+        find it missing and be answered "Unknown channel ID". A viewer subscribes again."""
+        subs = [{"id": k, "channelId": ch.id} for k, ch in self._subs.items() if ch.id == channel_id]
+        if subs:
+            self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
     def wait_for_topics(self, topics: list[str], timeout_s: float = 20.0) -> None:
         deadline = time.monotonic() + timeout_s
