@@ -25,7 +25,8 @@ Ratios are of one run, taken one right after another on a shared machine (the lo
 printed). The memory budget of the ring (:func:`service.memory.ring_estimate`) is printed
 beside the measured peak of the fusion's arrays (tracemalloc) and the process's peak RSS.
 Run: ``.venv/bin/python -m bench.ring_cost`` (``--quick``: the tests' small ring,
-:func:`tests.helpers.rings.write_small_ring`, two sets: seconds).
+:func:`tests.helpers.rings.write_small_ring`, two sets: seconds; ``--panorama-px-per-deg``: another
+panorama resolution, the service's ``panorama.px_per_deg``).
 """
 
 from __future__ import annotations
@@ -163,6 +164,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(prog="python -m bench.ring_cost", description=__doc__.split("\n\n")[0])
     add_common_arguments(parser)
     parser.add_argument("--real", action="store_true", help="the real ring of $RIG_SHARED_DATA")
+    parser.add_argument(
+        "--panorama-px-per-deg",
+        type=float,
+        default=None,
+        help=f"the panorama's resolution (default {DEFAULT_PANORAMA_PX_PER_DEG:g}; --quick: "
+        f"{SMALL_RING_PANORAMA_PX_PER_DEG:g}): the service's panorama.px_per_deg",
+    )
     args = parser.parse_args(argv)
     repeat = args.repeat or (1 if args.quick else 3)
     info = machine_info()
@@ -171,7 +179,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rec = Recording(path)
     rig = load_rig(path / "calibration.yaml")
     config = SMALL_RING_CONFIG if args.quick else RectifiedPairConfig()
-    panorama_px_per_deg = SMALL_RING_PANORAMA_PX_PER_DEG if args.quick else DEFAULT_PANORAMA_PX_PER_DEG
+    panorama_px_per_deg = args.panorama_px_per_deg or (
+        SMALL_RING_PANORAMA_PX_PER_DEG if args.quick else DEFAULT_PANORAMA_PX_PER_DEG
+    )
     ring = RigPipeline(rig, config, tune_malloc=True, panorama_px_per_deg=panorama_px_per_deg)
     pair = ring.first.pair.camera
     pano = ring.panorama.camera

@@ -249,8 +249,8 @@ def test_ring_consistency_bench_measures_the_real_ring(bench_env: Path, tmp_path
 
 def test_ring_cost_bench_times_the_pairs_and_the_panorama(bench_env: Path, tmp_path: Path) -> None:
     path = tmp_path / "ring_cost.json"
-    doc = _written(path, ring_cost.main(["--quick", "--json", str(path)]))
-    assert (doc["cameras"], doc["pairs"]) == (4, 4)
+    doc = _written(path, ring_cost.main(["--quick", "--panorama-px-per-deg", "1.5", "--json", str(path)]))
+    assert (doc["cameras"], doc["pairs"]) == (4, 4) and doc["panorama_size"] == [540, 270]
     for key in (
         "floor_pairs_per_s",
         "pairs_per_s_one_after_the_other",
