@@ -179,9 +179,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     rec = Recording(path)
     rig = load_rig(path / "calibration.yaml")
     config = SMALL_RING_CONFIG if args.quick else RectifiedPairConfig()
-    panorama_px_per_deg = args.panorama_px_per_deg or (
-        SMALL_RING_PANORAMA_PX_PER_DEG if args.quick else DEFAULT_PANORAMA_PX_PER_DEG
-    )
+    panorama_px_per_deg = args.panorama_px_per_deg
+    if panorama_px_per_deg is None:
+        panorama_px_per_deg = SMALL_RING_PANORAMA_PX_PER_DEG if args.quick else DEFAULT_PANORAMA_PX_PER_DEG
     ring = RigPipeline(rig, config, tune_malloc=True, panorama_px_per_deg=panorama_px_per_deg)
     pair = ring.first.pair.camera
     pano = ring.panorama.camera

@@ -178,7 +178,6 @@ def test_record_mcap_from_a_replay(tmp_path: Path) -> None:
     one_error_line(again, "r.mcap: already exists")
 
 
-@pytest.mark.slow
 def complete_chunks(path: Path) -> int:
     """How many whole chunks the MCAP file being written at ``path`` holds so far (0 if none yet)."""
     count = 0
@@ -192,6 +191,7 @@ def complete_chunks(path: Path) -> int:
     return count
 
 
+@pytest.mark.slow
 def test_a_killed_mcap_recording_is_recovered(tmp_path: Path) -> None:
     """SIGKILL in the middle of a paced recording: no file under the final name, the partial
     file recovers to a run of the source's frames, byte-exact and in order."""
