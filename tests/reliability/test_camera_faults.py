@@ -34,7 +34,15 @@ import pytest
 from rig.capture.file_camera import FileCamera
 from service.client import RigClient
 from service.schemas import CameraHealthModel, HealthModel
-from tests.helpers.service import AUTH, REPLAY_FPS, TOKEN, LiveServer, metric_values, service_settings
+from tests.helpers.service import (
+    AUTH,
+    LOAD_REASONS,
+    REPLAY_FPS,
+    TOKEN,
+    LiveServer,
+    metric_values,
+    service_settings,
+)
 from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
@@ -329,8 +337,15 @@ def test_fault_is_reported_recovered_and_counted_exactly(watch: Watch, server: L
     # While it lasted, the service answered every poll and said what was wrong.
     assert all(h.status in ("ok", "degraded") for h in seen)  # one camera kept delivering
     if case.fault["kind"] in ("stall", "disconnect"):
-        degraded = [h for h in seen if h.status == "degraded"]
-        assert degraded and any(f"camera {case.camera} unavailable" in r for r in degraded[0].reasons)
+        # The first thing said about the camera, beyond what a starved machine causes on its own
+        # (LOAD_REASONS: frames dropped, which a loaded run can show before the fault), names it.
+        said = [
+            [r for r in h.reasons if r.startswith(f"camera {case.camera}") and not LOAD_REASONS.fullmatch(r)]
+            for h in seen
+            if h.status == "degraded"
+        ]
+        said = [reasons for reasons in said if reasons]
+        assert said and any(f"camera {case.camera} unavailable" in r for r in said[0]), said[:1]
 
 
 def test_a_starved_camera_thread_catches_up_without_a_clock_error(watch: Watch, server: LiveServer) -> None:
@@ -347,4 +362,6 @@ def test_a_starved_camera_thread_catches_up_without_a_clock_error(watch: Watch, 
     assert late["left"] >= 4  # due during the first 0.55 s of the 0.8 s
     no_fault = FaultCase("left", {}, lambda before, now: True, (0.0, 0.0))
     check_counts(no_fault, delta(after, before), late)  # no clock error, no reconnect
-    assert watch.health().status == "ok"
+    # Back to ok once the frames it skipped leave the drop-rate window (a loaded run can show
+    # them as dropped for up to its 2 s).
+    watch.until(lambda: watch.health().status == "ok", 20, "status ok after the thread caught up")
