@@ -50,6 +50,7 @@ __all__ = [
     "coverage_bins",
     "coverage_with",
     "disparity_shares",
+    "only_points",
     "vertical_by_angle",
 ]
 
@@ -340,4 +341,26 @@ def common_figures(studies: Sequence[ConsistencyStudy]) -> list[dict[str, Consis
             ]
             figures[c.couple.label] = ConsistencyFigures.of(TransferredRange.concat(per))
         out.append(figures)
+    return out
+
+
+def only_points(
+    mine: ConsistencyStudy, other: ConsistencyStudy
+) -> dict[str, tuple[TransferredRange, TransferredRange]]:
+    """Per couple, ``mine``'s points (both studies on the same frames, with ``keep_ranges``) split
+    by their source pixel: (those ``other`` ranges too, those only ``mine`` ranges). The target's
+    range is ``mine``'s everywhere: where the points that only one search ranges stand against
+    the rest of its own range."""
+    theirs = {p.names: p.ranges for p in other.pairs}
+    ranges = {p.names: p.ranges for p in mine.pairs}
+    out = {}
+    for c in mine.couples:
+        src, tgt = c.couple.source, c.couple.target
+        both, only = [], []
+        for i in range(mine.frames):
+            t = transfer_range(ranges[src][i], ranges[tgt][i], c.couple.shared)
+            also = np.isfinite(theirs[src][i].range).ravel()[t.source_index]
+            both.append(t.select(also))
+            only.append(t.select(~also))
+        out[c.couple.label] = (TransferredRange.concat(both), TransferredRange.concat(only))
     return out

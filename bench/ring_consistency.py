@@ -9,7 +9,9 @@ frames; its OCamCalib models and poses, read by the test helper :mod:`tests.help
    the coverage of its view.
 2b. The other search (not with ``--quick``): the coarse-to-fine option (``coarse_to_fine:
    true``; the exact search when the stereo settings ask for the coarse-to-fine one) on the same
-   frames, and both searches' figures on the points both give range for.
+   frames, both searches' figures on the points both give range for, and each search's points
+   split by whether the other ranges their source pixel (what only one search ranges, against
+   the rest of its range).
 3. The same after ``rig calibrate refine``'s refinement of each pair on the ring's frames
    (:func:`rig.rectification.refine.refine_frames`, the library behind the command: it turns
    each pair's right camera; each pair then runs on its own refined calibration).
@@ -55,6 +57,7 @@ from bench.ring_analysis import (
     coverage_bins,
     coverage_with,
     disparity_shares,
+    only_points,
     vertical_by_angle,
 )
 from calibration.rig import Rig
@@ -197,6 +200,39 @@ def _versus_other_search(
         )
     console.print(table)
     out["common"] = {label: {mine: ours[label].as_dict(), other: theirs[label].as_dict()} for label in ours}
+    out["only"] = {
+        mine: _only_table(study, other_study, mine, other),
+        other: _only_table(other_study, study, other, mine),
+    }
+    return out
+
+
+def _only_table(a: ConsistencyStudy, b: ConsistencyStudy, name_a: str, name_b: str) -> dict[str, Any]:
+    """The ``a`` search's points split by whether the ``b`` search ranges their source pixel:
+    whether what only one search ranges is as good as the rest of its range."""
+    table = Table(
+        title=f"2b. the {name_a} search's points, by whether the {name_b} search ranges their source pixel"
+    )
+    table.add_column("couple (source → target)")
+    for col in ("points both range: also / only", "median |e|", "median |dd| px", "median range m"):
+        table.add_column(col, justify="right")
+    out = {}
+    for label, parts in only_points(a, b).items():
+        figures = [ConsistencyFigures.of(t) for t in parts]
+        far = [
+            float(np.median(t.r_target[t.both])) if figures[k].both else float("nan")
+            for k, t in enumerate(parts)
+        ]
+        also, only = figures
+        table.add_row(
+            label,
+            f"{also.both} / {only.both}",
+            f"{100 * also.median_abs:.2f} / {100 * only.median_abs:.2f} %",
+            f"{also.median_abs_px:.2f} / {only.median_abs_px:.2f}",
+            f"{far[0]:.2f} / {far[1]:.2f}",
+        )
+        out[label] = {"also": also.as_dict(), "only": only.as_dict(), "median_range_m": far}
+    console.print(table)
     return out
 
 

@@ -20,6 +20,7 @@ from bench import (
     memory,
     process,
     rectification,
+    ring_analysis,
     ring_consistency,
     ring_cost,
     startup,
@@ -27,9 +28,11 @@ from bench import (
 )
 from calibration.models import MODELS, KannalaBrandtModel
 from rig.depth import depth_to_png_mm, latlon_range
+from rig.evaluate.consistency_study import consistency_study
 from rig.sim import get_preset
+from rig.stereo import StereoParams
 from tests.conftest import shared_file
-from tests.helpers.ring import RING_DIR
+from tests.helpers.ring import RING_DIR, load_ring
 
 
 def _written(path: Path, doc: dict) -> dict:
@@ -245,6 +248,34 @@ def test_ring_consistency_bench_measures_the_real_ring(bench_env: Path, tmp_path
     for figures in couples.values():
         assert 0.0 < figures["median_abs"] < 1.0 and 0.0 < figures["both_share"] < 1.0
     assert all(0.0 < p["mean_coverage"] < 1.0 for p in doc["today"]["pairs"].values())
+
+
+def test_ring_analysis_splits_a_search_s_points_by_the_other_s_range(lut_cache: Path) -> None:
+    """bench.ring_consistency 2b's split: each search's points, on one real frame, by whether the
+    other search ranges their source pixel; the two parts are the whole study's points."""
+    ring = load_ring(shared_file(RING_DIR))
+    frames = ring.frames[:1]
+    studies = [
+        consistency_study(
+            ring.rig,
+            frames,
+            stereo=StereoParams(coarse_to_fine=c2f),
+            cache_dir=str(lut_cache),
+            keep_ranges=True,
+        )
+        for c2f in (False, True)
+    ]
+    for mine, other in (studies, studies[::-1]):
+        split = ring_analysis.only_points(mine, other)
+        for c in mine.couples:
+            also, only = split[c.couple.label]
+            assert also.r_source.size + only.r_source.size == c.figures.points
+            assert int(also.both.sum() + only.both.sum()) == c.figures.both
+            theirs = {p.names: p.ranges[0].range for p in other.pairs}[c.couple.source].ravel()
+            assert np.isfinite(theirs[also.source_index]).all() and np.isnan(theirs[only.source_index]).all()
+    # The coarse-to-fine search ranges more of the ring (measured 0.17 more per pair on 3 frames).
+    c2f_only = ring_analysis.only_points(studies[1], studies[0])
+    assert all(only.both.sum() > 10000 for _, only in c2f_only.values())
 
 
 def test_ring_cost_bench_times_the_pairs_and_the_panorama(bench_env: Path, tmp_path: Path) -> None:
