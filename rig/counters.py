@@ -298,6 +298,13 @@ COUNTERS: tuple[CounterSpec, ...] = (
     ),
     _worker("frames_processed", "counter", "frames", "depth frames published", metric="rig_worker_frames"),
     _worker(
+        "searches_kept",
+        "counter",
+        "frames",
+        "depth frames whose matching kept the last search whole: nothing had changed since "
+        "(stereo.temporal_prior; docs/stereo.md)",
+    ),
+    _worker(
         "errors",
         "counter",
         "pairs",

@@ -82,6 +82,8 @@ class DepthFrame:
     or on two threads at once; ``match``, ``refine``, ``filters``, ``depth`` the stage's; ``total``
     the sum of the stages. It is not a latency: stages of consecutive pairs overlap and wait for
     each other, and the wall time from capture to result is the frame's age (``X-Age-Ms``).
+    ``searched``: the share of the pair the matcher searched afresh (the live stream's temporal
+    prior kept its last search for the rest: :mod:`rig.temporal_prior`; 1.0 without it).
     """
 
     seq: int
@@ -94,6 +96,7 @@ class DepthFrame:
     left_rect: U8
     right_rect: U8
     timings_ms: dict[str, float] = field(default_factory=dict)
+    searched: float = 1.0
 
 
 @dataclass
@@ -121,6 +124,7 @@ class MatchedImages:
     matcher: StereoMatcher
     unfiltered: UnfilteredDisparity
     match_ms: float
+    searched: float = 1.0
 
 
 def _reaching(params: StereoParams, rig: Rig, config: RectifiedPairConfig) -> StereoParams:
@@ -191,6 +195,8 @@ class DepthPipeline:
         self._apply_lock = threading.Lock()
         self._process_lock = threading.Lock()
         self._match_lock = threading.Lock()
+        # The geometry of the live stream's last frame (the temporal prior's history is of it).
+        self._stream_geometry: PairGeometry | None = None
         self._postprocess_lock = threading.Lock()
         self._postprocess = PostprocessStage(self.pair.camera, self.baseline_m, self._in_effect.matcher)
 
@@ -368,11 +374,16 @@ class DepthPipeline:
         """Stage 2 of :meth:`process`: the current matcher's search (the speckle removal after it
         is :meth:`postprocess`'s, so that it overlaps the next pair's search). Callers are
         serialised (an OpenCV matcher keeps scratch buffers). ``temporal_prior``: the pairs are
-        a live stream in order, and the coarse-to-fine search may reuse the coarse level of rows
-        that did not change (``stereo.temporal_prior``; the service's worker)."""
+        a live stream in order, and the search may reuse what it found where the images did not
+        change (``stereo.temporal_prior``; the service's worker; :mod:`rig.temporal_prior`)."""
         with self._match_lock:
             matcher = self._in_effect.matcher
-            seen = (rect.geometry or self._in_effect.geometry).seen
+            geometry = rect.geometry or self._in_effect.geometry
+            if temporal_prior and geometry is not self._stream_geometry:
+                # A corrected calibration: what was found through the old tables does not carry over.
+                matcher.forget()
+                self._stream_geometry = geometry
+            seen = geometry.seen
             t0 = time.perf_counter()
             views = matcher_views(matcher.params, rect.left_gray, rect.right_gray)
             unfiltered = matcher.compute(
@@ -387,7 +398,8 @@ class DepthPipeline:
                 # The coarse-to-fine search's normalisation is of its input; the refinement's
                 # is of the rectified images as they are (it makes its own).
                 unfiltered.normalised = None
-            return MatchedImages(rect, matcher, unfiltered, (time.perf_counter() - t0) * 1e3)
+            searched = matcher.searched_fraction if temporal_prior else 1.0
+            return MatchedImages(rect, matcher, unfiltered, (time.perf_counter() - t0) * 1e3, searched)
 
     def _disparity(self, matched: MatchedImages) -> MatchedDisparity:
         """The matcher's disparity of ``matched`` (speckles removed), LUT masks applied."""
@@ -431,6 +443,7 @@ class DepthPipeline:
             rect.left_rect,
             rect.right_rect,
             timings,
+            matched.searched,
         )
 
     def process(self, left: U8, right: U8, seq: int = 0, ts_ns: int = 0) -> DepthFrame:

@@ -32,11 +32,12 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
-from rig.coarse_to_fine import CoarseToFine, FineLevel
+from rig.coarse_to_fine import CoarseToFine, FineLevel, downsample
 from rig.disparity import MatchedDisparity, SeenColumns, UnfilteredDisparity
 from rig.errors import PipelineError
 from rig.filters import fill_where, left_right_consistent
 from rig.settings_model import SettingsModel
+from rig.temporal_prior import LastSearch
 
 __all__ = [
     "COARSE_HALF_UP_TO",
@@ -133,7 +134,7 @@ class StereoParams(SettingsModel):
     # The coarse-to-fine search (rig.coarse_to_fine; docs/stereo.md, "Coarse-to-fine search").
     coarse_to_fine: bool = Field(False, description="whole range at a coarse level, full resolution in bands")
     coarse_scale: Literal[0, 2, 4] = Field(0, description="coarse level 1/2 or 1/4 (0: 1/2 up to 128 disp.)")
-    temporal_prior: bool = Field(True, description="live: unchanged rows keep their last coarse search")
+    temporal_prior: bool = Field(True, description="live: what did not change keeps its last search")
     coarse_confirm: bool = Field(
         False, description="coarse level also on the views not normalised: keep what both find, inward"
     )
@@ -315,6 +316,8 @@ class StereoMatcher:
         deferred = {"speckle_size": 0} if self._deferred_speckles else {}
         self._matcher = create_opencv_matcher(self.params.model_copy(update=deferred))
         self.coarse_to_fine_search = _coarse_to_fine(self.params)
+        # The live stream's memory of the exact search (stereo.temporal_prior).
+        self.last_search = LastSearch()
 
     def _compute(self, left: U8, right: U8) -> NDArray[np.int16]:
         try:
@@ -350,18 +353,41 @@ class StereoMatcher:
         (:mod:`rig.coarse_to_fine`; ``pool`` its threads, ``temporal_prior`` for a live stream of
         frames in order, when ``stereo.temporal_prior`` allows; ``unnormalised``: the pair
         before :mod:`rig.match_input`'s normalisation, for ``coarse_confirm``) or the OpenCV
-        matcher over the whole range. With ``seen``, each run matches only the columns its reference lens sees
-        (and those their matches and windows need); the others are invalid."""
+        matcher over the whole range (with ``temporal_prior``, a frame in which nothing changed
+        keeps its last search: :class:`rig.temporal_prior.LastSearch`). With ``seen``, each run
+        matches only the columns its reference lens sees (and those their matches and windows
+        need); the others are invalid."""
         self._check(left, right)
+        prior = temporal_prior and self.params.temporal_prior
         if self.coarse_to_fine_search is not None:
-            prior = temporal_prior and self.params.temporal_prior
             return self.coarse_to_fine_search.compute(
                 left, right, seen, pool=pool, temporal_prior=prior, unnormalised=unnormalised
             )
+        halved = (downsample(left, 2), downsample(right, 2)) if prior else None
+        if halved is not None and (kept := self.last_search.kept(*halved)) is not None:
+            return kept
         mirrored, unsearched = None, left.shape[1]
         if self.params.lr_check:
             mirrored, unsearched = self.mirrored_view(left, right, seen)
-        return UnfilteredDisparity(self.left_view(left, right, seen), mirrored, unsearched)
+        found = UnfilteredDisparity(self.left_view(left, right, seen), mirrored, unsearched)
+        if halved is not None:
+            self.last_search.remember(*halved, found)
+        return found
+
+    def forget(self) -> None:
+        """Drop the live stream's history (the temporal prior's): the next frame is searched whole."""
+        if self.coarse_to_fine_search is not None:
+            self.coarse_to_fine_search.prior.reset()
+        self.last_search = LastSearch()
+
+    @property
+    def searched_fraction(self) -> float:
+        """The share of the last live frame the search searched again (the temporal prior's; 1.0
+        without it): the coarse-to-fine search's coarse rows, the exact search's whole frame or
+        nothing."""
+        if self.coarse_to_fine_search is not None:
+            return self.coarse_to_fine_search.prior.searched_fraction
+        return self.last_search.searched_fraction
 
     def left_view(self, left: U8, right: U8, seen: SeenColumns | None = None) -> NDArray[np.int16]:
         """The OpenCV matcher's fixed-point disparity of the left view (:meth:`compute`'s exact

@@ -238,6 +238,7 @@ class DepthWorker:
         # The set's processing time: each stage summed over its pairs (DepthFrame's convention).
         stages = dict.fromkeys(k for f in pairs.values() for k in f.timings_ms)
         lead.timings_ms = {k: sum(f.timings_ms.get(k, 0.0) for f in pairs.values()) for k in stages}
+        lead.searched = max(f.searched for f in pairs.values())  # kept: every pair's search
         frames = entry.set
         ring = RingResult(self.ring, frames, pairs)
         self._publish_frames(frames, lead, frames.frame(first.names[0]), frames.frame(first.names[1]), ring)
@@ -256,6 +257,8 @@ class DepthWorker:
         arrived = max(f.host_ns for f in pair.frames)
         with self._lock:
             self._counters.add("frames_processed")
+            if frame.searched == 0.0:
+                self._counters.add("searches_kept")
             index = self._counters["frames_processed"]
         result = PublishedResult(
             index=index,

@@ -1,5 +1,6 @@
-"""The live service's temporal prior (rig.temporal_prior): rows whose images did not change keep
-their last coarse search, and an object entering the view is found in the first frame it is in.
+"""The live service's temporal prior (rig.temporal_prior): what did not change keeps its last
+search (the coarse-to-fine search's coarse rows, the exact search's whole frame), and an object
+entering the view is found in the first frame it is in, with either search.
 
 Renders of the demo room through the half-size prototype (a 320×240 pinhole pair): three frames
 of the static room (each with its own sensor noise), then a textured box hanging 0.6 m ahead of
@@ -16,7 +17,9 @@ import pytest
 from numpy.typing import NDArray
 
 from calibration.geometry import make_transform
-from rig.pipeline import DepthFrame, DepthPipeline
+from calibration.rig import Rig
+from rig import temporal_prior
+from rig.pipeline import DepthFrame, DepthPipeline, RectifiedImages
 from rig.rectified import RectifiedPairConfig
 from rig.sim import Scene, make_texture, room_scene
 from rig.sim.render import render_range
@@ -27,6 +30,8 @@ from tests.helpers.shots import add_noise, prototype_rig, render_for_pair
 
 VPC = RectifiedPairConfig(width=320, height=240)
 STEREO = StereoParams(coarse_to_fine=True, disparity_range=64)
+EXACT = STEREO.model_copy(update={"coarse_to_fine": False})
+SEARCHES = {"coarse-to-fine": STEREO, "exact": EXACT}
 NOISE = 1.5
 U8 = NDArray[np.uint8]
 
@@ -66,22 +71,22 @@ def _frame(pipe: DepthPipeline, pair: tuple[U8, U8], seed: int, *, prior: bool) 
 
 
 def _searched(pipe: DepthPipeline) -> float:
-    search = pipe.in_effect.matcher.coarse_to_fine_search
-    assert search is not None
-    return search.prior.searched_fraction
+    return pipe.in_effect.matcher.searched_fraction
 
 
+@pytest.mark.parametrize("search", SEARCHES)
 def test_an_object_entering_the_view_has_depth_in_its_first_frame(
-    renders: tuple[DepthPipeline, dict[str, tuple[U8, U8]], dict[str, np.ndarray]],
+    renders: tuple[DepthPipeline, dict[str, tuple[U8, U8]], dict[str, np.ndarray]], search: str
 ) -> None:
     pipe, images, truth = renders
-    pipe.apply(stereo=STEREO)  # a new matcher: an empty history
+    stereo = SEARCHES[search]
+    pipe.apply(stereo=stereo)  # a new matcher: an empty history
     static = [_frame(pipe, images["room"], seed, prior=True) for seed in range(3)]
     searched_static = _searched(pipe)
     entering = _frame(pipe, images["box"], 3, prior=True)
     searched_entering = _searched(pipe)
     # The same frame searched whole (no history), by a matcher of its own.
-    pipe.apply(stereo=STEREO)
+    pipe.apply(stereo=stereo)
     whole = _frame(pipe, images["box"], 3, prior=False)
     box = truth["box"] < truth["room"] - 0.5  # where the box hides the room
     rel = {k: np.abs(f.range / truth["box"] - 1.0) for k, f in (("prior", entering), ("whole", whole))}
@@ -92,14 +97,15 @@ def test_an_object_entering_the_view_has_depth_in_its_first_frame(
         for k, f in (("prior", entering), ("whole", whole))
     }
     print(
-        f"\nbox: {box.sum()} px; rows searched: static frames {searched_static:.3f}, the box's frame "
+        f"\n{search}: box: {box.sum()} px; searched: static frames {searched_static:.3f}, the box's frame "
         f"{searched_entering:.3f}; box within 5 %: prior {found['prior']:.3f}, whole search "
         f"{found['whole']:.3f}; the room's range on it: prior {behind['prior']:.4f}, whole search "
         f"{behind['whole']:.4f}"
     )
     assert box.sum() > 1500, "the box is in view"
-    # Static frames: only the bands due for their periodic search (and their neighbours).
-    assert searched_static < 0.25
+    # Static frames: only the bands due for their periodic search (and their neighbours); the
+    # exact search nothing.
+    assert searched_static < (0.25 if stereo.coarse_to_fine else 0.001)
     # The box's rows were searched again, and its depth is there in its first frame, as in a
     # whole search of that frame; nothing of the room that was there before is left on it.
     assert searched_entering > searched_static
@@ -112,56 +118,129 @@ def test_an_object_entering_the_view_has_depth_in_its_first_frame(
     assert all(f.valid.mean() > 0.6 for f in static)
 
 
+@pytest.mark.parametrize("search", SEARCHES)
 def test_a_prior_trusted_blindly_would_hide_the_object(
     renders: tuple[DepthPipeline, dict[str, tuple[U8, U8]], dict[str, np.ndarray]],
     monkeypatch: pytest.MonkeyPatch,
+    search: str,
 ) -> None:
     """The control for the test above: the same frames with the change detection switched off
-    (no band ever searched again) lose the box, so finding it is the detection's doing."""
+    (nothing ever searched again) lose the box, so finding it is the detection's doing."""
     pipe, images, truth = renders
-    pipe.apply(stereo=STEREO)
+    pipe.apply(stereo=SEARCHES[search])
     _frame(pipe, images["room"], 0, prior=True)
     monkeypatch.setattr(TemporalPrior, "spans", lambda self, left, right: [])
+    monkeypatch.setattr(temporal_prior, "changed_bands", lambda left, *_: np.zeros(len(left), dtype=bool))
     entering = _frame(pipe, images["box"], 3, prior=True)
     box = truth["box"] < truth["room"] - 0.5
     near = np.nan_to_num(np.abs(entering.range[box] / truth["box"][box] - 1.0), nan=np.inf) < 0.05
-    print(f"\nbox within 5 % with a blind prior: {near.mean():.3f}")
+    print(f"\n{search}: box within 5 % with a blind prior: {near.mean():.3f}")
+    assert _searched(pipe) < 0.25
     assert near.mean() < 0.3
 
 
+@pytest.mark.parametrize("search", SEARCHES)
 def test_static_frames_keep_the_whole_searchs_depth(
-    renders: tuple[DepthPipeline, dict[str, tuple[U8, U8]], dict[str, np.ndarray]],
+    renders: tuple[DepthPipeline, dict[str, tuple[U8, U8]], dict[str, np.ndarray]], search: str
 ) -> None:
     pipe, images, truth = renders
-    pipe.apply(stereo=STEREO)
+    pipe.apply(stereo=SEARCHES[search])
     frames = [_frame(pipe, images["room"], seed, prior=True) for seed in range(4)]
-    pipe.apply(stereo=STEREO)
+    pipe.apply(stereo=SEARCHES[search])
     whole = _frame(pipe, images["room"], 3, prior=False)
 
     def within(frame: DepthFrame) -> float:
         return float(np.mean(np.nan_to_num(np.abs(frame.range / truth["room"] - 1.0), nan=np.inf) < 0.03))
 
-    print(f"\nroom within 3 %: with the prior {within(frames[-1]):.3f}, whole search {within(whole):.3f}")
-    assert within(frames[-1]) > within(whole) - 0.005
+    prior, fresh = within(frames[-1]), within(whole)
+    print(f"\n{search}: room within 3 %: with the prior {prior:.3f}, whole search {fresh:.3f}")
+    assert prior > fresh - 0.005
     assert np.mean(frames[-1].valid == whole.valid) > 0.98
 
 
+@pytest.mark.parametrize("search", SEARCHES)
 def test_the_stream_only_uses_its_history_when_asked(
-    renders: tuple[DepthPipeline, dict[str, tuple[U8, U8]], dict[str, np.ndarray]],
+    renders: tuple[DepthPipeline, dict[str, tuple[U8, U8]], dict[str, np.ndarray]], search: str
 ) -> None:
     pipe, images, _ = renders
-    pipe.apply(stereo=STEREO)
+    stereo = SEARCHES[search]
+    pipe.apply(stereo=stereo)
     _frame(pipe, images["room"], 0, prior=True)
     _frame(pipe, images["room"], 1, prior=True)
     assert _searched(pipe) < 0.25
     # A pair outside the stream (a snapshot, a check) is searched whole and leaves the history.
     pipe.process(*images["box"])
     assert _searched(pipe) < 0.25
+    _frame(pipe, images["room"], 2, prior=True)
+    assert _searched(pipe) < 0.25
     # temporal_prior off in the settings: every frame searched whole.
-    pipe.apply(stereo=STEREO.model_copy(update={"temporal_prior": False}))
+    pipe.apply(stereo=stereo.model_copy(update={"temporal_prior": False}))
     for seed in range(2):
         _frame(pipe, images["room"], seed, prior=True)
         assert _searched(pipe) == 1.0
+
+
+def _exact_stream(
+    renders: tuple[DepthPipeline, dict[str, tuple[U8, U8]], dict[str, np.ndarray]],
+) -> tuple[RectifiedImages, StereoMatcher]:
+    """The room's rectified pair and a new exact-search matcher (an empty history)."""
+    pipe, images, _ = renders
+    pipe.apply(stereo=EXACT)
+    return pipe.rectify(*images["room"]), pipe.in_effect.matcher
+
+
+def test_the_exact_search_searches_again_at_least_every_max_age_frames(
+    renders: tuple[DepthPipeline, dict[str, tuple[U8, U8]], dict[str, np.ndarray]],
+) -> None:
+    rect, matcher = _exact_stream(renders)
+    searched = []
+    for _ in range(2 * MAX_AGE + 1):
+        matcher.compute(rect.left_gray, rect.right_gray, temporal_prior=True)
+        searched.append(matcher.searched_fraction)
+    # The same images every frame: searched on the first, then once every MAX_AGE frames.
+    assert [i for i, f in enumerate(searched) if f == 1.0] == [0, MAX_AGE, 2 * MAX_AGE]
+
+
+def test_a_kept_search_is_a_copy_the_caller_may_filter(
+    renders: tuple[DepthPipeline, dict[str, tuple[U8, U8]], dict[str, np.ndarray]],
+) -> None:
+    """disparity_of filters the search's arrays in place: what the next frame keeps is untouched."""
+    rect, matcher = _exact_stream(renders)
+    first = matcher.compute(rect.left_gray, rect.right_gray, temporal_prior=True)
+    expected = first.left.copy()
+    first.left[:] = 0
+    kept = matcher.compute(rect.left_gray, rect.right_gray, temporal_prior=True)
+    assert matcher.searched_fraction == 0.0
+    np.testing.assert_array_equal(kept.left, expected)
+    assert kept.mirrored is not None and kept.left is not first.left
+
+
+def test_a_corrected_calibration_searches_again(
+    renders: tuple[DepthPipeline, dict[str, tuple[U8, U8]], dict[str, np.ndarray]],
+) -> None:
+    """The rectification refinement swaps the tables under a running stream: the history was
+    found through the old ones, so the next frame is searched whole."""
+    pipe, images, _ = renders
+    pipe.apply(stereo=EXACT)
+    _frame(pipe, images["room"], 0, prior=True)
+    _frame(pipe, images["room"], 1, prior=True)
+    assert _searched(pipe) == 0.0
+    rig = pipe.in_effect.geometry.rig
+    turned = {
+        **rig.T_rig_cam,
+        "right": rig.T_rig_cam["right"] @ make_transform(_turned(0.02), [0.0, 0.0, 0.0]),
+    }
+    pipe.apply(rig=Rig(rig.cameras, turned))
+    _frame(pipe, images["room"], 2, prior=True)
+    assert _searched(pipe) == 1.0
+    _frame(pipe, images["room"], 3, prior=True)
+    assert _searched(pipe) == 0.0
+
+
+def _turned(deg: float) -> NDArray[np.float64]:
+    """A rotation of ``deg`` about the y axis."""
+    a = np.deg2rad(deg)
+    return np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
 
 
 def _coarse_pair(seed: int, shape: tuple[int, int] = (64, 80)) -> tuple[U8, U8]:
