@@ -19,7 +19,8 @@ published result, the previous one the worker prefetches from, one a client stil
 
 and once: the lookup tables (float maps 8, fixed-point maps 6, mask 1 byte per ``P`` and camera),
 the matcher's buffers (SGBM: ``32·W·D`` per thread; its full 8-path mode keeps the whole cost
-volume, ``4·P·D``), the finish stage's temporaries (60 bytes per ``P``), and the frames waiting
+volume, ``4·P·D``), the finish stage's temporaries (60 bytes per ``P``), the temporal prior's
+history (5 bytes per ``P``), and the frames waiting
 in the capture's buffers (``buffer_size + pair_buffer`` per camera, raw and gray: 2 bytes per
 ``C``).
 """
@@ -46,6 +47,9 @@ _RECT_BYTES_PER_FRAME = 2 + 6 + 12 + 1 + 2 + 17
 _CAMERA_BYTES_PER_FRAME = 5
 _LUT_BYTES = 8 + 6 + 1
 _FINISH_TEMPORARIES = 60
+# The live stream's temporal prior (rig.temporal_prior): the kept search's two int16 views and the
+# pair at 2x2 block means (the coarse-to-fine search keeps less: float32 fields at a quarter).
+_PRIOR_BYTES = 2 + 2 + 1
 _SGBM_THREAD_BYTES_PER_WD = 32
 _QUEUED_FRAME_BYTES = 2
 # A ring's panorama, per pixel: per frame alive its range, sigma (float32), source, flags and
@@ -103,7 +107,7 @@ def pipeline_parts(
             "lookup_tables": 2 * _LUT_BYTES * p,
             "rectified_frames": FRAMES_ALIVE * _RECT_BYTES_PER_FRAME * p,
             "camera_frames": FRAMES_ALIVE * _CAMERA_BYTES_PER_FRAME * c,
-            "matcher": matcher + _FINISH_TEMPORARIES * p,
+            "matcher": matcher + (_FINISH_TEMPORARIES + _PRIOR_BYTES * stereo.temporal_prior) * p,
             "capture_buffers": queued_frames_per_camera * _QUEUED_FRAME_BYTES * c,
         }
     )
