@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from calibration.geometry import make_transform
+from calibration.geometry import make_transform, rot_y
 from calibration.rig import Rig
 from rig import temporal_prior
 from rig.pipeline import DepthFrame, DepthPipeline, RectifiedImages
@@ -228,19 +228,13 @@ def test_a_corrected_calibration_searches_again(
     rig = pipe.in_effect.geometry.rig
     turned = {
         **rig.T_rig_cam,
-        "right": rig.T_rig_cam["right"] @ make_transform(_turned(0.02), [0.0, 0.0, 0.0]),
+        "right": rig.T_rig_cam["right"] @ make_transform(rot_y(np.deg2rad(0.02)), [0.0, 0.0, 0.0]),
     }
     pipe.apply(rig=Rig(rig.cameras, turned))
     _frame(pipe, images["room"], 2, prior=True)
     assert _searched(pipe) == 1.0
     _frame(pipe, images["room"], 3, prior=True)
     assert _searched(pipe) == 0.0
-
-
-def _turned(deg: float) -> NDArray[np.float64]:
-    """A rotation of ``deg`` about the y axis."""
-    a = np.deg2rad(deg)
-    return np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
 
 
 def _coarse_pair(seed: int, shape: tuple[int, int] = (64, 80)) -> tuple[U8, U8]:
