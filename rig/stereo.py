@@ -14,11 +14,12 @@ print): SGBM_3WAY, a 7 px window, speckle removal, our subpixel refinement with 
 left-right check on, chosen against *phantom obstacles*: a repetitive or weak texture matched with
 its next repeat gives a disparity one period too large, a near surface that is not there. Fewer
 disparities leave fewer wrong periods within reach, and the left-right check removes most of
-the rest; the price is the nearest depth (fx·B/96 at the VPC's fx) and a second matcher run
-(both measured in docs/stereo.md). The temporal filter is off (it lags moving scenes). The
-coarse-to-fine search costs about half the matching's CPU; since the normalised match input it
-is measurably worse than the exact search on the real ring and the lat-lon renders' phantoms
-(docs/stereo.md, "Coarse-to-fine search"), so it is off by default.
+the rest; the price is the nearest depth (fx·B/96 at the VPC's fx) and a second matcher run,
+at half resolution (:mod:`rig.half_check`; both measured in docs/stereo.md). The temporal
+filter is off (it lags moving scenes). The coarse-to-fine search costs about half the
+matching's CPU; since the normalised match input it is measurably worse than the exact search
+on the real ring and the lat-lon renders' phantoms (docs/stereo.md, "Coarse-to-fine search"),
+so it is off by default.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from rig.coarse_to_fine import CoarseToFine, FineLevel, downsample
 from rig.disparity import MatchedDisparity, SeenColumns, UnfilteredDisparity
 from rig.errors import PipelineError
 from rig.filters import fill_where, left_right_consistent
+from rig.half_check import half_mirrored_view
 from rig.settings_model import SettingsModel
 from rig.temporal_prior import LastSearch
 
@@ -43,6 +45,7 @@ __all__ = [
     "COARSE_HALF_UP_TO",
     "COARSE_P2_FACTOR",
     "COST_PER_WINDOW_PIXEL",
+    "HALF_CHECK_TOLERANCE",
     "MAX_PATH_COST",
     "SGBM_MODES",
     "MatchedDisparity",
@@ -79,6 +82,11 @@ COARSE_HALF_UP_TO = 128
 #: ones, and a stiffer coarse level keeps repetitive texture from locking onto the wrong period
 #: (measured: docs/stereo.md, "Coarse-to-fine search").
 COARSE_P2_FACTOR = 4
+#: The left-right check's tolerance at half resolution over ``lr_max_diff``: the check compares a
+#: full-resolution disparity with one of pixels twice the size, and its tolerance scales with the
+#: mean of the two views' pixel sizes, (1 + 2) / 2 (docs/stereo.md, "Left-right check at half
+#: resolution", measured on the real ring).
+HALF_CHECK_TOLERANCE = 1.5
 
 
 class StereoParams(SettingsModel):
@@ -125,7 +133,7 @@ class StereoParams(SettingsModel):
     subpixel: bool = Field(True, description="gradient-based subpixel refinement (rig.subpixel)")
     subpixel_window: int = Field(15, ge=3, le=31, description="refinement window (odd, px)")
     lr_check: bool = Field(True, description="full left-right consistency check (2nd matcher run)")
-    lr_max_diff: float = Field(1.0, gt=0.0, le=16.0, description="LR check tolerance (px)")
+    lr_max_diff: float = Field(1.0, gt=0.0, le=16.0, description="LR check tolerance (px; x1.5 at half res.)")
     median: Literal[0, 3, 5] = Field(5, description="median filter on disparity (0 = off)")
     temporal_alpha: float = Field(0.0, ge=0.0, lt=1.0, description="weight of the past frame (0 = off)")
     temporal_reset: float = Field(1.0, gt=0.0, le=64.0, description="disparity change that restarts (px)")
@@ -137,6 +145,9 @@ class StereoParams(SettingsModel):
     temporal_prior: bool = Field(True, description="live: what did not change keeps its last search")
     coarse_confirm: bool = Field(
         False, description="coarse level also on the views not normalised: keep what both find, inward"
+    )
+    lr_check_scale: Literal[1, 2] = Field(
+        2, description="the LR check's mirrored search at full (1) or half (2) resolution (rig.half_check)"
     )
 
     @field_validator("sgbm_mode", mode="before")
@@ -206,27 +217,44 @@ class StereoParams(SettingsModel):
             return 1
         return self.coarse_scale or (2 if self.disparity_range <= COARSE_HALF_UP_TO else 4)
 
-    def coarse_span(self) -> tuple[int, int, int]:
+    @property
+    def check_factor(self) -> int:
+        """The resolution of the left-right check's mirrored search: 1 (full) or 2 (half,
+        ``lr_check_scale``; the exact SGBM search with the check only)."""
+        if not self.lr_check or self.coarse_factor > 1 or self.stereo_algorithm != 1:
+            return 1
+        return self.lr_check_scale
+
+    @property
+    def lr_tolerance(self) -> float:
+        """The left-right check's tolerance (px): ``lr_max_diff``, times
+        :data:`HALF_CHECK_TOLERANCE` when the check's view is the half-resolution one."""
+        return self.lr_max_diff * (HALF_CHECK_TOLERANCE if self.check_factor == 2 else 1.0)
+
+    def coarse_span(self, scale: int | None = None) -> tuple[int, int, int]:
         """The coarse level's smallest disparity, the range that covers this one (rounded up to
         a multiple of 16) and how far it searches beyond that (16 per 64, at least 16: a surface
         found there is too near and gets no depth, rather than a wrong match within the range);
-        coarse px."""
-        s = self.coarse_factor
+        coarse px. ``scale``: of a level 1/``scale`` (default: the coarse-to-fine search's)."""
+        s = scale or self.coarse_factor
         lo = self.min_disparity // s
         core = -(-(-(-(self.min_disparity + self.disparity_range) // s) - lo) // 16) * 16
         return lo, core, -(-core // 64) * 16
 
-    def coarse_level(self) -> StereoParams:
-        """The parameters of the coarse level's matcher (:meth:`coarse_span`), speckles of a
-        proportional area and a stiffer P2 (:data:`COARSE_P2_FACTOR` times, up to half the path
-        costs' headroom, never below this level's). Unchecked: derived."""
-        s = self.coarse_factor
-        lo, core, beyond = self.coarse_span()
+    def coarse_level(self, scale: int | None = None, beyond_range: bool = True) -> StereoParams:
+        """The parameters of the coarse level's matcher (:meth:`coarse_span`; ``scale`` as
+        there, ``beyond_range``: search beyond the range too), speckles of a proportional area
+        and a stiffer P2 (:data:`COARSE_P2_FACTOR` times, up to half the path costs' headroom,
+        never below this level's). Unchecked: derived."""
+        s = scale or self.coarse_factor
+        lo, core, beyond = self.coarse_span(s)
+        beyond = beyond if beyond_range else 0
         p1, p2 = self.penalties()
         headroom = MAX_PATH_COST - COST_PER_WINDOW_PIXEL * self.correlation_window_size**2
         return self.model_copy(
             update={
                 "coarse_to_fine": False,
+                "lr_check_scale": 1,
                 "min_range_m": None,  # the range is already widened (rig.reach)
                 "min_disparity": lo,
                 "disparity_range": core + beyond,
@@ -235,6 +263,12 @@ class StereoParams(SettingsModel):
                 "P2": float(max(p1 + 1, min(COARSE_P2_FACTOR * p2, max(p2, headroom // 2)))),
             }
         )
+
+    def check_level(self) -> StereoParams:
+        """The parameters of the half-resolution left-right check's matcher
+        (:mod:`rig.half_check`): the coarse level's at 1/2, over the range only (a surface
+        nearer than the range then fails the check, as at full resolution)."""
+        return self.coarse_level(2, beyond_range=False)
 
     @property
     def effective_mode(self) -> str:
@@ -316,6 +350,7 @@ class StereoMatcher:
         deferred = {"speckle_size": 0} if self._deferred_speckles else {}
         self._matcher = create_opencv_matcher(self.params.model_copy(update=deferred))
         self.coarse_to_fine_search = _coarse_to_fine(self.params)
+        self._half_check = StereoMatcher(self.params.check_level()) if self.params.check_factor == 2 else None
         # The live stream's memory of the exact search (stereo.temporal_prior).
         self.last_search = LastSearch()
 
@@ -368,11 +403,19 @@ class StereoMatcher:
             return kept
         mirrored, unsearched = None, left.shape[1]
         if self.params.lr_check:
-            mirrored, unsearched = self.mirrored_view(left, right, seen)
+            mirrored, unsearched = self._checking_view(left, right, seen)
         found = UnfilteredDisparity(self.left_view(left, right, seen), mirrored, unsearched)
         if halved is not None:
             self.last_search.remember(*halved, found)
         return found
+
+    def _checking_view(self, left: U8, right: U8, seen: SeenColumns | None) -> tuple[NDArray[np.int16], int]:
+        """The left-right check's mirrored view: the exact search's, or at half resolution."""
+        if self._half_check is None:
+            return self.mirrored_view(left, right, seen)
+        coarse_min = self._half_check.params.min_disparity
+        invalid = (self.params.min_disparity - 1) * 16
+        return half_mirrored_view(self._half_check, coarse_min, (left, right), seen, invalid)
 
     def forget(self) -> None:
         """Drop the live stream's history (the temporal prior's): the next frame is searched whole."""
@@ -460,7 +503,7 @@ class StereoMatcher:
             # Mirrored, the right view's unmatched band (the first min + range columns) is on
             # the right: no evidence there.
             blind = unfiltered.right_unsearched_from
-            valid &= left_right_consistent(disp, valid, right_disp, self.params.lr_max_diff, blind)
+            valid &= left_right_consistent(disp, valid, right_disp, self.params.lr_tolerance, blind)
         # OpenCV's masked copy: numpy's boolean assignment branches per pixel (~6 ms on a
         # 1280×960 frame against ~0.3), and this is on every frame's critical path.
         fill_where(disp, np.nan, ~valid)

@@ -49,9 +49,10 @@ def shifted_pair(d: float, h: int = 120, w: int = 200, seed: int = 0, noise: flo
 
 
 ROI = (slice(10, -10), slice(80, -10))  # right of the matcher's unmatched left band
-#: The exact search: OpenCV's matcher over the whole range (the coarse-to-fine search's own tests
-#: are in test_stereo_coarse_to_fine.py).
-EXACT = {"coarse_to_fine": False}
+#: The exact search: OpenCV's matcher over the whole range, its left-right check's too, so that
+#: the result is the bare matcher's (the coarse-to-fine search's own tests are in
+#: test_stereo_coarse_to_fine.py, the half-resolution check's in test_half_check.py).
+EXACT = {"coarse_to_fine": False, "lr_check_scale": 1}
 
 
 def test_defaults_follow_ros_names_and_reach_three_and_a_half_baselines() -> None:
