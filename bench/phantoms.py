@@ -72,9 +72,11 @@ class Candidate:
 
 
 # The settings chosen against phantoms were measured with the exact search (OpenCV's matcher over
-# the whole range); the coarse-to-fine search (the default since) with the chosen ones, and with
+# the whole range, the left-right check's second run too); the defaults since (the exact search,
+# that second run at half resolution) and the coarse-to-fine option with the chosen ones, and with
 # 256 disparities.
-EXACT = {"coarse_to_fine": False}
+EXACT = {"coarse_to_fine": False, "lr_check_scale": 1}
+C2F = {"coarse_to_fine": True}
 OLD = {"disparity_range": 128, "lr_check": False, **EXACT}
 CANDIDATES = (
     Candidate("128 (before)", OLD),
@@ -84,9 +86,10 @@ CANDIDATES = (
     Candidate("96", {"disparity_range": 96, "lr_check": False, **EXACT}),
     Candidate("96 + LR check (exact)", EXACT),
     Candidate("64 + LR check", {"disparity_range": 64, "lr_check": True, **EXACT}),
-    Candidate("96 + LR check, coarse-to-fine (default)", {}),
-    Candidate("64 + LR check, coarse-to-fine", {"disparity_range": 64}),
-    Candidate("256 + LR check, coarse-to-fine", {"disparity_range": 256}),
+    Candidate("96 + LR check at half resolution (default)", {}),
+    Candidate("96 + LR check, coarse-to-fine", C2F),
+    Candidate("64 + LR check, coarse-to-fine", {"disparity_range": 64, **C2F}),
+    Candidate("256 + LR check, coarse-to-fine", {"disparity_range": 256, **C2F}),
 )
 QUICK = (CANDIDATES[0], CANDIDATES[7])
 
