@@ -410,12 +410,14 @@ class StereoMatcher:
         return found
 
     def _checking_view(self, left: U8, right: U8, seen: SeenColumns | None) -> tuple[NDArray[np.int16], int]:
-        """The left-right check's mirrored view: the exact search's, or at half resolution."""
-        if self._half_check is None:
+        """The left-right check's mirrored view: the exact search's, or at half resolution (the
+        exact search's where the half-resolution images are too narrow for its range)."""
+        check = self._half_check
+        if check is None or -(-left.shape[1] // 2) <= check.params.blind_band_px:
             return self.mirrored_view(left, right, seen)
-        coarse_min = self._half_check.params.min_disparity
+        coarse_min = check.params.min_disparity
         invalid = (self.params.min_disparity - 1) * 16
-        return half_mirrored_view(self._half_check, coarse_min, (left, right), seen, invalid)
+        return half_mirrored_view(check, coarse_min, (left, right), seen, invalid)
 
     def forget(self) -> None:
         """Drop the live stream's history (the temporal prior's): the next frame is searched whole."""

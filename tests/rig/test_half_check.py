@@ -101,3 +101,15 @@ def test_the_check_runs_at_half_resolution_only_for_the_exact_sgbm_search_with_t
     assert (level.min_disparity, level.disparity_range) == (4, 64)
     assert StereoParams().penalties()[1] < level.P2 and level.check_factor == 1
     assert level.speckle_size == StereoParams().speckle_size // 4
+
+
+def test_a_pair_too_narrow_for_the_half_resolution_range_is_checked_at_full_resolution() -> None:
+    """112 disparities need 113 columns at full resolution but 129 at half (the half range, 56,
+    rounds up to 64): a 120-column pair gets the full-resolution check, not an error."""
+    left, right = shifted_pair(20.5, w=120)
+    half = StereoMatcher(StereoParams(disparity_range=112))
+    assert half.params.check_level().blind_band_px == 64
+    full = StereoMatcher(StereoParams(disparity_range=112, lr_check_scale=1))
+    found, expected = half.compute(left, right), full.compute(left, right)
+    assert found.mirrored is not None and expected.mirrored is not None
+    assert np.array_equal(found.mirrored, expected.mirrored)
