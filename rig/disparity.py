@@ -55,3 +55,5 @@ class UnfilteredDisparity:
     #: Both images' local contrast normalisation (:func:`rig.subpixel.normalise_contrast`) when
     #: the matcher made it (the coarse-to-fine search does): the refinement need not make it again.
     normalised: tuple[F32, F32] | None = None
+    #: The resolution the mirrored pair was searched at: 1 (full) or 2 (half: rig.half_check).
+    check_scale: int = 1

@@ -225,11 +225,10 @@ class StereoParams(SettingsModel):
             return 1
         return self.lr_check_scale
 
-    @property
-    def lr_tolerance(self) -> float:
-        """The left-right check's tolerance (px): ``lr_max_diff``, times
-        :data:`HALF_CHECK_TOLERANCE` when the check's view is the half-resolution one."""
-        return self.lr_max_diff * (HALF_CHECK_TOLERANCE if self.check_factor == 2 else 1.0)
+    def lr_tolerance(self, check_scale: int) -> float:
+        """The left-right check's tolerance (px) against a mirrored view searched at 1/``check_scale``
+        resolution: ``lr_max_diff``, times :data:`HALF_CHECK_TOLERANCE` at half resolution."""
+        return self.lr_max_diff * (HALF_CHECK_TOLERANCE if check_scale == 2 else 1.0)
 
     def coarse_span(self, scale: int | None = None) -> tuple[int, int, int]:
         """The coarse level's smallest disparity, the range that covers this one (rounded up to
@@ -401,23 +400,28 @@ class StereoMatcher:
         halved = (downsample(left, 2), downsample(right, 2)) if prior else None
         if halved is not None and (kept := self.last_search.kept(*halved)) is not None:
             return kept
-        mirrored, unsearched = None, left.shape[1]
+        mirrored, unsearched, scale = None, left.shape[1], 1
         if self.params.lr_check:
-            mirrored, unsearched = self._checking_view(left, right, seen)
-        found = UnfilteredDisparity(self.left_view(left, right, seen), mirrored, unsearched)
+            mirrored, unsearched, scale = self._checking_view(left, right, seen)
+        found = UnfilteredDisparity(
+            self.left_view(left, right, seen), mirrored, unsearched, check_scale=scale
+        )
         if halved is not None:
             self.last_search.remember(*halved, found)
         return found
 
-    def _checking_view(self, left: U8, right: U8, seen: SeenColumns | None) -> tuple[NDArray[np.int16], int]:
-        """The left-right check's mirrored view: the exact search's, or at half resolution (the
-        exact search's where the half-resolution images are too narrow for its range)."""
+    def _checking_view(
+        self, left: U8, right: U8, seen: SeenColumns | None
+    ) -> tuple[NDArray[np.int16], int, int]:
+        """The left-right check's mirrored view, the right image's first column it never matched
+        and the resolution it was searched at: the exact search's (1), or at half resolution (2;
+        not where the half-resolution images are too narrow for its range)."""
         check = self._half_check
         if check is None or -(-left.shape[1] // 2) <= check.params.blind_band_px:
-            return self.mirrored_view(left, right, seen)
+            return (*self.mirrored_view(left, right, seen), 1)
         coarse_min = check.params.min_disparity
         invalid = (self.params.min_disparity - 1) * 16
-        return half_mirrored_view(check, coarse_min, (left, right), seen, invalid)
+        return (*half_mirrored_view(check, coarse_min, (left, right), seen, invalid), 2)
 
     def forget(self) -> None:
         """Drop the live stream's history (the temporal prior's): the next frame is searched whole."""
@@ -505,7 +509,8 @@ class StereoMatcher:
             # Mirrored, the right view's unmatched band (the first min + range columns) is on
             # the right: no evidence there.
             blind = unfiltered.right_unsearched_from
-            valid &= left_right_consistent(disp, valid, right_disp, self.params.lr_tolerance, blind)
+            tolerance = self.params.lr_tolerance(unfiltered.check_scale)
+            valid &= left_right_consistent(disp, valid, right_disp, tolerance, blind)
         # OpenCV's masked copy: numpy's boolean assignment branches per pixel (~6 ms on a
         # 1280×960 frame against ~0.3), and this is on every frame's critical path.
         fill_where(disp, np.nan, ~valid)

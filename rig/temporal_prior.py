@@ -184,7 +184,9 @@ class LastSearch:
 def _copied(found: UnfilteredDisparity) -> UnfilteredDisparity:
     mirrored = None if found.mirrored is None else found.mirrored.copy()
     normalised = found.normalised and (found.normalised[0].copy(), found.normalised[1].copy())
-    return UnfilteredDisparity(found.left.copy(), mirrored, found.right_unsearched_from, normalised)
+    return UnfilteredDisparity(
+        found.left.copy(), mirrored, found.right_unsearched_from, normalised, found.check_scale
+    )
 
 
 def _runs(bands: NDArray[np.bool_], height: int) -> list[tuple[int, int]]:

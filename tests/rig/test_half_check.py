@@ -79,6 +79,7 @@ def test_the_served_disparities_are_the_exact_search_s() -> None:
     half_matcher = StereoMatcher(StereoParams(disparity_range=64))
     full_matcher = StereoMatcher(StereoParams(disparity_range=64, lr_check_scale=1))
     half_raw, full_raw = half_matcher.compute(left, right), full_matcher.compute(left, right)
+    assert (half_raw.check_scale, full_raw.check_scale) == (2, 1)
     assert np.array_equal(half_raw.left, full_raw.left)
     half, full = half_matcher.disparity_of(half_raw), full_matcher.disparity_of(full_raw)
     both = half.valid & full.valid
@@ -88,14 +89,14 @@ def test_the_served_disparities_are_the_exact_search_s() -> None:
 
 def test_the_check_runs_at_half_resolution_only_for_the_exact_sgbm_search_with_the_check() -> None:
     default = StereoParams()
-    assert default.check_factor == 2 and default.lr_tolerance == HALF_CHECK_TOLERANCE * default.lr_max_diff
+    assert default.check_factor == 2 and default.lr_tolerance(2) == HALF_CHECK_TOLERANCE * default.lr_max_diff
     for other in (
         StereoParams(lr_check_scale=1),
         StereoParams(coarse_to_fine=True),
         StereoParams(lr_check=False),
         StereoParams(stereo_algorithm=0),
     ):
-        assert other.check_factor == 1 and other.lr_tolerance == other.lr_max_diff
+        assert other.check_factor == 1 and other.lr_tolerance(1) == other.lr_max_diff
     level = StereoParams(min_disparity=8, disparity_range=112).check_level()
     # Half the disparities, rounded up to 16, over the range only; the coarse level's stiffer P2.
     assert (level.min_disparity, level.disparity_range) == (4, 64)
@@ -113,3 +114,6 @@ def test_a_pair_too_narrow_for_the_half_resolution_range_is_checked_at_full_reso
     found, expected = half.compute(left, right), full.compute(left, right)
     assert found.mirrored is not None and expected.mirrored is not None
     assert np.array_equal(found.mirrored, expected.mirrored)
+    # ... and at the full resolution's tolerance: the same pixels pass.
+    assert found.check_scale == 1 and expected.check_scale == 1
+    assert np.array_equal(half.disparity_of(found).valid, full.disparity_of(expected).valid)
