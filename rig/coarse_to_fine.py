@@ -166,16 +166,6 @@ def band_hypotheses(
     return rows
 
 
-def _coarse_seen(seen: SeenColumns | None, scale: int) -> SeenColumns | None:
-    if seen is None:
-        return None
-
-    def span(cols: tuple[int, int]) -> tuple[int, int]:
-        return cols[0] // scale, -(-cols[1] // scale)
-
-    return SeenColumns(span(seen.left), span(seen.right))
-
-
 class CoarseToFine:
     """The search (module doc) with the ``coarse`` level's matcher and the ``level``'s figures.
     Not safe for concurrent calls (the matcher's scratch buffers, the temporal prior)."""
@@ -212,7 +202,7 @@ class CoarseToFine:
         while len(pyramid) < lv.scale.bit_length():
             pyramid.append((downsample(pyramid[-1][0], 2), downsample(pyramid[-1][1], 2)))
         coarse_left, coarse_right = pyramid.pop()
-        coarse_seen = _coarse_seen(seen, lv.scale)
+        coarse_seen = None if seen is None else seen.at_scale(lv.scale)
         if lv.confirm:  # (no temporal prior: its history is of one search)
             found = self.coarse_search(coarse_left, coarse_right, coarse_seen, pool)
             if unnormalised is not None:

@@ -35,6 +35,15 @@ class SeenColumns:
         """From the two lookup tables' validity masks (H, W)."""
         return cls(_span(left_valid), _span(right_valid))
 
+    def at_scale(self, scale: int) -> SeenColumns:
+        """The same columns at 1/``scale`` resolution (2×2 or ``scale``² block means): a coarse
+        column is seen when any of its full-resolution columns is."""
+
+        def span(cols: tuple[int, int]) -> tuple[int, int]:
+            return cols[0] // scale, -(-cols[1] // scale)
+
+        return SeenColumns(span(self.left), span(self.right))
+
 
 def _span(valid: NDArray[np.bool_]) -> tuple[int, int]:
     cols = np.flatnonzero(valid.any(axis=0))

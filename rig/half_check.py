@@ -38,12 +38,6 @@ class HalfViewMatcher(Protocol):
     def remove_speckles(self, fixed: I16) -> None: ...
 
 
-def _halved_seen(seen: SeenColumns | None) -> SeenColumns | None:
-    if seen is None:
-        return None
-    return SeenColumns(*((a // 2, -(-b // 2)) for a, b in (seen.left, seen.right)))
-
-
 def upsampled_mirrored(coarse: I16, coarse_min: int, shape: tuple[int, int], invalid: int) -> I16:
     """A mirrored half-resolution fixed-point disparity (h, w) (1/16 coarse px; invalid below
     ``coarse_min`` px) as the full-resolution mirrored view of a pair of ``shape`` (H, W): twice
@@ -70,7 +64,8 @@ def half_mirrored_view(
     ``matcher`` (its smallest disparity ``coarse_min``), as full-resolution fixed point
     (``invalid`` where none), and the right image's first column it never matched."""
     left, right = pair
-    fixed, unsearched = matcher.mirrored_view(downsample(left, 2), downsample(right, 2), _halved_seen(seen))
+    halved = None if seen is None else seen.at_scale(2)
+    fixed, unsearched = matcher.mirrored_view(downsample(left, 2), downsample(right, 2), halved)
     matcher.remove_speckles(fixed)
     full = upsampled_mirrored(fixed, coarse_min, (left.shape[0], left.shape[1]), invalid)
     # The first full column of the unmatched band takes part in the blend with it: unmatched too.

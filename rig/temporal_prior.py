@@ -23,7 +23,7 @@ whole frame at once).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -182,11 +182,10 @@ class LastSearch:
 
 
 def _copied(found: UnfilteredDisparity) -> UnfilteredDisparity:
+    """``found`` with its arrays copied (its other fields as they are)."""
     mirrored = None if found.mirrored is None else found.mirrored.copy()
     normalised = found.normalised and (found.normalised[0].copy(), found.normalised[1].copy())
-    return UnfilteredDisparity(
-        found.left.copy(), mirrored, found.right_unsearched_from, normalised, found.check_scale
-    )
+    return replace(found, left=found.left.copy(), mirrored=mirrored, normalised=normalised)
 
 
 def _runs(bands: NDArray[np.bool_], height: int) -> list[tuple[int, int]]:

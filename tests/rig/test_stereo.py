@@ -201,6 +201,12 @@ def test_speckles_removed_after_compute_are_the_bare_matchers(stereo: dict[str, 
     assert np.isnan(res.disparity[~valid]).all()
 
 
+def test_seen_columns_at_a_coarser_scale_keep_every_partly_seen_column() -> None:
+    seen = SeenColumns((3, 17), (0, 20))
+    assert seen.at_scale(2) == SeenColumns((1, 9), (0, 10))
+    assert seen.at_scale(4) == SeenColumns((0, 5), (0, 5))
+
+
 @pytest.mark.parametrize(
     "stereo", [{}, {"min_disparity": -8}, {"stereo_algorithm": 0}], ids=["sgbm", "negative-min", "bm"]
 )
