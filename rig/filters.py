@@ -58,6 +58,15 @@ def _row_map(shape: tuple[int, ...]) -> F32:
     )
 
 
+def _column_map(shape: tuple[int, ...]) -> F32:
+    """Each pixel's column index, float32 (H, W)."""
+    return _reused_image(
+        "columns",
+        shape,
+        lambda size: np.repeat(np.arange(size[1], dtype=np.float32)[None, :], size[0], axis=0),
+    )
+
+
 def copy_where(dst: F32, src: F32, where: Mask) -> None:
     """``dst[where] = src[where]`` in place for (H, W) float32 arrays (views are fine).
 
@@ -77,8 +86,11 @@ def fill_where(dst: F32, value: float, where: Mask) -> None:
 def _match_columns(disparity: F32, valid: Mask) -> F32:
     """``x - d``: the column of each left pixel's match in the right image (float32 (H, W),
     ``x`` itself where invalid)."""
-    x = np.arange(disparity.shape[1], dtype=np.float32)[None, :]
-    return x - np.where(valid, disparity, np.float32(0.0))
+    x = _column_map(disparity.shape)
+    columns = np.subtract(x, disparity, dtype=np.float32)
+    # OpenCV's masked copy, not np.where: this runs twice on every frame.
+    copy_where(columns, x, ~valid)
+    return columns
 
 
 def _at_match(image: NDArray[_Pixel], columns: F32) -> NDArray[_Pixel]:

@@ -46,15 +46,15 @@ def upsampled_mirrored(coarse: I16, coarse_min: int, shape: tuple[int, int], inv
     is on the left: coarse column j covers full mirrored columns 2j − pad and 2j + 1 − pad."""
     field = coarse.astype(np.float32)
     field *= np.float32(2.0)
-    field[coarse < coarse_min * 16] = np.nan  # bilinear weights spread it to its neighbours
+    np.copyto(field, np.float32(np.nan), where=coarse < coarse_min * 16)  # spread by the weights
     size = (coarse.shape[1] * 2, coarse.shape[0] * 2)
     up = np.asarray(cv2.resize(field, size, interpolation=cv2.INTER_LINEAR), dtype=np.float32)
     pad = size[0] - shape[1]
     up = up[: shape[0], pad:]
-    out = np.full(shape, invalid, dtype=np.int16)
-    finite = np.isfinite(up)
-    out[finite] = np.rint(up[finite]).astype(np.int16)
-    return out
+    # In place with OpenCV's NaN patch: numpy's boolean indexing took four times as long.
+    np.rint(up, out=up)
+    cv2.patchNaNs(up, float(invalid))
+    return up.astype(np.int16)
 
 
 def half_mirrored_view(

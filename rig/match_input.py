@@ -31,25 +31,49 @@ from numpy.typing import NDArray
 __all__ = ["NORMALISED_GAIN", "MatcherViews", "matcher_input", "matcher_views"]
 
 U8 = NDArray[np.uint8]
+F32 = NDArray[np.float32]
 #: Grey levels per local standard deviation in the normalised image (±3σ within 8 bits).
 NORMALISED_GAIN = 40.0
 
 
 def matcher_input(gray: U8, blur_sigma: float, window: int, eps: float) -> U8:
     """``gray`` (H, W) uint8 as the matcher takes it (see the module doc); ``blur_sigma`` 0 and
-    ``window`` 0 leave the image as it is."""
+    ``window`` 0 leave the image as it is. Rounded to the nearest level and saturated to 8 bits.
+    OpenCV's arithmetic in place: this runs on both views of every frame, and numpy's
+    temporaries and clip took twice as long."""
     if blur_sigma <= 0.0 and window <= 0:
         return gray
-    f: NDArray[np.float32] = gray.astype(np.float32)
+    image: U8 | F32 = gray
     if blur_sigma > 0.0:
-        f = np.asarray(cv2.GaussianBlur(f, (0, 0), blur_sigma), dtype=np.float32)
-    if window > 0:
-        mean = cv2.blur(f, (window, window))
-        var = cv2.blur(f * f, (window, window)) - mean * mean
-        scale = np.float32(NORMALISED_GAIN) / (np.sqrt(np.maximum(var, 0.0)) + np.float32(eps))
-        f = np.asarray((f - mean) * scale + np.float32(128.0), dtype=np.float32)
-    out: U8 = np.clip(f + 0.5, 0, 255).astype(np.uint8)
-    return out
+        image = _f32(cv2.GaussianBlur(gray.astype(np.float32), (0, 0), blur_sigma))
+    if window <= 0:
+        return _rounded_u8(np.array(image, dtype=np.float32))
+    k = (window, window)
+    # From uint8 OpenCV sums integers: the mean and mean square are exact before the division.
+    mean = _f32(cv2.boxFilter(image, cv2.CV_32F, k))
+    scale = _f32(cv2.sqrBoxFilter(image, cv2.CV_32F, k))
+    out = _f32(cv2.multiply(mean, mean))
+    cv2.subtract(scale, out, dst=scale)
+    cv2.threshold(scale, 0.0, 0.0, cv2.THRESH_TOZERO, dst=scale)  # the variance, at least 0
+    cv2.sqrt(scale, dst=scale)
+    scale += np.float32(eps)
+    cv2.divide(NORMALISED_GAIN, scale, dst=scale)  # levels per grey level: gain / (σ + ε)
+    cv2.subtract(image, mean, dst=out, dtype=cv2.CV_32F)
+    cv2.multiply(out, scale, dst=out)
+    out += np.float32(128.0)
+    return _rounded_u8(out)
+
+
+def _rounded_u8(values: F32) -> U8:
+    """``values`` (H, W) float32 saturated to 0…255 and rounded to nearest (consumes them)."""
+    cv2.threshold(values, 255.0, 255.0, cv2.THRESH_TRUNC, dst=values)
+    cv2.threshold(values, 0.0, 0.0, cv2.THRESH_TOZERO, dst=values)
+    np.rint(values, out=values)
+    return values.astype(np.uint8)
+
+
+def _f32(x: object) -> F32:
+    return np.asarray(x, dtype=np.float32)
 
 
 class MatchInputSettings(Protocol):

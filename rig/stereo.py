@@ -505,7 +505,9 @@ class StereoMatcher:
         self.remove_speckles(fixed)
         disp, valid = self._in_pixels(fixed)
         if unfiltered.mirrored is not None:
-            right_disp = self._right_from_mirrored(unfiltered.mirrored)
+            # The half-resolution view had its speckles removed at the resolution it was
+            # searched at (rig.half_check); upsampled, it has none of its own.
+            right_disp = self._right_from_mirrored(unfiltered.mirrored, speckles=unfiltered.check_scale == 1)
             # Mirrored, the right view's unmatched band (the first min + range columns) is on
             # the right: no evidence there.
             blind = unfiltered.right_unsearched_from
@@ -528,8 +530,9 @@ class StereoMatcher:
         disp *= np.float32(1.0 / 16.0)
         return disp, valid
 
-    def _right_from_mirrored(self, mirrored: NDArray[np.int16]) -> F32:
-        self.remove_speckles(mirrored)
+    def _right_from_mirrored(self, mirrored: NDArray[np.int16], *, speckles: bool = True) -> F32:
+        if speckles:
+            self.remove_speckles(mirrored)
         disp, valid = self._in_pixels(mirrored[:, ::-1])
         fill_where(disp, np.nan, ~valid)
         return disp

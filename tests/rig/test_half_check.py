@@ -11,6 +11,7 @@ import pytest
 from numpy.typing import NDArray
 
 from rig.half_check import upsampled_mirrored
+from rig.disparity import UnfilteredDisparity
 from rig.stereo import HALF_CHECK_TOLERANCE, StereoMatcher, StereoParams
 from tests.rig.test_stereo import ROI, shifted_pair
 
@@ -117,3 +118,23 @@ def test_a_pair_too_narrow_for_the_half_resolution_range_is_checked_at_full_reso
     # ... and at the full resolution's tolerance: the same pixels pass.
     assert found.check_scale == 1 and expected.check_scale == 1
     assert np.array_equal(half.disparity_of(found).valid, full.disparity_of(expected).valid)
+
+
+@pytest.mark.parametrize("check_scale", [1, 2])
+def test_speckles_are_removed_once_at_the_resolution_searched(check_scale: int) -> None:
+    """A full-resolution check's mirrored view has its speckles removed in ``disparity_of``; a
+    half-resolution one had them removed before its upsampling (rig.half_check), so a small
+    patch in the upsampled view (four coarse pixels' worth) stays and the left pixels that match
+    into it keep their agreement."""
+    p = StereoParams(speckle_size=50, speckle_range=1)
+    matcher = StereoMatcher(p)
+    h, w, d = 40, 80, 10
+    left = np.full((h, w), d * 16, dtype=np.int16)
+    right_view = np.full((h, w), 2 * d, dtype=np.float64)  # disagrees everywhere...
+    right_view[18:22, 38:42] = d  # ...but on a 4×4 patch, a speckle at full resolution
+    mirrored = np.rint(right_view * 16)[:, ::-1].astype(np.int16)
+    unfiltered = UnfilteredDisparity(left, mirrored, right_unsearched_from=w, check_scale=check_scale)
+    valid = matcher.disparity_of(unfiltered).valid
+    kept = valid[18:22, 38 + d : 42 + d]
+    assert valid.sum() == kept.sum()  # only the pixels matching into the patch agree
+    assert kept.all() == (check_scale == 2)
