@@ -33,6 +33,7 @@ from cli.pair_options import (
     load_calibration,
     make_pair_config,
 )
+from cli.pipeline_options import StereoOption, load_stereo_params
 from rig.errors import RigError
 from rig.recording import Recording
 from rig.rectification import RectificationRefinement, RefineOptions, refine_recording
@@ -112,16 +113,31 @@ def register_refine(cal: typer.Typer) -> None:
                 help="Instead: the vergence from a floor this far below the rig's origin (metres).",
             ),
         ] = None,
+        stereo: StereoOption = None,
     ) -> None:
         """Refine the pair's relative rotation (a ring: every camera's) from the scene of a
-        recording and write rig.yaml."""
+        recording and write rig.yaml. A ring's couples are measured with ``--stereo``'s
+        parameters (default: the defaults): give the ones the service serves depth with."""
         if frames is not None and not 1 <= frames <= 100_000:
             fail(f"--frames must be in [1, 100000], got {frames}")
         if _is_ring(recording):
             if floor_height is not None:
                 fail("--floor-height applies to a two-camera rig; this recording holds a ring")
-            refine_ring_recording(recording, calibration, out, frames or RING_FRAMES)
+            params = None
+            if stereo is not None:
+                params = load_stereo_params(stereo)
+                console.print(
+                    f"couples measured with the stereo parameters of {stereo}",
+                    highlight=False,
+                    soft_wrap=True,
+                )
+            refine_ring_recording(recording, calibration, out, frames or RING_FRAMES, params)
             return
+        if stereo is not None:
+            fail(
+                "--stereo applies to a ring, whose couples' agreement is measured with it; a pair's "
+                "refinement measures vertical disparity, without the matcher"
+            )
         frames = frames or 20
         if floor_height is not None:
             scene_only = (baseline_direction, min_matches, vpc_size, vpc_hfov, yaw, pitch)

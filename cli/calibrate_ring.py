@@ -20,6 +20,7 @@ from rig.recording import Recording
 
 if TYPE_CHECKING:
     from rig.ring_refine import RingRefinement
+    from rig.stereo import StereoParams
 
 __all__ = ["RING_FRAMES", "refine_ring_recording"]
 
@@ -63,12 +64,15 @@ def _frame_sets(rec: Recording, names: list[str], count: int) -> list[dict[str, 
     return [{n: rec.read_image(records[k], n, cv2.IMREAD_GRAYSCALE) for n in names} for k in picks]
 
 
-def refine_ring_recording(recording: Path, rig_path: Path | None, out: Path, frames: int) -> None:
+def refine_ring_recording(
+    recording: Path, rig_path: Path | None, out: Path, frames: int, stereo: StereoParams | None = None
+) -> None:
     """Refine the ring at ``rig_path`` (default: the recording's calibration) from up to
-    ``frames`` frame sets of ``recording``, print the figures, write ``out`` when applied."""
+    ``frames`` frame sets of ``recording``, print the figures (the couples' agreement measured
+    with ``stereo``, default the defaults), write ``out`` when applied."""
     from cli.pair_options import load_calibration
     from rig.rectification.refine import save_refined
-    from rig.ring_refine import refine_ring
+    from rig.ring_refine import RingRefineOptions, refine_ring
 
     rec = Recording(recording)
     rig, cal_path = load_calibration(rig_path, rec.calibration_path, rings=True)
@@ -89,7 +93,11 @@ def refine_ring_recording(recording: Path, rig_path: Path | None, out: Path, fra
     with progress_bar() as bar:
         task = bar.add_task(f"refining the ring on {len(sets)} set(s) of {recording}", total=None)
         result = refine_ring(
-            rig, sets, rig.pairs, progress=lambda done, total: bar.update(task, completed=done, total=total)
+            rig,
+            sets,
+            rig.pairs,
+            options=RingRefineOptions(stereo=stereo),
+            progress=lambda done, total: bar.update(task, completed=done, total=total),
         )
     turns = ", ".join(f"{n} {float(np.linalg.norm(r)):.3f}°" for n, r in result.corrections_deg.items())
     console.print(f"cameras turned ({rig.names[0]} holds the rig frame): {turns}", highlight=False)

@@ -31,12 +31,13 @@ from scipy.spatial.transform import Rotation
 
 from calibration.rig import Rig
 from rig.errors import RectificationError
-from rig.evaluate.consistency_study import ConsistencyStudy, consistency_study
+from rig.evaluate.consistency_study import consistency_study
 from rig.rectification.matching import MatchOptions, RayMatches, match_pair
 from rig.rectification.measure import VerticalDisparity, vertical_disparity
 from rig.rectification.views import EpipolarViews, angular_resolution
 from rig.rectified import RectifiedPairConfig, design_rectified_pair
 from rig.ring import PairNames, adjacent_pairs
+from rig.stereo import StereoParams
 
 __all__ = ["RingRefineOptions", "RingRefinement", "refine_ring"]
 
@@ -52,7 +53,8 @@ class RingRefineOptions:
     ``min_matches`` per pair; ``prior_deg``: the scale of the corrections' prior (a weak pull
     towards none); ``tolerance``: how much worse a pair's vertical disparity p50 (px) or a
     couple's median disagreement (fraction) may get and still count as no worse;
-    ``cache_dir``: the LUT cache."""
+    ``cache_dir``: the LUT cache; ``stereo``: the stereo parameters the couples' agreement is
+    measured with, the ones the depth will be served with (None: the defaults)."""
 
     view_px_per_deg: float = 5.0
     max_features: int = 8000
@@ -61,6 +63,7 @@ class RingRefineOptions:
     tolerance_px: float = 0.02
     tolerance: float = 0.002
     cache_dir: str | Path | None = None
+    stereo: StereoParams | None = None
 
 
 @dataclass(frozen=True)
@@ -158,12 +161,6 @@ def _vertical(rig: Rig, matches: Mapping[PairNames, RayMatches]) -> dict[PairNam
     }
 
 
-def _study(
-    rig: Rig, frames: Sequence[Mapping[str, U8]], pairs: Sequence[PairNames], cache: str | Path | None
-) -> ConsistencyStudy:
-    return consistency_study(rig, frames, pairs, cache_dir=cache)
-
-
 def _px(v: VerticalDisparity) -> str:
     return "none" if v.p50_px is None else f"{v.p50_px:.2f}"
 
@@ -207,7 +204,7 @@ def refine_ring(
     if len(chosen) > 1:
         studies = []
         for k, r in enumerate((rig, after)):
-            studies.append(_study(r, frames, chosen, opts.cache_dir))
+            studies.append(consistency_study(r, frames, chosen, stereo=opts.stereo, cache_dir=opts.cache_dir))
             step(3 + k)
         for study, agree, cov in zip(studies, (agree_b, agree_a), (cov_b, cov_a), strict=True):
             agree.update({c.couple.label: c.figures.median_abs for c in study.couples})

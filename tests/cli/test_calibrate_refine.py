@@ -106,6 +106,12 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path: Path) -> None:
         run("calibrate", "refine", rec, "-c", nominal, "--out", out, "--baseline-direction", "sideways"),
         "--baseline-direction",
     )
+    stereo = tmp_path / "stereo.yaml"
+    stereo.write_text("lr_check_scale: 1\n")
+    assert_one_line_error(
+        run("calibrate", "refine", rec, "-c", nominal, "--out", out, "--stereo", stereo),
+        "--stereo applies to a ring",
+    )
     single = tmp_path / "single.yaml"
     save_rig(Rig({"left": load_rig(nominal).cameras["left"]}, {"left": np.eye(4)}), single)
     assert_one_line_error(run("calibrate", "refine", rec, "-c", single, "--out", out), "holds one camera")

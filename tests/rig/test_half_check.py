@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from rig.half_check import upsampled_mirrored
 from rig.disparity import UnfilteredDisparity
+from rig.half_check import upsampled_mirrored
 from rig.stereo import HALF_CHECK_TOLERANCE, StereoMatcher, StereoParams
 from tests.rig.test_stereo import ROI, shifted_pair
 
