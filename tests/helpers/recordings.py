@@ -42,6 +42,10 @@ FAST_SUPERVISOR = SupervisorConfig(
     usb_reset_after=3,
     rate_window_s=2.0,
 )
+# For tests of something other than the cameras' health: on a busy machine (the suite's workers
+# and a browser on two cores) a replay stalls for a moment, and a 0.3 s watchdog then marks the
+# camera unavailable and depth answers 503 meanwhile.
+CALM_SUPERVISOR = FAST_SUPERVISOR.model_copy(update={"watchdog_s": 5.0, "reconnect_after_s": 10.0})
 
 
 def frame_image(cam: str, seq: int, width: int = 160, height: int = 120) -> NDArray[np.uint8]:

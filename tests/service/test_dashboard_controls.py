@@ -17,11 +17,13 @@ import numpy as np
 import pytest
 
 from tests.helpers.browser import CHROMIUM, CHROMIUM_ARGS, needs_chromium
+from tests.helpers.recordings import CALM_SUPERVISOR
 from tests.helpers.service import AUTH, TOKEN, LiveServer, SmallRecording, StartServer
 from tests.helpers.waiting import wait_for
 
 pytestmark = [pytest.mark.browser, pytest.mark.timeout(300), needs_chromium]
 
+CALM = CALM_SUPERVISOR.model_dump()  # these tests are of the page, not of camera health
 WAIT_MS = 60_000  # the machine may be busy: generous, never what the test measures
 
 
@@ -134,7 +136,7 @@ def read_at(page: Any, u: int, v: int) -> tuple[int, int, str]:
 def test_metres_cloud_and_controls_with_the_token_from_the_url(
     start_server: StartServer, small_recording: SmallRecording
 ) -> None:
-    live = start_server()
+    live = start_server(supervisor=CALM)
     errors: list[str] = []
     patches: list[dict[str, str]] = []
     with browser_page(errors) as page:
@@ -233,7 +235,7 @@ def test_metres_cloud_and_controls_with_the_token_from_the_url(
 def test_without_a_token_in_the_page_the_controls_say_why_until_one_is_pasted(
     start_server: StartServer,
 ) -> None:
-    live = start_server()
+    live = start_server(supervisor=CALM)
     errors: list[str] = []
     with browser_page(errors) as page:
         page.goto(live.base_url + "/")
@@ -257,7 +259,7 @@ def test_without_a_token_in_the_page_the_controls_say_why_until_one_is_pasted(
 
 
 def test_a_service_without_a_token_has_read_only_controls_that_say_so(start_server: StartServer) -> None:
-    live = start_server(api_token=None)
+    live = start_server(api_token=None, supervisor=CALM)
     errors: list[str] = []
     with browser_page(errors) as page:
         page.goto(f"{live.base_url}/?token={TOKEN}")  # a token the service does not have changes nothing
@@ -270,7 +272,7 @@ def test_a_service_without_a_token_has_read_only_controls_that_say_so(start_serv
 
 
 def test_swagger_authorize_then_try_it_out(start_server: StartServer) -> None:
-    live = start_server()
+    live = start_server(supervisor=CALM)
     errors: list[str] = []
     with browser_page(errors) as page:
         page.goto(live.base_url + "/docs")

@@ -19,6 +19,7 @@ from rig.sim.render import render_range
 from service.client import RigClient
 from service.settings import load_settings
 from tests.helpers.browser import dashboard_page, needs_chromium, wait_for_image_width
+from tests.helpers.recordings import CALM_SUPERVISOR
 from tests.helpers.service import LiveServer, SmallRecording, StartApp, service_overrides
 from tests.helpers.waiting import wait_for
 
@@ -29,7 +30,9 @@ WIDE = {"projection": "latlon", "px_per_deg": 2.0}
 def wide_server(
     small_recording: SmallRecording, lut_cache: Path, tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[LiveServer]:
-    doc = service_overrides(small_recording.loop, tmp_path_factory.mktemp("wide"), lut_cache)
+    # Of the wide pair, not of camera health: a replay stalled by the busy machine stays available.
+    calm = CALM_SUPERVISOR.model_dump()
+    doc = service_overrides(small_recording.loop, tmp_path_factory.mktemp("wide"), lut_cache, supervisor=calm)
     doc["rectified"] = WIDE
     live = LiveServer(load_settings(None, doc)).start()
     live.wait_ready()
