@@ -6,8 +6,11 @@ Input: the MJPEG room recording of :mod:`bench.recordings`, remapped to the rect
 process CPU time of one call per frame (every thread), median over ``--repeat`` rounds of every
 frame, and its ratio to the exact search's in the same round:
 
-* **exact search**: :meth:`rig.stereo.StereoMatcher.compute` with ``coarse_to_fine: false`` (SGBM
-  over the whole range at full resolution, twice for the left-right check);
+* **exact search**: :meth:`rig.stereo.StereoMatcher.compute` with ``coarse_to_fine: false`` and
+  ``lr_check_scale: 1`` (SGBM over the whole range at full resolution, twice for the left-right
+  check: the default before the check went to half resolution);
+* **the default**: the same call with the defaults (the left view as the exact search's, the
+  left-right check's second run at half resolution, :mod:`rig.half_check`);
 * **coarse-to-fine search**: the same call with the defaults; its **coarse level** alone (the
   two views' SGBM at 1/2 resolution) and the **fine level** (the rest: the images' contrast
   normalisation, which the refinement after it reuses, and the band search of both views);
@@ -16,8 +19,9 @@ frame, and its ratio to the exact search's in the same round:
   narrow window (16 and 32 disparities: what a band around the coarse answer would cost if
   OpenCV matched it), the same window tile by tile (64×64 tiles with their margins and the
   window's reach), and the coarse levels at 1/2 and 1/4 (48 and 32 disparities);
-* the range: the coarse-to-fine search with 256 disparities against it with 96 (the lat-lon
-  pair's field widened by the larger unmatched band: its lookup tables are built for it).
+* the range: the default and the coarse-to-fine search with 256 disparities (the lat-lon pair's
+  field widened by the larger unmatched band: its lookup tables are built for it), to set against
+  the same searches with 96.
 
 Run: ``flock /tmp/rig-bench.lock .venv/bin/python -m bench.coarse_to_fine`` (``--quick``: seconds).
 """
@@ -51,7 +55,8 @@ __all__ = ["main"]
 U8 = NDArray[np.uint8]
 Pair = tuple[U8, U8]
 TILE = 64
-EXACT = "exact search (both views)"
+EXACT = "exact search, check at full resolution (both views)"
+DEFAULT = "the default: exact left view, check at half resolution"
 C2F = "coarse-to-fine search (both views)"
 COARSE = "  its coarse level (both views)"
 FINE = "  its fine level and normalisation (the rest)"
@@ -102,7 +107,8 @@ Row = tuple[Callable[[Pair], object], list[Pair]]
 def _rows(pairs: list[Pair], wide: list[Pair] | None, quick: bool) -> dict[str, Row]:
     """Each measured call and the frames it runs on."""
     d = 32 if quick else 96
-    exact = StereoMatcher(StereoParams(disparity_range=d, coarse_to_fine=False))
+    exact = StereoMatcher(StereoParams(disparity_range=d, coarse_to_fine=False, lr_check_scale=1))
+    default = StereoMatcher(StereoParams(disparity_range=d))
     c2f = StereoMatcher(StereoParams(disparity_range=d, coarse_to_fine=True))
     confirmed = StereoMatcher(StereoParams(disparity_range=d, coarse_to_fine=True, coarse_confirm=True))
     search = c2f.coarse_to_fine_search
@@ -115,6 +121,7 @@ def _rows(pairs: list[Pair], wide: list[Pair] | None, quick: bool) -> dict[str, 
 
     rows: dict[str, Row] = {
         EXACT: (lambda p: exact.compute(*p), pairs),
+        DEFAULT: (lambda p: default.compute(*p), pairs),
         C2F: (lambda p: c2f.compute(*p, pool=pool), pairs),
         COARSE: (coarse, pairs),
         # (its second coarse search on the same images: the CPU of one on the unnormalised pair)
@@ -126,6 +133,8 @@ def _rows(pairs: list[Pair], wide: list[Pair] | None, quick: bool) -> dict[str, 
         f"SGBM 1/4 resolution, {quarter} disparities (one view)": (_sgbm(quarter, 4), pairs),
     }
     if wide is not None:
+        default_256 = StereoMatcher(StereoParams(disparity_range=256))
+        rows["the default, 256 disparities (its own wider field)"] = (lambda p: default_256.compute(*p), wide)
         c2f_256 = StereoMatcher(StereoParams(disparity_range=256, coarse_to_fine=True))
         rows["coarse-to-fine search, 256 disparities (its own wider field)"] = (
             lambda p: c2f_256.compute(*p, pool=pool),

@@ -122,7 +122,7 @@ def test_coarse_to_fine_bench_times_the_search_its_parts_and_the_alternatives(
         rows[k]["cpu_ms"] for k in (coarse_to_fine.C2F, coarse_to_fine.COARSE, coarse_to_fine.FINE)
     )
     assert whole > 0 and coarse > 0 and fine == pytest.approx(whole - coarse)
-    assert len(rows) == 10 and all(r["cpu_ms"] > 0 for k, r in rows.items() if k != coarse_to_fine.FINE)
+    assert len(rows) == 11 and all(r["cpu_ms"] > 0 for k, r in rows.items() if k != coarse_to_fine.FINE)
 
 
 def test_dask_bench_runs_each_mode_over_every_recording(bench_env: Path, tmp_path: Path) -> None:
