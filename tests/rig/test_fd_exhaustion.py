@@ -23,7 +23,9 @@ from tests.helpers.recordings import FAST_SUPERVISOR
 
 camera = FileCamera(FileCameraConfig(recording=sys.argv[1], pace=30.0, loop=True, timestamps="live"), "left")
 frames = []
-sup = CameraSupervisor(camera, FAST_SUPERVISOR, frames.append)
+# The failing open must be what stops it: a replay stalled by a busy machine would trip the fast
+# watchdog first, and the camera would be unavailable for another reason.
+sup = CameraSupervisor(camera, FAST_SUPERVISOR.model_copy(update={"watchdog_s": 5.0}), frames.append)
 sup.start()
 deadline = time.monotonic() + 10
 while len(frames) < 5 and time.monotonic() < deadline:
