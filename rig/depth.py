@@ -25,6 +25,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -81,6 +82,9 @@ def latlon_range(disparity: F32, camera: LatLonModel, baseline_m: float, *, out:
     r = np.empty(d.shape, dtype=np.float32) if out is None else out
     with np.errstate(divide="ignore", invalid="ignore"):
         np.multiply(d, np.float32(1.0 / camera.fx), out=r)
+        # numpy's tan leaves its vector loop for NaN input, and most frames are half NaN: 0
+        # instead, whose range comes out inf and is dropped below with the NaN's.
+        cv2.patchNaNs(r, 0.0)
         np.tan(r, out=r)
         np.divide(b_cos, r, out=r)
         r += b_sin

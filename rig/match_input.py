@@ -39,8 +39,8 @@ NORMALISED_GAIN = 40.0
 def matcher_input(gray: U8, blur_sigma: float, window: int, eps: float) -> U8:
     """``gray`` (H, W) uint8 as the matcher takes it (see the module doc); ``blur_sigma`` 0 and
     ``window`` 0 leave the image as it is. Rounded to the nearest level and saturated to 8 bits.
-    OpenCV's arithmetic in place: this runs on both views of every frame, and numpy's
-    temporaries and clip took twice as long."""
+    OpenCV's arithmetic in place, without numpy's temporaries and clip: this runs on both
+    views of every frame (docs/stereo.md, "The steps around the matcher")."""
     if blur_sigma <= 0.0 and window <= 0:
         return gray
     image: U8 | F32 = gray

@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 
 from calibration.geometry import make_transform, rot_y
-from calibration.models import PinholeModel
+from calibration.models import LatLonModel, PinholeModel
 from rig.depth import (
     depth_from_png_mm,
     depth_points,
     depth_to_png_mm,
     disparity_to_depth,
+    latlon_range,
     read_ply,
     write_ply,
 )
@@ -29,6 +30,26 @@ def test_disparity_to_depth_closed_form_and_invalid() -> None:
     assert z[0, 0] == pytest.approx(320 * 0.072 / 10) and z[0, 1] == pytest.approx(320 * 0.072 / 20)
     assert z[1, 2] == pytest.approx(320 * 0.072 / 0.5)
     assert np.isnan(z[0, 2]) and np.isnan(z[1, 0]) and np.isnan(z[1, 1])
+
+
+def test_latlon_range_closed_form_and_invalid() -> None:
+    """``B·(cos α·cot δ + sin α)`` in float64 where d > 0 and the triangle closes; NaN for NaN, 0
+    and negative disparities, and for a ray pointing away from the baseline that would need the
+    range to be negative. The NaNs do not change the other pixels' values."""
+    cam = LatLonModel(5, 2, fx=1.5, fy=1.5, cx=2.0, cy=0.5)  # azimuths -76° to 76°, 38° apart
+    az = cam.azimuths()
+    d = np.array([[0.5, 0.3, 0.2, np.nan, 0.1], [0.0, -1.0, 0.2, 0.4, np.nan]], dtype=np.float32)
+    r = latlon_range(d, cam, 0.072)
+    delta = d.astype(np.float64) / cam.fx
+    with np.errstate(divide="ignore", invalid="ignore"):
+        expected = 0.072 * (np.cos(az) / np.tan(delta) + np.sin(az))
+    ok = (d > 0) & (expected > 0)
+    assert not ok[0, 0] and expected[0, 0] < 0  # at -76° a disparity of 0.5 closes no triangle
+    assert np.array_equal(np.isfinite(r), ok)
+    assert np.abs(r[ok] / expected[ok] - 1.0).max() < 1e-5  # float32 against float64
+    # The same disparities without the NaNs: every other pixel bit for bit.
+    clean = latlon_range(np.nan_to_num(d, nan=1.0), cam, 0.072)
+    assert np.array_equal(clean[~np.isnan(d)], r[~np.isnan(d)], equal_nan=True)
 
 
 def test_png_millimetres_round_trip_and_out_of_range(tmp_path: Path) -> None:
