@@ -51,20 +51,15 @@ def _constant_image(shape: tuple[int, ...], value: float) -> F32:
     return _reused_image(bits, shape, lambda size: np.full(size, bits, dtype=np.uint32).view(np.float32))
 
 
-def _row_map(shape: tuple[int, ...]) -> F32:
-    """Each pixel's row index, float32 (H, W): the y map of a remap along rows."""
-    return _reused_image(
-        "rows", shape, lambda size: np.repeat(np.arange(size[0], dtype=np.float32)[:, None], size[1], axis=1)
-    )
+def _index_map(shape: tuple[int, ...], axis: int) -> F32:
+    """Each pixel's row (``axis`` 0: the y map of a remap along rows) or column (1) index,
+    float32 (H, W)."""
 
+    def make(size: tuple[int, int]) -> F32:
+        index = np.arange(size[axis], dtype=np.float32)
+        return np.broadcast_to(index[:, None] if axis == 0 else index[None, :], size).copy()
 
-def _column_map(shape: tuple[int, ...]) -> F32:
-    """Each pixel's column index, float32 (H, W)."""
-    return _reused_image(
-        "columns",
-        shape,
-        lambda size: np.repeat(np.arange(size[1], dtype=np.float32)[None, :], size[0], axis=0),
-    )
+    return _reused_image(("index", axis), shape, make)
 
 
 def copy_where(dst: F32, src: F32, where: Mask) -> None:
@@ -86,7 +81,7 @@ def fill_where(dst: F32, value: float, where: Mask) -> None:
 def _match_columns(disparity: F32, valid: Mask) -> F32:
     """``x - d``: the column of each left pixel's match in the right image (float32 (H, W),
     ``x`` itself where invalid)."""
-    x = _column_map(disparity.shape)
+    x = _index_map(disparity.shape, 1)
     columns = np.subtract(x, disparity, dtype=np.float32)
     # OpenCV's masked copy, not np.where: this runs twice on every frame.
     copy_where(columns, x, ~valid)
@@ -98,7 +93,7 @@ def _at_match(image: NDArray[_Pixel], columns: F32) -> NDArray[_Pixel]:
     pixel's match. OpenCV's nearest-neighbour remap rounds like ``np.rint`` and replicates the
     border like a clip, at a fraction of ``np.take_along_axis``'s cost (it is on every frame)."""
     out = cv2.remap(
-        image, columns, _row_map(columns.shape), cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE
+        image, columns, _index_map(columns.shape, 0), cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE
     )
     return np.asarray(out, dtype=image.dtype)
 

@@ -28,6 +28,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from rig.subpixel import local_mean_variance
+
 __all__ = ["NORMALISED_GAIN", "MatcherViews", "matcher_input", "matcher_views"]
 
 U8 = NDArray[np.uint8]
@@ -46,19 +48,13 @@ def matcher_input(gray: U8, blur_sigma: float, window: int, eps: float) -> U8:
     image: U8 | F32 = gray
     if blur_sigma > 0.0:
         image = _f32(cv2.GaussianBlur(gray.astype(np.float32), (0, 0), blur_sigma))
-    if window <= 0:
-        return _rounded_u8(np.array(image, dtype=np.float32))
-    k = (window, window)
-    # From uint8 OpenCV sums integers: the mean and mean square are exact before the division.
-    mean = _f32(cv2.boxFilter(image, cv2.CV_32F, k))
-    scale = _f32(cv2.sqrBoxFilter(image, cv2.CV_32F, k))
-    out = _f32(cv2.multiply(mean, mean))
-    cv2.subtract(scale, out, dst=scale)
-    cv2.threshold(scale, 0.0, 0.0, cv2.THRESH_TOZERO, dst=scale)  # the variance, at least 0
+        if window <= 0:
+            return _rounded_u8(image)
+    mean, scale = local_mean_variance(image, window)
     cv2.sqrt(scale, dst=scale)
     scale += np.float32(eps)
     cv2.divide(NORMALISED_GAIN, scale, dst=scale)  # levels per grey level: gain / (σ + ε)
-    cv2.subtract(image, mean, dst=out, dtype=cv2.CV_32F)
+    out = _f32(cv2.subtract(image, mean, dst=mean, dtype=cv2.CV_32F))  # μ is spent: I − μ
     cv2.multiply(out, scale, dst=out)
     out += np.float32(128.0)
     return _rounded_u8(out)

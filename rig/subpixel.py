@@ -41,6 +41,7 @@ __all__ = [
     "Refinement",
     "RefinementInputs",
     "confidence_from_sigma",
+    "local_mean_variance",
     "normalise_contrast",
     "refine_disparity",
     "refine_rows",
@@ -85,20 +86,27 @@ def _row_map(h: int, w: int) -> F32:
 def normalise_contrast(img: U8) -> F32:
     """Local contrast normalisation ``(I − μ) / sqrt(σ² + ε²)`` over :data:`NORM_WINDOW`: the two
     cameras' gain and offset differences (exposure, vignetting at different field angles) would
-    otherwise leak into the intensity residual and bias the step. Means straight from the uint8
-    image (OpenCV sums integers), the rest in place with OpenCV's arithmetic (its ``sqrt`` is
-    half numpy's time on float32; both are exact IEEE operations): this runs on every frame."""
-    k = (NORM_WINDOW, NORM_WINDOW)
-    mu = _f32(cv2.boxFilter(img, cv2.CV_32F, k))
-    var = _f32(cv2.sqrBoxFilter(img, cv2.CV_32F, k))
-    out = _f32(cv2.multiply(mu, mu))
-    cv2.subtract(var, out, dst=var)
-    cv2.threshold(var, 0.0, 0.0, cv2.THRESH_TOZERO, dst=var)  # max(σ², 0): 8× np.maximum's speed
+    otherwise leak into the intensity residual and bias the step. In place with OpenCV's
+    arithmetic (its ``sqrt`` is half numpy's time on float32; both are exact IEEE operations):
+    this runs on every frame."""
+    mu, var = local_mean_variance(img, NORM_WINDOW)
     var += np.float32(NORM_EPS**2)
     cv2.sqrt(var, dst=var)
-    cv2.subtract(img, mu, dst=out, dtype=cv2.CV_32F)  # μ² is spent: its buffer takes the result
+    out = _f32(cv2.subtract(img, mu, dst=mu, dtype=cv2.CV_32F))  # μ is spent: its buffer takes I − μ
     cv2.divide(out, var, dst=out)
     return out
+
+
+def local_mean_variance(image: NDArray[np.uint8] | F32, window: int) -> tuple[F32, F32]:
+    """The mean and the variance (at least 0) of ``image`` (H, W) over ``window``² around each
+    pixel, float32, mirrored at the border (OpenCV's default). From a uint8 image OpenCV sums
+    integers: both are exact before the division."""
+    k = (window, window)
+    mean = _f32(cv2.boxFilter(image, cv2.CV_32F, k))
+    var = _f32(cv2.sqrBoxFilter(image, cv2.CV_32F, k))
+    cv2.subtract(var, cv2.multiply(mean, mean), dst=var)
+    cv2.threshold(var, 0.0, 0.0, cv2.THRESH_TOZERO, dst=var)  # max(σ², 0): 8× np.maximum's speed
+    return mean, var
 
 
 def _box(x: F32, window: int, out: F32 | None = None) -> F32:
