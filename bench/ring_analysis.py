@@ -44,12 +44,15 @@ from rig.stereo import StereoParams
 __all__ = [
     "PERTURBATIONS",
     "Bin",
+    "ConfidentRanges",
+    "CoverageLevel",
     "common_figures",
     "confidence_figures",
     "couple_bins",
     "coverage_bins",
     "coverage_with",
     "disparity_shares",
+    "matched_coverage",
     "only_points",
     "vertical_by_angle",
 ]
@@ -144,40 +147,122 @@ def disparity_shares(t: TransferredRange) -> dict[str, float]:
     return out
 
 
+Couples = Sequence[tuple[PairNames, PairNames, str]]
+
+
+@dataclass
+class ConfidentRanges:
+    """Each pair's range and confidence on each frame, the pipeline run once: the pixels above a
+    confidence threshold, their coverage and the couples' figures on them."""
+
+    pipelines: dict[PairNames, DepthPipeline]
+    #: Per pair, per frame: range (H, W) float32 m (NaN none) and confidence (0 where none).
+    outputs: dict[PairNames, list[tuple[NDArray[np.float32], NDArray[np.float32]]]]
+    views: dict[PairNames, NDArray[np.bool_]]
+    solid: dict[PairNames, F64]
+
+    @classmethod
+    def of(
+        cls, pipelines: dict[PairNames, DepthPipeline], frames: Sequence[dict[str, U8]]
+    ) -> ConfidentRanges:
+        outputs = {}
+        for p, pipe in pipelines.items():
+            outs = [pipe.process(f[p[0]], f[p[1]]) for f in frames]
+            outputs[p] = [
+                (o.range, o.confidence if o.confidence is not None else np.zeros_like(o.range)) for o in outs
+            ]
+        views = {
+            p: view_mask(pipe.luts[p[0]].valid, pipe.luts[p[1]].valid, pipe.stereo.blind_band_px)
+            for p, pipe in pipelines.items()
+        }
+        return cls(
+            pipelines,
+            outputs,
+            views,
+            {p: pixel_solid_angles(pipe.pair.camera) for p, pipe in pipelines.items()},
+        )
+
+    def above(self, pair: PairNames, frame: int, threshold: float) -> PairRange:
+        """``pair``'s range on ``frame`` where its confidence exceeds ``threshold`` (NaN elsewhere)."""
+        range_m, conf = self.outputs[pair][frame]
+        return PairRange(
+            self.pipelines[pair].pair,
+            np.where(conf > threshold, range_m, np.nan).astype(np.float32),
+            self.views[pair],
+        )
+
+    def coverage(self, threshold: float) -> float:
+        """The pairs' mean coverage (over pairs and frames) of the pixels above ``threshold``."""
+        return float(
+            np.mean([
+                range_coverage(self.above(p, i, threshold), self.solid[p])
+                for p, outs in self.outputs.items()
+                for i in range(len(outs))
+            ])
+        )  # fmt: skip
+
+    def threshold_for(self, coverage: float, steps: int = 24) -> float:
+        """The lowest confidence threshold whose mean coverage is at most ``coverage`` (−1: every
+        pixel, when that is already at most it), by bisection to 2^-``steps``."""
+        if self.coverage(-1.0) <= coverage:
+            return -1.0
+        lo, hi = -1.0, 1.0
+        for _ in range(steps):
+            mid = (lo + hi) / 2
+            lo, hi = (lo, mid) if self.coverage(mid) <= coverage else (mid, hi)
+        return hi
+
+    def figures(self, couples_: Couples, threshold: float) -> dict[str, ConsistencyFigures]:
+        """Each couple's figures over the pixels above ``threshold`` in both pairs."""
+        per: dict[str, ConsistencyFigures] = {}
+        for source, target, shared in couples_:
+            frames = range(len(self.outputs[source]))
+            parts = [
+                transfer_range(self.above(source, i, threshold), self.above(target, i, threshold), shared)
+                for i in frames
+            ]
+            per[f"{'|'.join(source)} → {'|'.join(target)}"] = ConsistencyFigures.of(
+                TransferredRange.concat(parts)
+            )
+        return per
+
+
 def confidence_figures(
     pipelines: dict[PairNames, DepthPipeline],
     frames: Sequence[dict[str, U8]],
-    couples_: Sequence[tuple[PairNames, PairNames, str]],
+    couples_: Couples,
     thresholds: Sequence[float],
 ) -> dict[float, dict[str, ConsistencyFigures]]:
     """Each couple's figures over the pixels whose confidence (:attr:`rig.pipeline.DepthFrame.
     confidence`) exceeds each threshold in both pairs."""
-    outs = {p: [pipe.process(f[p[0]], f[p[1]]) for f in frames] for p, pipe in pipelines.items()}
-    views = {
-        p: view_mask(pipe.luts[p[0]].valid, pipe.luts[p[1]].valid, pipe.stereo.blind_band_px)
-        for p, pipe in pipelines.items()
-    }
-    result: dict[float, dict[str, ConsistencyFigures]] = {}
-    for thr in thresholds:
-        per: dict[str, ConsistencyFigures] = {}
-        for source, target, shared in couples_:
-            parts = []
-            for i in range(len(frames)):
-                ranges = {}
-                for p in (source, target):
-                    out = outs[p][i]
-                    conf = out.confidence if out.confidence is not None else np.zeros_like(out.range)
-                    ranges[p] = PairRange(
-                        pipelines[p].pair,
-                        np.where(conf > thr, out.range, np.nan).astype(np.float32),
-                        views[p],
-                    )
-                parts.append(transfer_range(ranges[source], ranges[target], shared))
-            per[f"{'|'.join(source)} → {'|'.join(target)}"] = ConsistencyFigures.of(
-                TransferredRange.concat(parts)
-            )
-        result[thr] = per
-    return result
+    ranges = ConfidentRanges.of(pipelines, frames)
+    return {thr: ranges.figures(couples_, thr) for thr in thresholds}
+
+
+@dataclass(frozen=True)
+class CoverageLevel:
+    """One search at a coverage: the confidence ``threshold`` that brings it there, the mean
+    ``coverage`` reached and each couple's ``figures`` above the threshold."""
+
+    threshold: float
+    coverage: float
+    figures: dict[str, ConsistencyFigures]
+
+
+def matched_coverage(
+    searches: Sequence[ConfidentRanges], couples_: Couples, coverages: Sequence[float]
+) -> dict[float, list[CoverageLevel]]:
+    """Each search at each of ``coverages``: its most confident pixels (its own threshold) up
+    to that mean coverage. Two searches that range different amounts compared where each
+    keeps the same share of the overlap, as a precision-recall curve compares two detectors."""
+    out: dict[float, list[CoverageLevel]] = {}
+    for target in coverages:
+        levels = []
+        for s in searches:
+            thr = s.threshold_for(target)
+            levels.append(CoverageLevel(thr, s.coverage(thr), s.figures(couples_, thr)))
+        out[target] = levels
+    return out
 
 
 def coverage_bins(

@@ -11,7 +11,7 @@ frames; its OCamCalib models and poses, read by the test helper :mod:`tests.help
    true``; the exact search when the stereo settings ask for the coarse-to-fine one) on the same
    frames, both searches' figures on the points both give range for, and each search's points
    split by whether the other ranges their source pixel (what only one search ranges, against
-   the rest of its range).
+   the rest of its range), and both at the same coverage (each its most confident pixels).
 3. The same after ``rig calibrate refine``'s refinement of each pair on the ring's frames
    (:func:`rig.rectification.refine.refine_frames`, the library behind the command: it turns
    each pair's right camera; each pair then runs on its own refined calibration).
@@ -51,12 +51,14 @@ from bench.common import (
 )
 from bench.ring_analysis import (
     PERTURBATIONS,
+    ConfidentRanges,
     common_figures,
     confidence_figures,
     couple_bins,
     coverage_bins,
     coverage_with,
     disparity_shares,
+    matched_coverage,
     only_points,
     vertical_by_angle,
 )
@@ -204,6 +206,44 @@ def _versus_other_search(
         mine: _only_table(study, other_study, mine, other),
         other: _only_table(other_study, study, other, mine),
     }
+    out["matched_coverage"] = _matched_coverage_table(ring, {mine: study, other: other_study})
+    return out
+
+
+def _matched_coverage_table(ring: RealRing, studies: dict[str, ConsistencyStudy]) -> dict[str, Any]:
+    """Both searches at the same coverage: each keeps its most confident pixels down to the
+    smaller of their coverages, and to 3/4 and 1/2 of it (:func:`bench.ring_analysis.matched_coverage`)."""
+    names = list(studies)
+    first = next(iter(studies.values()))
+    couples_ = [(c.couple.source, c.couple.target, c.couple.shared) for c in first.couples]
+    searches = [
+        ConfidentRanges.of({p.names: p.pipeline for p in s.pairs}, ring.frames) for s in studies.values()
+    ]
+    least = min(float(np.mean([p.mean_coverage for p in s.pairs])) for s in studies.values())
+    levels = matched_coverage(searches, couples_, [least, 0.75 * least, 0.5 * least])
+    table = Table(title=f"2b. at the same coverage, each search's most confident pixels: {' / '.join(names)}")
+    for col in ("coverage", "confidence >", "couple (source → target)", "median |e|", "within 10 %"):
+        table.add_column(col, justify="right")
+    out: dict[str, Any] = {}
+    for target, per_search in levels.items():
+        for label in per_search[0].figures:
+            f = [lv.figures[label] for lv in per_search]
+            table.add_row(
+                " / ".join(f"{lv.coverage:.3f}" for lv in per_search),
+                " / ".join(f"{lv.threshold:.3f}" for lv in per_search),
+                label,
+                " / ".join(f"{100 * x.median_abs:.2f}" for x in f) + " %",
+                " / ".join(f"{x.within_10:.3f}" for x in f),
+            )
+        out[f"{target:.3f}"] = {
+            name: {
+                "threshold": lv.threshold,
+                "coverage": lv.coverage,
+                "figures": {k: v.as_dict() for k, v in lv.figures.items()},
+            }
+            for name, lv in zip(names, per_search, strict=True)
+        }
+    console.print(table)
     return out
 
 

@@ -278,6 +278,33 @@ def test_ring_analysis_splits_a_search_s_points_by_the_other_s_range(lut_cache: 
     assert all(only.both.sum() > 10000 for _, only in c2f_only.values())
 
 
+def test_matched_coverage_keeps_each_search_s_most_confident_pixels(lut_cache: Path) -> None:
+    """bench.ring_consistency 2b's comparison at the same coverage, on one real frame: with no
+    threshold it is the study itself; a threshold brings each search to the coverage asked for
+    from below; the pixels it keeps are the most confident ones."""
+    ring = load_ring(shared_file(RING_DIR))
+    frames = ring.frames[:1]
+    study = consistency_study(ring.rig, frames, cache_dir=str(lut_cache))
+    ranges = ring_analysis.ConfidentRanges.of({p.names: p.pipeline for p in study.pairs}, frames)
+    couples_ = [(c.couple.source, c.couple.target, c.couple.shared) for c in study.couples]
+    mean_coverage = float(np.mean([p.mean_coverage for p in study.pairs]))
+    assert ranges.coverage(-1.0) == pytest.approx(mean_coverage, abs=1e-9)
+    assert ranges.threshold_for(mean_coverage + 0.01) == -1.0
+    whole = ranges.figures(couples_, -1.0)
+    for c in study.couples:
+        assert whole[c.couple.label] == c.figures
+    target = 0.6 * mean_coverage
+    (level,) = ring_analysis.matched_coverage([ranges], couples_, [target])[target]
+    assert 0.0 < level.threshold < 1.0
+    assert target - 0.01 < level.coverage <= target  # bisection to 2^-24 of the threshold
+    pair = study.pairs[0].names
+    kept = ranges.above(pair, 0, level.threshold).range
+    conf = ranges.outputs[pair][0][1]
+    dropped = np.isfinite(ranges.outputs[pair][0][0]) & np.isnan(kept)
+    assert dropped.any() and conf[dropped].max() <= level.threshold < conf[np.isfinite(kept)].min()
+    assert all(f.both < whole[label].both for label, f in level.figures.items())
+
+
 def test_ring_cost_bench_times_the_pairs_and_the_panorama(bench_env: Path, tmp_path: Path) -> None:
     path = tmp_path / "ring_cost.json"
     doc = _written(path, ring_cost.main(["--quick", "--panorama-px-per-deg", "1.5", "--json", str(path)]))
