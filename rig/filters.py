@@ -18,6 +18,7 @@ __all__ = [
     "TemporalFilter",
     "copy_where",
     "fill_where",
+    "index_map",
     "left_right_consistent",
     "median_filter",
     "visible_in_right",
@@ -51,9 +52,9 @@ def _constant_image(shape: tuple[int, ...], value: float) -> F32:
     return _reused_image(bits, shape, lambda size: np.full(size, bits, dtype=np.uint32).view(np.float32))
 
 
-def _index_map(shape: tuple[int, ...], axis: int) -> F32:
+def index_map(shape: tuple[int, ...], axis: int) -> F32:
     """Each pixel's row (``axis`` 0: the y map of a remap along rows) or column (1) index,
-    float32 (H, W)."""
+    float32 (H, W), read-only (reused from frame to frame)."""
 
     def make(size: tuple[int, int]) -> F32:
         index = np.arange(size[axis], dtype=np.float32)
@@ -81,7 +82,7 @@ def fill_where(dst: F32, value: float, where: Mask) -> None:
 def _match_columns(disparity: F32, valid: Mask) -> F32:
     """``x - d``: the column of each left pixel's match in the right image (float32 (H, W),
     ``x`` itself where invalid)."""
-    x = _index_map(disparity.shape, 1)
+    x = index_map(disparity.shape, 1)
     columns = np.subtract(x, disparity, dtype=np.float32)
     # OpenCV's masked copy, not np.where: this runs twice on every frame.
     copy_where(columns, x, ~valid)
@@ -93,7 +94,7 @@ def _at_match(image: NDArray[_Pixel], columns: F32) -> NDArray[_Pixel]:
     pixel's match. OpenCV's nearest-neighbour remap rounds like ``np.rint`` and replicates the
     border like a clip, at a fraction of ``np.take_along_axis``'s cost (it is on every frame)."""
     out = cv2.remap(
-        image, columns, _index_map(columns.shape, 0), cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE
+        image, columns, index_map(columns.shape, 0), cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE
     )
     return np.asarray(out, dtype=image.dtype)
 

@@ -25,7 +25,6 @@ least-squares prediction of the disparity's standard deviation ``σ_d = sqrt(Σ_
 
 from __future__ import annotations
 
-import functools
 from concurrent.futures import Executor
 from dataclasses import dataclass
 
@@ -34,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from rig.bands import run_in_bands, submit_or_run
-from rig.filters import copy_where, fill_where
+from rig.filters import copy_where, fill_where, index_map
 
 __all__ = [
     "Normalisation",
@@ -73,14 +72,6 @@ def _x_derivative(img: F32) -> F32:
     return np.asarray(
         cv2.filter2D(img, cv2.CV_32F, _DERIV5, borderType=cv2.BORDER_REPLICATE), dtype=np.float32
     )
-
-
-@functools.lru_cache(maxsize=8)
-def _row_map(h: int, w: int) -> F32:
-    """The row map (h, w) float32 for remap (each pixel's row index); cached per size."""
-    ys = np.ascontiguousarray(np.broadcast_to(np.arange(h, dtype=np.float32)[:, None], (h, w)))
-    ys.flags.writeable = False
-    return ys
 
 
 def normalise_contrast(img: U8) -> F32:
@@ -223,7 +214,7 @@ def refine_rows(
     L, R, gL, gR, d_clean = inputs.L, inputs.R, inputs.gL, inputs.gR, inputs.d_clean
     h, w = L.shape
     xs = np.arange(inputs.x0, inputs.x0 + w, dtype=np.float32)[None, :]
-    ys = _row_map(h, R.shape[1])[:, :w]  # cached whole rows: a window's width may change
+    ys = index_map((h, w), 0)
     d0 = np.rint(d_clean)
     # Integer gather R(x - d0) and ∂R(x - d0) through remap (nearest: exact on integer maps).
     map_x = np.subtract(xs, d0)
