@@ -47,7 +47,6 @@ __all__ = [
     "ConfidentRanges",
     "CoverageLevel",
     "common_figures",
-    "confidence_figures",
     "couple_bins",
     "coverage_bins",
     "coverage_with",
@@ -147,24 +146,22 @@ def disparity_shares(t: TransferredRange) -> dict[str, float]:
     return out
 
 
-Couples = Sequence[tuple[PairNames, PairNames, str]]
-
-
 @dataclass
 class ConfidentRanges:
-    """Each pair's range and confidence on each frame, the pipeline run once: the pixels above a
-    confidence threshold, their coverage and the couples' figures on them."""
+    """A study's pairs run once more on its frames, keeping each one's range and confidence: the
+    pixels above a confidence threshold, their coverage and the study's couples' figures on them."""
 
     pipelines: dict[PairNames, DepthPipeline]
+    #: The study's couples: (source pair, target pair, shared camera).
+    couples: list[tuple[PairNames, PairNames, str]]
     #: Per pair, per frame: range (H, W) float32 m (NaN none) and confidence (0 where none).
     outputs: dict[PairNames, list[tuple[NDArray[np.float32], NDArray[np.float32]]]]
     views: dict[PairNames, NDArray[np.bool_]]
     solid: dict[PairNames, F64]
 
     @classmethod
-    def of(
-        cls, pipelines: dict[PairNames, DepthPipeline], frames: Sequence[dict[str, U8]]
-    ) -> ConfidentRanges:
+    def of_study(cls, study: ConsistencyStudy, frames: Sequence[dict[str, U8]]) -> ConfidentRanges:
+        pipelines = {p.names: p.pipeline for p in study.pairs}
         outputs = {}
         for p, pipe in pipelines.items():
             outs = [pipe.process(f[p[0]], f[p[1]]) for f in frames]
@@ -177,6 +174,7 @@ class ConfidentRanges:
         }
         return cls(
             pipelines,
+            [(c.couple.source, c.couple.target, c.couple.shared) for c in study.couples],
             outputs,
             views,
             {p: pixel_solid_angles(pipe.pair.camera) for p, pipe in pipelines.items()},
@@ -212,10 +210,11 @@ class ConfidentRanges:
             lo, hi = (lo, mid) if self.coverage(mid) <= coverage else (mid, hi)
         return hi
 
-    def figures(self, couples_: Couples, threshold: float) -> dict[str, ConsistencyFigures]:
-        """Each couple's figures over the pixels above ``threshold`` in both pairs."""
+    def figures(self, threshold: float) -> dict[str, ConsistencyFigures]:
+        """Each couple's figures over the pixels whose confidence (:attr:`rig.pipeline.DepthFrame.
+        confidence`) exceeds ``threshold`` in both pairs."""
         per: dict[str, ConsistencyFigures] = {}
-        for source, target, shared in couples_:
+        for source, target, shared in self.couples:
             frames = range(len(self.outputs[source]))
             parts = [
                 transfer_range(self.above(source, i, threshold), self.above(target, i, threshold), shared)
@@ -225,18 +224,6 @@ class ConfidentRanges:
                 TransferredRange.concat(parts)
             )
         return per
-
-
-def confidence_figures(
-    pipelines: dict[PairNames, DepthPipeline],
-    frames: Sequence[dict[str, U8]],
-    couples_: Couples,
-    thresholds: Sequence[float],
-) -> dict[float, dict[str, ConsistencyFigures]]:
-    """Each couple's figures over the pixels whose confidence (:attr:`rig.pipeline.DepthFrame.
-    confidence`) exceeds each threshold in both pairs."""
-    ranges = ConfidentRanges.of(pipelines, frames)
-    return {thr: ranges.figures(couples_, thr) for thr in thresholds}
 
 
 @dataclass(frozen=True)
@@ -250,7 +237,7 @@ class CoverageLevel:
 
 
 def matched_coverage(
-    searches: Sequence[ConfidentRanges], couples_: Couples, coverages: Sequence[float]
+    searches: Sequence[ConfidentRanges], coverages: Sequence[float]
 ) -> dict[float, list[CoverageLevel]]:
     """Each search at each of ``coverages``: its most confident pixels (its own threshold) up
     to that mean coverage. Two searches that range different amounts compared where each
@@ -260,7 +247,7 @@ def matched_coverage(
         levels = []
         for s in searches:
             thr = s.threshold_for(target)
-            levels.append(CoverageLevel(thr, s.coverage(thr), s.figures(couples_, thr)))
+            levels.append(CoverageLevel(thr, s.coverage(thr), s.figures(thr)))
         out[target] = levels
     return out
 

@@ -53,7 +53,6 @@ from bench.ring_analysis import (
     PERTURBATIONS,
     ConfidentRanges,
     common_figures,
-    confidence_figures,
     couple_bins,
     coverage_bins,
     coverage_with,
@@ -169,10 +168,16 @@ SEARCH_NAMES = {True: "coarse-to-fine", False: "exact"}
 
 
 def _versus_other_search(
-    ring: RealRing, pairs: Sequence[PairNames], stereo: StereoParams, study: ConsistencyStudy, cache: str
+    ring: RealRing,
+    pairs: Sequence[PairNames],
+    stereo: StereoParams,
+    study: ConsistencyStudy,
+    confident: ConfidentRanges,
+    cache: str,
 ) -> dict[str, Any]:
     """2b. The other search (the exact one's coarse-to-fine option, or back) on the same frames,
-    and both searches' figures on the pixels where both give range (each pair, each frame)."""
+    and both searches' figures on the pixels where both give range (each pair, each frame);
+    ``confident``: ``study``'s pairs with their confidence."""
     mine, theirs_c2f = SEARCH_NAMES[stereo.coarse_to_fine], not stereo.coarse_to_fine
     other = SEARCH_NAMES[theirs_c2f]
     other_study = consistency_study(
@@ -206,21 +211,18 @@ def _versus_other_search(
         mine: _only_table(study, other_study, mine, other),
         other: _only_table(other_study, study, other, mine),
     }
-    out["matched_coverage"] = _matched_coverage_table(ring, {mine: study, other: other_study})
+    searches = {mine: confident, other: ConfidentRanges.of_study(other_study, ring.frames)}
+    least = min(float(np.mean([p.mean_coverage for p in s.pairs])) for s in (study, other_study))
+    out["matched_coverage"] = _matched_coverage_table(searches, least)
     return out
 
 
-def _matched_coverage_table(ring: RealRing, studies: dict[str, ConsistencyStudy]) -> dict[str, Any]:
-    """Both searches at the same coverage: each keeps its most confident pixels down to the
-    smaller of their coverages, and to 3/4 and 1/2 of it (:func:`bench.ring_analysis.matched_coverage`)."""
-    names = list(studies)
-    first = next(iter(studies.values()))
-    couples_ = [(c.couple.source, c.couple.target, c.couple.shared) for c in first.couples]
-    searches = [
-        ConfidentRanges.of({p.names: p.pipeline for p in s.pairs}, ring.frames) for s in studies.values()
-    ]
-    least = min(float(np.mean([p.mean_coverage for p in s.pairs])) for s in studies.values())
-    levels = matched_coverage(searches, couples_, [least, 0.75 * least, 0.5 * least])
+def _matched_coverage_table(searches: dict[str, ConfidentRanges], least: float) -> dict[str, Any]:
+    """The searches at the same coverage: each keeps its most confident pixels down to ``least``
+    (the smaller of their coverages), and to 3/4 and 1/2 of it
+    (:func:`bench.ring_analysis.matched_coverage`)."""
+    names = list(searches)
+    levels = matched_coverage(list(searches.values()), [least, 0.75 * least, 0.5 * least])
     table = Table(title=f"2b. at the same coverage, each search's most confident pixels: {' / '.join(names)}")
     for col in ("coverage", "confidence >", "couple (source → target)", "median |e|", "within 10 %"):
         table.add_column(col, justify="right")
@@ -323,7 +325,11 @@ def _refined(
 
 
 def _analysis(
-    ring: RealRing, study: ConsistencyStudy, pairs: Sequence[PairNames], cache: str
+    ring: RealRing,
+    study: ConsistencyStudy,
+    confident: ConfidentRanges,
+    pairs: Sequence[PairNames],
+    cache: str,
 ) -> dict[str, Any]:
     out: dict[str, Any] = {"couples": {}, "coverage": {}}
     for c in study.couples:
@@ -344,13 +350,7 @@ def _analysis(
             + ", ".join(f"{k} {v:.2f}" for k, v in shares.items())
         )
         out["couples"][c.couple.label] = {"bins": rows, "disparity": shares}
-    pipes = {p.names: p.pipeline for p in study.pairs}
-    trusted = confidence_figures(
-        pipes,
-        ring.frames,
-        [(c.couple.source, c.couple.target, c.couple.shared) for c in study.couples],
-        (0.3, 0.6),
-    )
+    trusted = {thr: confident.figures(thr) for thr in (0.3, 0.6)}
     table = Table(title="4. the pixels the pipeline's confidence trusts (both pairs above the threshold)")
     table.add_column("confidence >")
     table.add_column("couple")
@@ -500,15 +500,17 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     )
     results["stereo"] = stereo.model_dump()
     results["today"] = _print_study(f"2. {settings}, the ring's calibration", study)
-    if versus:
-        results["versus_other_search"] = _versus_other_search(ring, pairs, stereo, study, cache)
+    # The pairs once more with their confidence, for 2b and 4 alike.
+    confident = ConfidentRanges.of_study(study, ring.frames) if keep or versus else None
+    if confident is not None and versus:
+        results["versus_other_search"] = _versus_other_search(ring, pairs, stereo, study, confident, cache)
     if not args.quick:
         rigs, results["refinement"] = _refined(ring, pairs, matches)
         refined = consistency_study(ring.rig, ring.frames, pairs, stereo=stereo, cache_dir=cache, rigs=rigs)
         results["refined"] = _print_study(f"3. {settings}, each pair refined", refined)
         results["ring_refined"] = _ring_refined(ring, stereo, settings, cache)
-    if keep:
-        results["analysis"] = _analysis(ring, study, pairs, cache)
+    if confident is not None and keep:
+        results["analysis"] = _analysis(ring, study, confident, pairs, cache)
     if args.renders:
         results["renders"] = _renders(ring, pairs, cache)
     return finish("ring_consistency", info, results, args.json, None)

@@ -285,16 +285,15 @@ def test_matched_coverage_keeps_each_search_s_most_confident_pixels(lut_cache: P
     ring = load_ring(shared_file(RING_DIR))
     frames = ring.frames[:1]
     study = consistency_study(ring.rig, frames, cache_dir=str(lut_cache))
-    ranges = ring_analysis.ConfidentRanges.of({p.names: p.pipeline for p in study.pairs}, frames)
-    couples_ = [(c.couple.source, c.couple.target, c.couple.shared) for c in study.couples]
+    ranges = ring_analysis.ConfidentRanges.of_study(study, frames)
     mean_coverage = float(np.mean([p.mean_coverage for p in study.pairs]))
     assert ranges.coverage(-1.0) == pytest.approx(mean_coverage, abs=1e-9)
     assert ranges.threshold_for(mean_coverage + 0.01) == -1.0
-    whole = ranges.figures(couples_, -1.0)
+    whole = ranges.figures(-1.0)
     for c in study.couples:
         assert whole[c.couple.label] == c.figures
     target = 0.6 * mean_coverage
-    (level,) = ring_analysis.matched_coverage([ranges], couples_, [target])[target]
+    (level,) = ring_analysis.matched_coverage([ranges], [target])[target]
     assert 0.0 < level.threshold < 1.0
     assert target - 0.01 < level.coverage <= target  # bisection to 2^-24 of the threshold
     pair = study.pairs[0].names
