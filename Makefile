@@ -31,8 +31,12 @@ demo: $(RUN_STAMP)
 # they start already fill the cores, and OpenBLAS's idle threads spinning beside them cost time.
 # Bytecode is written even where the environment says not to (PYTHONDONTWRITEBYTECODE): the suite
 # starts hundreds of Python processes, each of which would compile the package again.
+# Then the tests marked `alone` (the load test), by themselves: they measure the service under a
+# load they make, which the other workers' tests would add to by an amount nobody chose.
+TEST_ENV := PYTHONDONTWRITEBYTECODE= OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1
 test: $(DEV_STAMP)
-	PYTHONDONTWRITEBYTECODE= OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(BIN)/python -m pytest -n 3 --dist loadscope --no-loadscope-reorder
+	$(TEST_ENV) $(BIN)/python -m pytest -n 3 --dist loadscope --no-loadscope-reorder -m "not alone"
+	$(TEST_ENV) $(BIN)/python -m pytest -m alone
 
 ## lint: ruff (rules, complexity <= 15, format), mypy --strict, import layering (cli -> service -> rig -> calibration)
 lint: $(DEV_STAMP)

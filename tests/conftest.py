@@ -61,7 +61,6 @@ LONGEST_MODULES = (
     "tests/reliability/test_camera_faults.py",
     "tests/calibration/test_corner_refine.py",
     "tests/calibration/test_calibrate_renders.py",
-    "tests/reliability/test_load.py",
     "tests/rig/test_ring_render.py",
     "tests/reliability/test_hostile_clients.py",
     "tests/calibration/test_calibrate.py",

@@ -86,19 +86,18 @@ def steady_pixel(live: LiveServer, truth: np.ndarray) -> tuple[int, int]:
 
 def hover(page: Any, element: str, u: int, v: int) -> None:
     """The pointer on pixel (u, v) of the image ``element``."""
-    box = page.locator(f"#{element}").bounding_box()
-    # Read in one go once decoded: a refreshed src has no size until its frame decodes.
-    size = (
-        f"(() => {{ const e = document.getElementById({element!r});"
-        " return e.naturalWidth > 0 ? [e.naturalWidth, e.naturalHeight] : null; })()"
+    # Read in one go once decoded (a refreshed src has no size until its frame decodes), and the
+    # box with it, just before the move: a reason line above the images that comes and goes (a
+    # loaded machine's moment of degraded) moves them.
+    geometry = (
+        f"(() => {{ const e = document.getElementById({element!r}); const r = e.getBoundingClientRect();"
+        " return e.naturalWidth > 0 ? [e.naturalWidth, e.naturalHeight, r.x, r.y, r.width, r.height]"
+        " : null; })()"
     )
-    width, height = page.wait_for_function(size, timeout=20_000).json_value()
+    width, height, x, y, box_w, box_h = page.wait_for_function(geometry, timeout=20_000).json_value()
     # Chromium reports whole CSS pixels for the pointer: pick the whole position whose pixel, by
     # the page's floor((x - left) / width * naturalWidth), is (u, v).
-    page.mouse.move(
-        _whole_position(box["x"], box["width"] / width, u),
-        _whole_position(box["y"], box["height"] / height, v),
-    )
+    page.mouse.move(_whole_position(x, box_w / width, u), _whole_position(y, box_h / height, v))
 
 
 def _whole_position(start: float, scale: float, pixel: int) -> float:
