@@ -145,12 +145,21 @@ class CameraSupervisor:
 
     # ----- threads -----------------------------------------------------------------------------
     def _watchdog(self) -> None:
-        while not self._stop.wait(min(0.05, self._watchdog_s() / 5)):
+        """Judges the camera's silence by the time the process ran. A tick that comes late by more
+        than a period was held off with the whole process (on a starved machine, the GIL held
+        by a thread the kernel does not run), and the capture thread with it; so the time beyond
+        two periods is not the camera's: it is taken off the silence until the next frame."""
+        last_tick, held_off, seen_ref = self._clock(), 0, 0
+        while not self._stop.wait(period := min(0.05, self._watchdog_s() / 5)):
             limit = self._watchdog_s()
             now = self._clock()
+            late, last_tick = now - last_tick - 2 * int(period * 1e9), now
             with self._lock:
                 ref = max(self._last_frame_ns or 0, self._opened_ns or 0)
-                age = (now - ref) / 1e9
+                if ref != seen_ref:
+                    seen_ref, held_off = ref, 0
+                held_off = min(held_off + max(0, late), now - ref)  # none of it before the frame
+                age = (now - ref - held_off) / 1e9
                 silent = bool(ref) and self._state == "available" and age > limit
                 stalled = bool(ref) and self._state == "unavailable" and self._opened_ns is not None
             if silent:

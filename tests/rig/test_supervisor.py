@@ -128,6 +128,30 @@ def test_watchdog_reports_a_silent_camera_and_reconnects() -> None:
         sup.stop()
 
 
+def test_watchdog_does_not_count_a_stall_of_the_process_as_silence() -> None:
+    """A stall of the whole process (here the supervisor's clock jumping 5 s between two watchdog
+    ticks, as a starved machine's would) is not the camera's silence: the camera is reported
+    only once it has been silent for the watchdog's limit of the time the process ran."""
+    offset = [0]
+    cam = ScriptedCamera()
+    cfg = FAST_SUPERVISOR.model_copy(update={"watchdog_s": 0.5, "reconnect_after_s": 60.0})
+    sup = CameraSupervisor(cam, cfg, (got := []).append, clock=lambda: time.monotonic_ns() + offset[0])
+    sup.start()
+    try:
+        wait_for(lambda: len(got) >= 2)
+        cam.mode = "silent"
+        t0 = time.monotonic()
+        offset[0] = 5_000_000_000  # the watchdog's next tick comes 5 s after the one before
+        wait_for(lambda: sup.state[0] == "unavailable", 10)
+        silent_s, reason = time.monotonic() - t0, sup.state[1]
+    finally:
+        sup.stop()
+    # Counted as silence, the stall would have made it fire at the next tick (50 ms); a loaded
+    # machine only makes it later.
+    assert silent_s > 0.35, silent_s
+    assert reason == "no frame for more than 0.50 s"
+
+
 @pytest.mark.parametrize(
     "mode,words", [("future", "ahead of the host clock"), ("past", "behind the host clock")]
 )
