@@ -182,8 +182,9 @@ COUNTERS: tuple[CounterSpec, ...] = (
         "timestamp_errors",
         "counter",
         "frames",
-        "frames refused because a host-clock timestamp was more than max_clock_offset_ms from "
-        "the arrival time or did not increase; each triggers a reconnect",
+        "frames refused because a host-clock timestamp was more than max_clock_offset_ms before "
+        "the read that took the frame, more than max_future_ms after its arrival, or did not "
+        "increase; each triggers a reconnect",
     ),
     _camera(
         "corrupt_per_s",

@@ -168,7 +168,7 @@ class SupervisorConfig(SettingsModel):
     backoff_max_s: float = Field(5.0, gt=0.0)
     usb_reset_after: int = Field(5, ge=0, description="failed reopens before a USB reset; 0 = never")
     max_clock_offset_ms: float = Field(
-        500.0, gt=0.0, description="host-clock timestamps older than this at arrival are rejected"
+        500.0, gt=0.0, description="host-clock timestamps older than this when their read began are rejected"
     )
     max_future_ms: float = Field(
         20.0, ge=0.0, description="host-clock timestamps later than their arrival by this are rejected"

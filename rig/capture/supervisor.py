@@ -213,6 +213,7 @@ class CameraSupervisor:
                         self._opened_ns = None
                     opened, attempt = False, 1
                     continue
+                asked = self._clock()
                 try:
                     frame = cam.read(self.config.read_timeout_s)
                 except EndOfStream as err:
@@ -231,7 +232,7 @@ class CameraSupervisor:
                     opened, attempt = False, 0
                     continue
                 if frame is not None:
-                    self._accept(frame)
+                    self._accept(frame, asked)
         finally:
             cam.close()
 
@@ -249,7 +250,7 @@ class CameraSupervisor:
             self.counters.add("usb_resets")
         log.warning("camera %s: %s", self.name, what)
 
-    def _accept(self, frame: Frame) -> None:
+    def _accept(self, frame: Frame, asked_ns: int) -> None:
         now = self._clock()
         with self._lock:
             if self._fresh_open:
@@ -271,7 +272,7 @@ class CameraSupervisor:
                 self.counters.add("frames_corrupt")
             self._error(str(err), unavailable=False)
             return
-        problem = self._timestamp_problem(frame)
+        problem = self._timestamp_problem(frame, now - asked_ns)
         if problem:
             with self._lock:
                 self.counters.add("timestamp_errors")
@@ -297,14 +298,18 @@ class CameraSupervisor:
             return self._consumer_waiting is None or self._consumer_waiting()
         return bool(mode)
 
-    def _timestamp_problem(self, frame: Frame) -> str | None:
-        # A capture time cannot lie after the frame's arrival (same clock), nor long before it.
+    def _timestamp_problem(self, frame: Frame, read_ns: int) -> str | None:
+        """A capture time cannot lie after the frame's arrival (same clock), nor long before the
+        read that took it was asked for: the read's own time (``read_ns``, the capture thread's
+        clock) is not held against the camera, since a process held off inside the read (a
+        starved machine) stamps the frame's arrival late without any fault of its clock."""
         if not self._info.host_clock:
             return None
         offset_ms = (frame.ts_ns - frame.host_ns) / 1e6
         if offset_ms > self.config.max_future_ms:
             return f"timestamp {offset_ms / 1e3:.3f} s ahead of the host clock (clock jump)"
-        if -offset_ms > self.config.max_clock_offset_ms:
+        before_ask_ms = -offset_ms - max(0, read_ns) / 1e6
+        if before_ask_ms > self.config.max_clock_offset_ms:
             return f"timestamp {-offset_ms / 1e3:.3f} s behind the host clock (clock jump or stale frame)"
         if self._last_ts is not None and frame.ts_ns <= self._last_ts:
             return f"timestamp went back {(self._last_ts - frame.ts_ns) / 1e6:.1f} ms"

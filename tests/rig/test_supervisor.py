@@ -28,7 +28,7 @@ class ScriptedCamera:
     name = "left"
 
     def __init__(self, ts_source: str = "live") -> None:
-        self.mode = "ok"  # ok | silent | unplugged | corrupt | future | past | end
+        self.mode = "ok"  # ok | silent | held_off | unplugged | corrupt | future | past | end
         self.open_fails_with: str | None = None
         self.opens = 0
         self.seq = 0
@@ -70,6 +70,8 @@ class ScriptedCamera:
             raise cv2.error("VIDIOC_DQBUF failed")
         now = time.monotonic_ns()
         ts = {"future": now + 2_000_000_000, "past": now - 2_000_000_000}.get(mode, now)
+        if mode == "held_off":  # taken at once, but the process is held off before its arrival
+            time.sleep(0.8)
         raw = JPEG[: len(JPEG) // 2] if mode == "corrupt" else JPEG
         self.seq += self.seq_step
         return Frame("left", self.seq, ts, "jpeg", time.monotonic_ns(), raw=raw)
@@ -170,6 +172,25 @@ def test_timestamp_errors_are_counted_and_trigger_a_reconnect(mode: str, words: 
         assert all(abs(f.ts_ns - f.host_ns) < 1e9 for f in got)
     finally:
         sup.stop()
+
+
+def test_a_frame_stamped_late_by_a_held_off_read_is_not_a_clock_error() -> None:
+    """A frame taken at once but stamped on arrival 0.8 s later (the process held off inside the
+    read) is 0.8 s behind the host clock, more than max_clock_offset_ms (0.5 s); it was not
+    taken before the read was asked for, so it is no clock jump: accepted, no reconnect."""
+    cam = ScriptedCamera()
+    sup, got = start(cam, FAST_SUPERVISOR.model_copy(update={"watchdog_s": 5.0}))
+    try:
+        wait_for(lambda: len(got) >= 2)
+        cam.mode = "held_off"
+        n = len(got)
+        wait_for(lambda: len(got) >= n + 2, 10, "two frames stamped late to be accepted")
+        held_off = [f for f in got[n:] if f.host_ns - f.ts_ns > 0.5e9]
+        counters = sup.health().counters
+    finally:
+        sup.stop()
+    assert held_off, [(f.host_ns - f.ts_ns) / 1e9 for f in got[n:]]
+    assert (counters["timestamp_errors"], cam.opens) == (0, 1), counters
 
 
 def test_backwards_timestamps_on_a_host_clock_are_rejected() -> None:
