@@ -33,9 +33,8 @@ from tests.helpers.command import Served, clean_env, start_serve, wait_healthy
 from tests.helpers.service import LOAD_REASONS, write_serve_config
 from tests.helpers.waiting import wait_for
 
-# Alone (make test runs it after the parallel suite): in one CI run beside the other workers'
-# tests it served 5,140 requests in the 15 s (20,580 by itself) and a capture thread starved for
-# more than the deployed 0.5 s watchdog; the load it judges is its own 32 clients.
+# Alone (make test runs it after the parallel suite): the load it judges is its own 32 clients',
+# not the other workers' tests beside them (docs/development.md, "Markers").
 pytestmark = [pytest.mark.slow, pytest.mark.alone, pytest.mark.timeout(600)]
 
 DURATION_S = 15.0
