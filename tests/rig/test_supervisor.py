@@ -195,7 +195,6 @@ def test_a_frame_stamped_late_by_a_held_off_read_is_not_a_clock_error() -> None:
 
 def test_backwards_timestamps_on_a_host_clock_are_rejected() -> None:
     cam = ScriptedCamera()
-    sup, got = start(cam)
     real_read = cam.read
 
     def read_back(timeout_s: float) -> Frame | None:
@@ -204,7 +203,10 @@ def test_backwards_timestamps_on_a_host_clock_are_rejected() -> None:
             f.ts_ns -= 100_000_000  # 100 ms back: within the offset tolerance, but not monotonic
         return f
 
+    # Before the capture thread starts: patched after it, a test thread held off for 50 ms saw
+    # frame 5 read unpatched (one fresh-clone make test).
     cam.read = read_back  # type: ignore[method-assign]
+    sup, got = start(cam)
     try:
         wait_for(lambda: sup.counters["timestamp_errors"] == 1 and len(got) >= 8)
         assert "went back" in (sup.health().last_error or "")
